@@ -1,0 +1,3 @@
+from ocalib.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,46 @@
+"""The ``ocalib`` command line: one module per sub-command.
+
+Each module in :data:`COMMANDS` defines ``add_parser(subparsers, name)`` (returning its parser) and
+``run(args) -> int``. Command modules import torch and friends inside ``run`` so that
+``ocalib --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ocalib.errors import InputError
+
+# command name -> module under ocalib.cli, one line each.
+COMMANDS = {
+    "simulate": "simulate",
+    "calibrate-poses": "calibrate_poses",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ocalib", description="On-line calibration of non-overlapping multi-camera rigs from ego-motion."
+    )
+    parser.add_argument("--version", action="version", version=f"ocalib {__import__('ocalib').__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, module in COMMANDS.items():
+        mod = importlib.import_module(f"ocalib.cli.{module}")
+        p = mod.add_parser(sub, name)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 1
+    try:
+        return int(args._run(args) or 0)
+    except (InputError, FileNotFoundError) as err:
+        print(f"ocalib {args.command}: error: {err}", file=sys.stderr)
+        return 2

@@ -1,0 +1,1 @@
+"""Datasets: the native rig layout and loaders for real sequence layouts."""

@@ -1,0 +1,87 @@
+"""The native rig layout's description, ``DIR/rig.yaml``.
+
+```
+frame_rate: 10.0
+cameras:
+  - name: cam0
+    width: 416
+    height: 128
+    K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]     # pixels, integer pixel centres
+    T_cam0_cam: [[...4 rows of 4...]]            # pose of this camera in camera 0's frame
+```
+
+Convention: ``T_cam0_cam`` maps points of this camera into camera 0 (``p_cam0 = R p_cam + t``); it is
+the identity for camera 0. A camera's pose in the world is camera 0's pose times ``T_cam0_cam``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ocalib.errors import InputError
+
+
+@dataclass
+class CameraSpec:
+    name: str
+    width: int
+    height: int
+    K: np.ndarray  # (3, 3) float64, pixels
+    T_cam0_cam: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) float64
+
+
+@dataclass
+class RigSpec:
+    cameras: list[CameraSpec]
+    frame_rate: float = 10.0
+
+    def camera(self, name: str) -> CameraSpec:
+        for cam in self.cameras:
+            if cam.name == name:
+                return cam
+        raise InputError(f"no camera named {name!r} in the rig (cameras: {', '.join(c.name for c in self.cameras)})")
+
+
+def write_rig_yaml(path: str | Path, rig: RigSpec) -> None:
+    data = {
+        "frame_rate": float(rig.frame_rate),
+        "cameras": [
+            {
+                "name": c.name,
+                "width": int(c.width),
+                "height": int(c.height),
+                "K": np.asarray(c.K, dtype=float).tolist(),
+                "T_cam0_cam": np.asarray(c.T_cam0_cam, dtype=float).tolist(),
+            }
+            for c in rig.cameras
+        ],
+    }
+    Path(path).write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+
+
+def read_rig_yaml(path: str | Path) -> RigSpec:
+    """Read ``rig.yaml``; every problem is an :class:`InputError` naming the file and field."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise InputError(f"{path}: not valid YAML ({err})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("cameras"), list) or not data["cameras"]:
+        raise InputError(f"{path}: expected a mapping with a non-empty 'cameras' list")
+    cameras = []
+    for i, c in enumerate(data["cameras"]):
+        where = f"{path}: cameras[{i}]"
+        try:
+            K = np.asarray(c["K"], dtype=np.float64)
+            T = np.asarray(c.get("T_cam0_cam", np.eye(4)), dtype=np.float64)
+            cam = CameraSpec(str(c["name"]), int(c["width"]), int(c["height"]), K, T)
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"{where}: missing or malformed field ({err})") from None
+        if K.shape != (3, 3) or T.shape != (4, 4) or not (np.isfinite(K).all() and np.isfinite(T).all()):
+            raise InputError(f"{where}: K must be 3x3 and T_cam0_cam 4x4, all finite")
+        cameras.append(cam)
+    return RigSpec(cameras, float(data.get("frame_rate", 10.0)))

@@ -1,0 +1,1 @@
+"""File formats: pose files (KITTI, TUM)."""
