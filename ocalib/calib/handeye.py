@@ -1,0 +1,73 @@
+"""The hand-eye equations of a rigid rig, for one motion pair (camera 0 moves by ``(R0, t0)`` while
+camera k moves by ``(R1, t1)`` over the same time interval).
+
+Convention: the unknown ``X = (dR, dT, s)`` is the pose of camera k in camera 0's frame
+(``p_cam0 = dR p_camk + dT``) and ``s`` multiplies camera-k units into camera-0 units. A motion
+``(R, t)`` is a camera's pose at the end of the interval in its own frame at the start
+(``T_start^-1 T_end``). Then
+
+* rotation:     ``R0 dR = dR R1``, in quaternions ``q0 * dq = dq * q1``, i.e. ``A dq = 0`` with
+  ``A = L(q0) - R(q1)`` (4x4);
+* translation:  ``(I - R0) dT + s dR t1 = t0``, linear in ``x = (dT, s)``.
+
+The translation rows depend on ``dR``. To re-solve them with the latest ``dR`` at every frame in O(1)
+they are kept as the second moment of a 15-vector ``z = (vec(I - R0), t1, t0)`` (see
+:func:`translation_features`), from which :func:`normal_equations` assembles the normal equations
+for any rotation model.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, right_product_matrix
+
+FEATURES = 15  # len(z): 9 entries of I - R0 (row-major), t1 (3), t0 (3)
+
+
+def rotation_block(q0: Tensor, q1: Tensor) -> Tensor:
+    """``A = L(q0) - R(q1)`` (..., 4, 4) from motion quaternions (..., 4), (w, x, y, z).
+
+    Both quaternions are put on the ``w >= 0`` hemisphere first: the rotation angles of corresponding
+    motions are equal, so their ``w`` agree, and with opposite signs the block would describe a
+    rotation 180 degrees away.
+    """
+    return left_product_matrix(canonical_quaternion(q0)) - right_product_matrix(canonical_quaternion(q1))
+
+
+def translation_features(R0: Tensor, t0: Tensor, t1: Tensor) -> Tensor:
+    """``z = (vec(I - R0), t1, t0)`` (..., 15) from R0 (..., 3, 3), t0 (..., 3), t1 (..., 3)."""
+    eye = torch.eye(3, dtype=R0.dtype, device=R0.device)
+    return torch.cat([(eye - R0).flatten(-2), t1, t0], -1)
+
+
+def translation_rows(R0: Tensor, t0: Tensor, t1: Tensor, dR: Tensor) -> tuple[Tensor, Tensor]:
+    """The explicit rows ``B = [I - R0, dR t1]`` (..., 3, 4) and ``b = t0`` (..., 3)."""
+    eye = torch.eye(3, dtype=R0.dtype, device=R0.device)
+    return torch.cat([eye - R0, (dR @ t1.unsqueeze(-1))], -1), t0
+
+
+def normal_equations(Z: Tensor, maps: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Normal equations of ``(I - R0) dT + sum_k c_k L_k t1 = t0`` from the moment ``Z = sum w z z^T``.
+
+    Args:
+        Z: (..., 15, 15) second moment of :func:`translation_features`.
+        maps: (..., m, 3, 3) the linear maps ``L_k`` applied to ``t1``. The general model has one map, ``dR`` (unknowns
+            ``dT, s``); the planar model has three (see :mod:`ocalib.calib.planar`).
+
+    Returns:
+        H (..., 3+m, 3+m), g (..., 3+m), and ``sum w |t0|^2`` (...), so that the weighted residual is
+        ``|t0|^2 - 2 x.g + x^T H x`` for the unknown ``x = (dT, c)``.
+    """
+    m = maps.shape[-3]
+    n = 3 + m
+    # E[r] maps z to (row r of the design matrix | target r): (..., 3, n + 1, 15).
+    E = Z.new_zeros(*maps.shape[:-3], 3, n + 1, FEATURES)
+    rows = torch.arange(3, device=Z.device)
+    for i in range(3):
+        E[..., rows, i, 3 * rows + i] = 1.0
+    E[..., :, 3:n, 9:12] = maps.transpose(-3, -2)  # E[r, 3 + k, 9 + b] = L_k[r, b]
+    E[..., rows, n, 12 + rows] = 1.0
+    K = (E @ Z.unsqueeze(-3) @ E.mT).sum(-3)
+    return K[..., :n, :n], K[..., :n, n], K[..., n, n]

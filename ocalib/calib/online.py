@@ -1,0 +1,257 @@
+"""The streaming calibration head: rig extrinsics from every camera's pose, every frame, in O(1).
+
+Convention: input poses are camera-to-world (..., C, 4, 4), one world frame per camera (each camera's
+trajectory may live in its own world and units: only motions are used). Camera 0 is the reference;
+the output is ``T_cam0_camk`` for k = 1..C-1 and the scale of camera k's units into camera 0's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+from ocalib.calib.handeye import FEATURES, rotation_block, translation_features, translation_rows
+from ocalib.calib.planar import planar_rotation
+from ocalib.calib.result import Calibration
+from ocalib.calib.rotation import (
+    incremental_svd_update,
+    planar_motion,
+    rotation_observable,
+    rotation_solution,
+    rotation_std,
+)
+from ocalib.calib.translation import rls_update, solve_translation, unobservable_directions
+from ocalib.geometry.pose import invert_pose, orthonormality_error
+from ocalib.geometry.quaternion import quaternion_angle, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+
+MOTIONS = {
+    "first": (0,),  # every pose against frame 0: the paper
+    "consecutive": (1,),  # frame t-1 to t: visual odometry
+    "multi": (1, 2, 4, 8, 16, 32),  # gaps of 1..32 frames
+}
+
+
+class OnlineCalibrator(nn.Module):
+    """On-line hand-eye calibration of B rigs of C cameras (camera 0 against cameras 1..C-1).
+
+    Each frame, the motions of every camera over a set of frame gaps (``motion``) give hand-eye rows;
+    rotation is updated by incremental SVD (:mod:`ocalib.calib.rotation`), translation and scale by
+    the exact moment solver or the paper's RLS (:mod:`ocalib.calib.translation`). All state is kept
+    in buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
+
+    Args:
+        num_cameras: C, cameras per rig, camera 0 the reference.
+        batch_size: B, rigs calibrated at once.
+        motion: ``first``, ``consecutive`` or ``multi`` (see :data:`MOTIONS`), or a tuple of gaps
+            (0 stands for the pair with frame 0).
+        solver: ``exact`` (moment solver, equals batch least squares) or ``rls`` (the paper's).
+        forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
+        rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
+        min_rotation_deg: motions rotating less than this give no rotation rows.
+        screw_gate_deg, screw_gate_sigma: a pair is rejected when its two rotation angles differ by more
+            than ``max(screw_gate_deg, screw_gate_sigma * robust std of that difference)``.
+        robust_deg: rotation rows whose residual exceeds this are down-weighted by ``robust_deg / residual``.
+        pose_tolerance: poses with a non-finite entry or a rotation further than this from orthonormal are
+            skipped (and counted in ``frames_rejected``).
+    """
+
+    def __init__(
+        self,
+        num_cameras: int = 2,
+        batch_size: int = 1,
+        motion: str | tuple[int, ...] = "multi",
+        solver: str = "exact",
+        forgetting: float = 1.0,
+        rls_c0: float = 1e4,
+        rls_delay: int = 0,
+        min_rotation_deg: float = 0.05,
+        screw_gate_deg: float = 1.0,
+        screw_gate_sigma: float = 4.0,
+        robust_deg: float = 5.0,
+        pose_tolerance: float = 1e-3,
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+    ):
+        super().__init__()
+        if num_cameras < 2:
+            raise ValueError(f"a rig needs at least 2 cameras, got num_cameras={num_cameras}")
+        if solver not in ("exact", "rls"):
+            raise ValueError(f"solver must be 'exact' or 'rls', got {solver!r}")
+        if not 0 < forgetting <= 1:
+            raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
+        gaps = MOTIONS[motion] if isinstance(motion, str) else tuple(int(g) for g in motion)
+        if not gaps or min(gaps) < 0:
+            raise ValueError(f"motion gaps must be non-negative frame counts, got {gaps}")
+        self.num_cameras, self.batch_size, self.gaps, self.solver = num_cameras, batch_size, gaps, solver
+        self.forgetting, self.rls_c0, self.rls_delay = forgetting, rls_c0, rls_delay
+        self.min_rotation = math.radians(min_rotation_deg)
+        self.screw_gate, self.screw_gate_sigma = math.radians(screw_gate_deg), screw_gate_sigma
+        self.robust = math.radians(robust_deg)
+        self.pose_tolerance = pose_tolerance
+        self.history_size = max(max(gaps), 1)
+        self._dtype, self._device = dtype, device
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything: the next frame is frame 0."""
+        B, C, K = self.batch_size, self.num_cameras, self.num_cameras - 1
+        f = dict(dtype=self._dtype, device=self._device)
+        eye4 = torch.eye(4, **f)
+        state = {
+            "frame": torch.zeros((), dtype=torch.long, device=self._device),
+            "gap_tensor": torch.tensor([g for g in self.gaps if g > 0], dtype=torch.long, device=self._device),
+            "history": eye4.expand(B, C, self.history_size, 4, 4).clone(),
+            "history_valid": torch.zeros(B, C, self.history_size, dtype=torch.bool, device=self._device),
+            "first": eye4.expand(B, C, 4, 4).clone(),
+            "first_valid": torch.zeros(B, dtype=torch.bool, device=self._device),
+            "S": torch.zeros(B, K, 4, **f),
+            "V": eye4.expand(B, K, 4, 4).clone(),
+            "rotation_rows": torch.zeros(B, K, **f),
+            "Z": torch.zeros(B, K, FEATURES, FEATURES, **f),
+            "translation_rows": torch.zeros(B, K, **f),
+            "rls_x": torch.zeros(B, K, 4, **f),
+            "rls_C": self.rls_c0 * eye4.expand(B, K, 4, 4).clone(),
+            "screw_scale": torch.zeros(B, K, **f),
+            "screw_count": torch.zeros(B, K, **f),
+            "frames_used": torch.zeros(B, K, dtype=torch.long, device=self._device),
+            "frames_rejected": torch.zeros(B, K, dtype=torch.long, device=self._device),
+        }
+        for name, value in state.items():
+            self.register_buffer(name, value)
+
+    def detach_(self) -> OnlineCalibrator:
+        """Cut the autograd history of the state (call between training windows)."""
+        for name, buf in self.named_buffers():
+            setattr(self, name, buf.detach())
+        return self
+
+    def forward(self, poses: Tensor) -> Calibration:
+        """Consume one synchronised frame. poses: (B, C, 4, 4) or (C, 4, 4) camera-to-world."""
+        if poses.dim() == 3:
+            poses = poses.unsqueeze(0)
+        if poses.shape != (self.batch_size, self.num_cameras, 4, 4):
+            raise ValueError(
+                f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}"
+            )
+        poses = poses.to(self.S.dtype)
+        valid = poses.isfinite().flatten(-2).all(-1)
+        eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
+        poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
+        valid = valid & (orthonormality_error(poses[..., :3, :3]) < self.pose_tolerance)
+        poses = torch.where(valid[..., None, None], poses, eye)
+
+        start = valid.all(-1) & ~self.first_valid
+        self.first = torch.where(start[:, None, None, None], poses, self.first)
+        self.first_valid = self.first_valid | start
+
+        # Motion pairs (gap g: frame t-g to t; gap 0: frame 0 to t): (B, C, P, 4, 4).
+        slots = (self.frame - self.gap_tensor) % self.history_size
+        prev = [self.history.index_select(2, slots)]
+        prev_valid = [self.history_valid.index_select(2, slots)]
+        if 0 in self.gaps:
+            prev.append(self.first.unsqueeze(2))
+            prev_valid.append(self.first_valid[:, None, None].expand(-1, self.num_cameras, 1))
+        prev, prev_valid = torch.cat(prev, 2), torch.cat(prev_valid, 2)
+        motion = invert_pose(prev) @ poses.unsqueeze(2)
+        pair_valid = prev_valid & valid.unsqueeze(-1)
+        q = rotation_matrix_to_quaternion(motion[..., :3, :3])
+        angle = quaternion_angle(q)
+        ok = pair_valid[:, :1] & pair_valid[:, 1:]  # (B, K, P)
+
+        # Screw congruence: a rigid rig's cameras rotate by the same angle.
+        screw = (angle[:, :1] - angle[:, 1:]).abs()
+        ok = ok & (screw <= self._screw_threshold().unsqueeze(-1))
+        self._update_screw_scale(screw, pair_valid[:, :1] & pair_valid[:, 1:])
+
+        # Rotation: incremental SVD of the weighted blocks.
+        A = rotation_block(q[:, :1].expand_as(q[:, 1:]), q[:, 1:])  # (B, K, P, 4, 4)
+        moving = (angle[:, :1] + angle[:, 1:]) / 2 >= self.min_rotation
+        w_rot = (ok & moving).to(poses.dtype) * self._robust_weight(A)
+        W = (w_rot.sqrt()[..., None, None] * A).flatten(-3, -2)
+        lam = self.forgetting
+        self.S, self.V = incremental_svd_update(self.S, self.V, W, lam)
+        self.rotation_rows = lam * self.rotation_rows + w_rot.sum(-1)
+
+        # Translation moment.
+        w_tr = ok.to(poses.dtype)
+        R0, t0 = motion[:, :1, :, :3, :3], motion[:, :1, :, :3, 3]
+        z = translation_features(R0, t0, motion[:, 1:, :, :3, 3])  # (B, K, P, 15)
+        self.Z = lam * self.Z + (z * w_tr.unsqueeze(-1)).mT @ z
+        self.translation_rows = lam * self.translation_rows + w_tr.sum(-1)
+
+        # Rotation estimate (through the translation constraint when the motion is planar).
+        quat = rotation_solution(self.V)
+        dR = quaternion_to_rotation_matrix(quat)
+        planar = planar_motion(self.S)
+        dR_planar, axis = planar_rotation(self.Z, self.V)
+        dR = torch.where(planar[..., None, None], dR_planar, dR)
+        quat = torch.where(planar[..., None], rotation_matrix_to_quaternion(dR), quat)
+
+        tr = solve_translation(self.Z, dR, self.translation_rows)
+        translation, scale = tr["translation"], tr["scale"]
+        if self.solver == "rls":
+            B, b = translation_rows(R0.expand_as(motion[:, 1:, :, :3, :3]), t0, motion[:, 1:, :, :3, 3], dR[:, :, None])
+            sw = w_tr.sqrt()[..., None]
+            x, C = rls_update(self.rls_x, self.rls_C, (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2), lam)
+            go = (self.frame >= self.rls_delay)
+            self.rls_x, self.rls_C = torch.where(go, x, self.rls_x), torch.where(go, C, self.rls_C)
+            translation, scale = self.rls_x[..., :3], self.rls_x[..., 3]
+
+        unobservable = unobservable_directions(tr["information"])
+        along_axis = (tr["directions"] * axis.unsqueeze(-1)).sum(-2).abs() > 0.9
+        unobservable = unobservable | (planar.unsqueeze(-1) & along_axis)
+        leak = (tr["directions"] ** 2 * unobservable.unsqueeze(-2)).sum(-1) > 0.01  # (B, K, 3) camera axes
+        cov = tr["covariance"]
+        translation_std = torch.where(leak, math.inf, torch.diagonal(cov[..., :3, :3], dim1=-2, dim2=-1).sqrt())
+
+        used = ok.any(-1)
+        self.frames_used = self.frames_used + used
+        self.frames_rejected = self.frames_rejected + (~used & (self.frame > 0))
+        slot = (self.frame % self.history_size).reshape(1)
+        self.history = self.history.index_copy(2, slot, poses.unsqueeze(2))
+        self.history_valid = self.history_valid.index_copy(2, slot, valid.unsqueeze(2))
+        self.frame = self.frame + 1
+
+        return Calibration(
+            rotation=dR,
+            quaternion=quat,
+            translation=translation,
+            scale=scale,
+            rotation_singular_values=self.S,
+            rotation_observable=rotation_observable(self.S),
+            planar_motion=planar,
+            translation_information=tr["information"],
+            translation_directions=tr["directions"],
+            translation_unobservable=unobservable,
+            rotation_std=rotation_std(self.S, self.V, self.rotation_rows),
+            translation_std=translation_std,
+            scale_std=cov[..., 3, 3].sqrt(),
+            frames_used=self.frames_used,
+            frames_rejected=self.frames_rejected,
+        )
+
+    def _screw_threshold(self) -> Tensor:
+        robust_std = 1.25 * self.screw_scale  # mean absolute deviation -> std, for Gaussian noise
+        thr = torch.clamp_min(self.screw_gate_sigma * robust_std, self.screw_gate)
+        return torch.where(self.screw_count >= 10, thr, math.inf)
+
+    def _update_screw_scale(self, screw: Tensor, valid: Tensor) -> None:
+        """Running mean absolute screw residual, each sample clipped at 5 robust std (outliers barely count)."""
+        clip = torch.where(self.screw_count >= 10, 5 * 1.25 * self.screw_scale, math.inf).unsqueeze(-1)
+        x = torch.minimum(screw, clip) * valid
+        n = valid.sum(-1).to(screw.dtype)
+        count = (self.screw_count + n).clamp_max(1000.0)
+        self.screw_scale = torch.where(
+            n > 0, self.screw_scale + (x.sum(-1) - n * self.screw_scale) / count.clamp_min(1), self.screw_scale
+        ).detach()
+        self.screw_count = count
+
+    def _robust_weight(self, A: Tensor) -> Tensor:
+        """VINS-Mono's down-weighting: residual angle d of the current estimate, weight robust/d above robust."""
+        q = rotation_solution(self.V).detach()
+        r = (A @ q[:, :, None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)
+        d = 4 * torch.asin((r / 2).clamp(max=1.0))
+        established = rotation_observable(self.S).unsqueeze(-1)
+        return torch.where(established & (d > self.robust), self.robust / d.clamp_min(1e-12), 1.0).detach()

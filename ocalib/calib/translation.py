@@ -1,0 +1,84 @@
+"""Translation and scale of the rig: ``(I - R0) dT + s dR t1 = t0`` for ``x = (dT, s)``.
+
+Two on-line solvers:
+
+* :func:`solve_translation` -- exact: from the O(1) moment ``Z`` (see :mod:`ocalib.calib.handeye`)
+  it re-solves the normal equations with the current ``dR`` every frame, so it equals batch least
+  squares at every frame, and early wrong rotations leave no trace.
+* :func:`rls_update` -- the paper's recursive least squares with forgetting factor, with the typos of
+  the paper corrected (``C <- C / lam - G Gamma^-1 G^T``, minus).
+
+Convention: ``dT`` is in camera 0's frame and units; ``s`` multiplies camera-k units into camera-0 units.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ocalib.calib.handeye import normal_equations
+from ocalib.calib.linalg import guarded_eigh
+
+RANK_TOLERANCE = 1e-9  # eigenvalues below this times the largest are treated as zero
+UNOBSERVABLE = 1e-6  # translation directions with less relative information are reported unobservable
+
+
+def pinv_solve(H: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
+    """Minimum-norm solution of ``H x = g`` for symmetric PSD ``H`` (..., n, n); also returns ``H^+``."""
+    evals, evecs = guarded_eigh(H)
+    keep = evals > RANK_TOLERANCE * evals[..., -1:].clamp_min(1e-300)
+    inv = torch.where(keep, 1 / torch.where(keep, evals, 1.0), 0.0)
+    H_pinv = (evecs * inv.unsqueeze(-2)) @ evecs.mT
+    return (H_pinv @ g.unsqueeze(-1)).squeeze(-1), H_pinv
+
+
+def solve_translation(Z: Tensor, dR: Tensor, rows: Tensor) -> dict[str, Tensor]:
+    """Exact least-squares ``x = (dT, s)`` with the current rotation, and its uncertainty.
+
+    Args:
+        Z: (..., 15, 15) weighted moment of the translation features. dR: (..., 3, 3).
+        rows: (...) weighted number of motion pairs in ``Z`` (3 equations each).
+
+    Returns a dict of tensors: ``translation`` (..., 3), ``scale`` (...), ``covariance`` (..., 4, 4),
+    ``information`` (..., 3) and ``directions`` (..., 3, 3): eigenvalues (ascending) and eigenvectors
+    (columns, camera 0's frame) of the information on ``dT`` with ``s`` free.
+    """
+    H, g, tt = normal_equations(Z, dR.unsqueeze(-3))
+    x, H_pinv = pinv_solve(H, g)
+    rss = (tt - 2 * (x * g).sum(-1) + (x.unsqueeze(-2) @ H @ x.unsqueeze(-1)).squeeze((-1, -2))).clamp_min(0)
+    sigma2 = rss / (3 * rows - 4).clamp_min(1)
+    # Information on dT with s eliminated (Schur complement of the scale entry).
+    h_ss = H[..., 3, 3].clamp_min(1e-300)
+    info = H[..., :3, :3] - H[..., :3, 3:] @ H[..., 3:, :3] / h_ss[..., None, None]
+    information, directions = guarded_eigh(info)
+    return {
+        "translation": x[..., :3],
+        "scale": x[..., 3],
+        "covariance": sigma2[..., None, None] * H_pinv,
+        "information": information,
+        "directions": directions,
+    }
+
+
+def unobservable_directions(information: Tensor) -> Tensor:
+    """Mask (..., 3) of information eigen-directions with less than 1e-6 of the largest information."""
+    return information < UNOBSERVABLE * information[..., -1:].clamp_min(1e-300)
+
+
+def rls_update(x: Tensor, C: Tensor, B: Tensor, b: Tensor, forgetting: float = 1.0) -> tuple[Tensor, Tensor]:
+    """One block update of recursive least squares with forgetting factor ``lam``.
+
+    Args:
+        x: (..., n) estimate. C: (..., n, n) its (scaled) covariance, ``C0`` at the start.
+        B: (..., m, n) new rows. b: (..., m) new targets.
+
+    ``Gamma = (I + B C B^T / lam)^-1``, ``G = C B^T Gamma / lam``, ``x += G (b - B x)``,
+    ``C = C / lam - G Gamma^-1 G^T``. Equals batch least squares with prior ``(x0, C0)``
+    (ridge toward ``x0``) when ``lam = 1``.
+    """
+    eye = torch.eye(B.shape[-2], dtype=B.dtype, device=B.device)
+    Gamma_inv = eye + B @ C @ B.mT / forgetting
+    G = torch.linalg.solve(Gamma_inv, B @ C.mT).mT / forgetting  # C B^T Gamma, Gamma symmetric
+    x = x + (G @ (b - (B @ x.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
+    C = C / forgetting - G @ Gamma_inv @ G.mT
+    return x, (C + C.mT) / 2

@@ -1,0 +1,1 @@
+"""Numerical simulation of rigs and trajectories (the paper's section 3.1)."""
