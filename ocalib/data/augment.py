@@ -1,0 +1,56 @@
+"""Snippet augmentation: one random draw per snippet, applied identically to all of its frames.
+
+Colour jitter (kornia: brightness shift, contrast and saturation factors, hue rotation), a horizontal flip
+and a random crop resized back to the input size; K, depth and poses follow (see :mod:`ocalib.data.transforms`).
+
+Convention: images (S, 3, H, W) in [0, 1]; draws come from torch's global RNG, which the ``DataLoader``
+seeds per worker from its generator (or ``lightning.seed_everything`` without workers).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import kornia.enhance as ke
+import torch
+
+from ocalib.data.transforms import crop, hflip, resize
+
+
+def _uniform(low: float, high: float) -> float:
+    return low + (high - low) * torch.rand(()).item()
+
+
+@dataclass
+class SnippetAugmentation:
+    """Random photometric and geometric augmentation of a snippet sample; zeros disable a part.
+
+    ``brightness``: additive shift in [-b, b]; ``contrast``, ``saturation``: factors in [1 - c, 1 + c];
+    ``hue``: rotation in [-h, h] turns; ``flip_p``: probability of a horizontal flip; ``max_zoom``: the crop
+    is 1/z of the image in each direction, z uniform in [1, max_zoom], resized back to the input size.
+    """
+
+    brightness: float = 0.2
+    contrast: float = 0.2
+    saturation: float = 0.2
+    hue: float = 0.03
+    flip_p: float = 0.5
+    max_zoom: float = 1.15
+
+    def __call__(self, sample: dict) -> dict:
+        image = sample["image"]
+        image = ke.adjust_brightness(image, _uniform(-self.brightness, self.brightness))
+        image = ke.adjust_contrast(image, _uniform(1 - self.contrast, 1 + self.contrast))
+        image = ke.adjust_saturation_with_gray_subtraction(image, _uniform(1 - self.saturation, 1 + self.saturation))
+        image = ke.adjust_hue(image, 2 * math.pi * _uniform(-self.hue, self.hue)).clamp(0, 1)
+        sample = {**sample, "image": image}
+        if torch.rand(()).item() < self.flip_p:
+            sample = hflip(sample)
+        H, W = image.shape[-2:]
+        zoom = _uniform(1.0, self.max_zoom)
+        h, w = round(H / zoom), round(W / zoom)
+        if (h, w) != (H, W):
+            y0, x0 = (torch.randint(0, n + 1, ()).item() for n in (H - h, W - w))
+            sample = resize(crop(sample, x0, y0, h, w), (H, W))
+        return sample

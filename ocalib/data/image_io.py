@@ -1,0 +1,106 @@
+"""Reading images, depth maps and numbered frame folders (cv2, ``IMREAD_UNCHANGED``).
+
+Convention: images are float32 tensors (3, H, W) in [0, 1], RGB; grey images are expanded to 3 channels.
+Depth maps are float32 (1, H, W) in metres, 0 where there is no surface.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from ocalib.errors import InputError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff")
+
+
+def _imread(path: Path) -> np.ndarray:
+    array = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if array is None:
+        raise InputError(f"{path}: cannot read the image (missing, unreadable or corrupt)")
+    return array
+
+
+def read_image(path: str | Path, size: tuple[int, int] | None = None) -> Tensor:
+    """Read an image -> (3, H, W) float32 in [0, 1]. ``size`` (H, W), if given, must match the file."""
+    path = Path(path)
+    array = _imread(path)
+    if size is not None and array.shape[:2] != tuple(size):
+        raise InputError(f"{path}: image is {array.shape[0]}x{array.shape[1]} (HxW), expected {size[0]}x{size[1]}")
+    scale = {np.uint8: 255.0, np.uint16: 65535.0}.get(array.dtype.type)
+    if scale is None:
+        raise InputError(f"{path}: unsupported pixel type {array.dtype} (expected 8 or 16 bit)")
+    if array.ndim == 2:
+        array = np.repeat(array[:, :, None], 3, axis=2)
+    elif array.shape[2] == 1:
+        array = np.repeat(array, 3, axis=2)
+    else:
+        array = cv2.cvtColor(array[:, :, :3], cv2.COLOR_BGR2RGB)
+    return torch.from_numpy(array.astype(np.float32) / scale).permute(2, 0, 1).contiguous()
+
+
+def read_depth(path: str | Path, scale: float = 256.0, size: tuple[int, int] | None = None) -> Tensor:
+    """Read a uint16 depth PNG (metres x ``scale``, 0 = no surface) -> (1, H, W) float32 metres."""
+    path = Path(path)
+    array = _imread(path)
+    if array.dtype != np.uint16 or array.ndim != 2:
+        raise InputError(f"{path}: depth must be a single-channel uint16 image, got {array.dtype} {array.shape}")
+    if size is not None and array.shape != tuple(size):
+        raise InputError(f"{path}: depth is {array.shape[0]}x{array.shape[1]} (HxW), expected {size[0]}x{size[1]}")
+    return torch.from_numpy(array.astype(np.float32) / scale)[None]
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(H, W) of an image file."""
+    return tuple(_imread(Path(path)).shape[:2])
+
+
+def _natural_key(path: Path):
+    return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", path.name)]
+
+
+def list_frames(folder: str | Path, suffixes=IMAGE_SUFFIXES) -> list[Path]:
+    """The image files of a folder in frame order.
+
+    When every name is a number (``000000.png``) the numbers must be consecutive: a gap is an
+    :class:`InputError` naming the missing file. Other names are sorted naturally (``img2`` < ``img10``).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: no such folder")
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in suffixes and p.is_file()), key=_natural_key)
+    if not files:
+        raise InputError(f"{folder}: no images ({', '.join(suffixes[:3])}, ...) in the folder")
+    if all(p.stem.isdigit() for p in files):
+        numbers = [int(p.stem) for p in files]
+        for prev, path, number in zip(files, files[1:], numbers[1:]):
+            if number != int(prev.stem) + 1:
+                missing = str(int(prev.stem) + 1).zfill(len(prev.stem)) + prev.suffix
+                raise InputError(f"{folder / missing}: frame is missing (the folder has {prev.name}, then {path.name})")
+    return files
+
+
+def read_numbers(path: str | Path, columns: int | None = None) -> np.ndarray:
+    """A text file of numbers, one row a line (blank and ``#`` lines skipped) -> (N, columns) float64."""
+    path = Path(path)
+    rows = []
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        try:
+            row = [float(v) for v in line.replace(",", " ").split()]
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:60]!r}") from None
+        if columns is not None and len(row) != columns:
+            raise InputError(f"{path}:{lineno}: expected {columns} numbers, got {len(row)}")
+        rows.append(row)
+    if not rows:
+        raise InputError(f"{path}: the file holds no numbers")
+    if len({len(r) for r in rows}) != 1:
+        raise InputError(f"{path}: rows have different numbers of values")
+    return np.asarray(rows, dtype=np.float64)

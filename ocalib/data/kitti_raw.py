@@ -1,0 +1,165 @@
+"""Loader of a KITTI raw drive folder (``2011_09_26/2011_09_26_drive_0001_sync``).
+
+```
+DRIVE/image_00..03/data/0000000000.png, DRIVE/image_0x/timestamps.txt
+DRIVE/oxts/data/0000000000.txt          # GPS/IMU packets -> ground-truth poses
+calib_cam_to_cam.txt                    # P_rect_0x, R_rect_00, S_rect_0x; in DRIVE or its date folder
+calib_velo_to_cam.txt, calib_imu_to_velo.txt   # optional: without them there are no camera poses
+```
+
+Convention: cameras are the *rectified* ones; the first present (``image_00``, grey left) is the reference,
+the others are translated from rectified camera 0 as their projection matrices say (``P_rect_0x = K [I | t]``). The world
+frame is the OXTS Mercator frame (x east, y north, z up) shifted to the first IMU position (as pykitti).
+Camera pose = IMU pose @ T_imu_cam, T_cam_imu = T_cami_cam0 R_rect_00 T_cam0_velo T_velo_imu.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from ocalib.data.image_io import image_size, list_frames, read_numbers
+from ocalib.data.intrinsics import intrinsics_from_projection
+from ocalib.data.sequence import Camera, Sequence
+from ocalib.errors import InputError
+
+EARTH_RADIUS = 6378137.0  # metres, as the KITTI devkit
+
+
+def read_calib_file(path: str | Path) -> dict[str, tuple[int, str]]:
+    """A ``key: values`` calibration file -> {key: (line number, values text)}; parse with :func:`calib_matrix`."""
+    path = Path(path)
+    entries = {}
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        key, sep, value = line.partition(":")
+        if not sep:
+            raise InputError(f"{path}:{lineno}: expected 'key: values', got {line.strip()[:60]!r}")
+        entries[key.strip()] = (lineno, value)
+    return entries
+
+
+def calib_matrix(path: Path, entries: dict, key: str, shape: tuple[int, ...]) -> np.ndarray:
+    """The entry ``key`` of a calibration file as a float64 array of ``shape``; errors name file and line."""
+    if key not in entries:
+        raise InputError(f"{path}: no entry {key!r}")
+    lineno, text = entries[key]
+    try:
+        values = np.array([float(v) for v in text.split()], dtype=np.float64)
+    except ValueError:
+        raise InputError(f"{path}:{lineno}: {key} holds something that is not a number") from None
+    if values.size != int(np.prod(shape)) or not np.isfinite(values).all():
+        raise InputError(f"{path}:{lineno}: {key} needs {int(np.prod(shape))} finite numbers, got {values.size}")
+    return values.reshape(shape)
+
+
+def _rigid(path: Path) -> np.ndarray:
+    """``R:`` and ``T:`` entries of a KITTI rigid calibration file -> (4, 4) float64."""
+    entries = read_calib_file(path)
+    T = np.eye(4)
+    T[:3, :3] = calib_matrix(path, entries, "R", (3, 3))
+    T[:3, 3] = calib_matrix(path, entries, "T", (3,))
+    return T
+
+
+def oxts_to_poses(packets: np.ndarray) -> np.ndarray:
+    """OXTS packets (N, >=6: lat, lon [deg], alt [m], roll, pitch, yaw [rad]) -> IMU poses (N, 4, 4).
+
+    The KITTI devkit conversion: Mercator with the scale of the first latitude, R = Rz(yaw) Ry(pitch) Rx(roll);
+    translations are shifted so that the first IMU position is the origin.
+    """
+    lat, lon, alt, roll, pitch, yaw = packets[:, :6].T
+    scale = np.cos(np.deg2rad(lat[0]))
+    t = np.stack([scale * EARTH_RADIUS * np.deg2rad(lon),
+                  scale * EARTH_RADIUS * np.log(np.tan(np.deg2rad(90.0 + lat) / 2)),
+                  alt], -1)
+    poses = np.tile(np.eye(4), (len(packets), 1, 1))
+    poses[:, :3, :3] = _rot(yaw, 2) @ _rot(pitch, 1) @ _rot(roll, 0)
+    poses[:, :3, 3] = t - t[0]
+    return poses
+
+
+def _rot(angle: np.ndarray, axis: int) -> np.ndarray:
+    """Rotations (N, 3, 3) by ``angle`` (N,) about coordinate axis 0, 1 or 2."""
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.tile(np.eye(3), (len(angle), 1, 1))
+    R[:, i, i], R[:, i, j], R[:, j, i], R[:, j, j] = c, -s, s, c
+    return R
+
+
+def read_timestamps(path: Path) -> np.ndarray:
+    """KITTI ``timestamps.txt`` (``2011-09-26 13:02:25.964389445``) -> (N,) float64 seconds since the epoch (UTC)."""
+    times = []
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            day, clock = line.split()
+            hms, _, fraction = clock.partition(".")
+            whole = datetime.strptime(f"{day} {hms}", "%Y-%m-%d %H:%M:%S").replace(tzinfo=timezone.utc)
+            times.append(whole.timestamp() + float(f"0.{fraction or 0}"))
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: expected 'YYYY-MM-DD HH:MM:SS.fraction', got {line.strip()[:40]!r}") from None
+    return np.asarray(times)
+
+
+def _read_packet(path: Path) -> np.ndarray:
+    values = read_numbers(path)[0]
+    if values.size < 6:
+        raise InputError(f"{path}: an OXTS packet needs at least lat, lon, alt, roll, pitch, yaw; got {values.size} numbers")
+    return values[:6]
+
+
+def _calib_path(drive: Path, name: str) -> Path | None:
+    for folder in (drive, drive.parent):
+        if (folder / name).is_file():
+            return folder / name
+    return None
+
+
+def open_kitti_raw(path: str | Path) -> Sequence:
+    """Open a KITTI raw drive folder ``path`` (holding ``image_0x/data``): rectified cameras with ground truth."""
+    drive = Path(path)
+    cam_file = _calib_path(drive, "calib_cam_to_cam.txt")
+    if cam_file is None:
+        raise InputError(f"{drive}: no calib_cam_to_cam.txt in the drive folder or beside it")
+    calib = read_calib_file(cam_file)
+    folders = [drive / f"image_0{i}" for i in range(4) if (drive / f"image_0{i}" / "data").is_dir()]
+    if not folders:
+        raise InputError(f"{drive}: no image_00..image_03/data folders")
+    cameras = []
+    for folder in folders:
+        i = folder.name[-2:]
+        K, T_cam0_cam = intrinsics_from_projection(calib_matrix(cam_file, calib, f"P_rect_{i}", (3, 4)))
+        images = list_frames(folder / "data")
+        if f"S_rect_{i}" in calib:
+            width, height = calib_matrix(cam_file, calib, f"S_rect_{i}", (2,))
+            size = (int(round(height)), int(round(width)))
+        else:
+            size = image_size(images[0])
+        cameras.append(Camera(folder.name, images, K, size, T_cam0_cam))
+    sequence = Sequence(drive.name, drive, "kitti_raw", cameras)
+
+    stamps = folders[0] / "timestamps.txt"
+    if stamps.is_file():
+        sequence.times = read_timestamps(stamps)
+        if len(sequence.times) != len(sequence):
+            raise InputError(f"{stamps}: {len(sequence.times)} timestamps for {len(sequence)} frames")
+
+    velo_file, imu_file = _calib_path(drive, "calib_velo_to_cam.txt"), _calib_path(drive, "calib_imu_to_velo.txt")
+    if (drive / "oxts" / "data").is_dir() and velo_file and imu_file:
+        files = list_frames(drive / "oxts" / "data", (".txt",))
+        if len(files) != len(sequence):
+            raise InputError(f"{drive / 'oxts' / 'data'}: {len(files)} packets for {len(sequence)} frames")
+        packets = np.stack([_read_packet(f) for f in files])
+        R_rect = np.eye(4)
+        R_rect[:3, :3] = calib_matrix(cam_file, calib, "R_rect_00", (3, 3))
+        T_cam0_imu = R_rect @ _rigid(velo_file) @ _rigid(imu_file)
+        T_w_cam0 = oxts_to_poses(packets) @ np.linalg.inv(T_cam0_imu)
+        for cam in sequence.cameras:
+            cam.poses = T_w_cam0 @ cam.T_cam0_cam
+    return sequence.select(sequence.names)  # extrinsics relative to the first camera present

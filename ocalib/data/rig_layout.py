@@ -1,0 +1,52 @@
+"""Loader of the project's native rig layout (what ``ocalib synth`` writes).
+
+```
+DIR/rig.yaml                      # cameras: name, width, height, K, T_cam0_cam; frame_rate
+DIR/times.txt                     # optional: one time (s) a line; else frame / frame_rate
+DIR/<name>/images/000000.png ...
+DIR/<name>/depth/000000.png ...   # optional: uint16, metres x 256, 0 = no surface
+DIR/<name>/poses.txt              # optional: KITTI, camera-to-world, one world frame
+```
+
+Convention: as :mod:`ocalib.data.rig` and :mod:`ocalib.data.sequence`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ocalib.data.image_io import list_frames, read_numbers
+from ocalib.data.rig import read_rig_yaml
+from ocalib.data.sequence import Camera, Sequence
+from ocalib.errors import InputError
+from ocalib.io.poses import read_kitti
+
+
+def open_rig(path: str | Path) -> Sequence:
+    """Open a native rig folder ``path`` (holding ``rig.yaml``)."""
+    path = Path(path)
+    rig = read_rig_yaml(path / "rig.yaml")
+    cameras = []
+    for spec in rig.cameras:
+        folder = path / spec.name
+        images = list_frames(folder / "images")
+        depth = list_frames(folder / "depth", (".png",)) if (folder / "depth").is_dir() else None
+        if depth is not None and [p.stem for p in depth] != [p.stem for p in images]:
+            raise InputError(f"{folder / 'depth'}: depth frames do not match {folder / 'images'} "
+                             f"({len(depth)} vs {len(images)} files)")
+        poses = read_kitti(folder / "poses.txt") if (folder / "poses.txt").is_file() else None
+        if poses is not None and len(poses) != len(images):
+            raise InputError(f"{folder / 'poses.txt'}: {len(poses)} poses for {len(images)} images")
+        cameras.append(Camera(spec.name, images, spec.K, (spec.height, spec.width),
+                              np.asarray(spec.T_cam0_cam, dtype=np.float64), poses, depth))
+    sequence = Sequence(path.name, path, "rig", cameras)
+    times_file = path / "times.txt"
+    if times_file.is_file():
+        sequence.times = read_numbers(times_file, 1)[:, 0]
+        if len(sequence.times) != len(sequence):
+            raise InputError(f"{times_file}: {len(sequence.times)} times for {len(sequence)} frames")
+    else:
+        sequence.times = np.arange(len(sequence)) / rig.frame_rate
+    return sequence

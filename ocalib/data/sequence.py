@@ -1,0 +1,97 @@
+"""The common description every layout loader returns: a :class:`Sequence` of synchronised cameras.
+
+Convention: poses are camera-to-world 4x4 float64 (one world frame per sequence); ``T_cam0_cam`` is the
+pose of a camera in the frame of the sequence's first camera (``p_cam0 = R p_cam + t``), the identity
+for that camera; K (3, 3) float64 in pixels (integer pixel centres) at the image size ``size`` (H, W).
+Frame t of every camera is the same instant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ocalib.errors import InputError
+
+
+@dataclass
+class Camera:
+    """One camera of a sequence: N image paths and what the layout knows about them."""
+
+    name: str
+    images: list[Path]  # N files
+    K: np.ndarray  # (3, 3) float64, pixels, at `size`
+    size: tuple[int, int]  # (H, W)
+    T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, when the layout knows the extrinsics
+    poses: np.ndarray | None = None  # (N, 4, 4) float64 camera-to-world ground truth
+    depth: list[Path] | None = None  # N uint16 PNGs, metres x depth_scale, 0 = no surface
+    depth_scale: float = 256.0
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+@dataclass
+class Sequence:
+    """A recording: cameras with equal frame counts, optional timestamps (N,) in seconds."""
+
+    name: str
+    path: Path
+    layout: str
+    cameras: list[Camera]
+    times: np.ndarray | None = None
+
+    def __post_init__(self):
+        if not self.cameras:
+            raise InputError(f"{self.path}: no cameras")
+        first = self.cameras[0]
+        for cam in self.cameras[1:]:
+            if len(cam) != len(first):
+                raise InputError(_count_mismatch(first, cam))
+        for cam in self.cameras:
+            for what, items in (("poses", cam.poses), ("depth maps", cam.depth)):
+                if items is not None and len(items) != len(cam):
+                    raise InputError(f"{self.path}: camera {cam.name} has {len(cam)} images but {len(items)} {what}")
+        if self.times is not None and len(self.times) != len(first):
+            raise InputError(f"{self.path}: {len(self.times)} timestamps for {len(first)} frames")
+
+    def __len__(self) -> int:
+        return len(self.cameras[0])
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.cameras]
+
+    def camera(self, name: str) -> Camera:
+        for cam in self.cameras:
+            if cam.name == name:
+                return cam
+        raise InputError(f"{self.path}: no camera {name!r} (cameras: {', '.join(self.names)})")
+
+    def select(self, names: list[str] | None) -> "Sequence":
+        """The sequence with only the cameras ``names`` (in that order); extrinsics are re-referenced to
+        the first of them. ``None`` keeps all."""
+        if names is None:
+            return self
+        cameras = [self.camera(n) for n in names]
+        ref = cameras[0].T_cam0_cam
+        if ref is not None:
+            ref_inv = np.linalg.inv(ref)
+            cameras = [replace(c, T_cam0_cam=None if c.T_cam0_cam is None else ref_inv @ c.T_cam0_cam) for c in cameras]
+        return replace(self, cameras=cameras)
+
+
+def _count_mismatch(a: Camera, b: Camera) -> str:
+    """Name the first frame one camera has and the other lacks, or the two counts."""
+    if a.images and b.images:
+        stems_a, stems_b = {p.stem for p in a.images}, {p.stem for p in b.images}
+        for cam, other, others in ((b, a, stems_b), (a, b, stems_a)):
+            extra = [p for p in other.images if p.stem not in others]
+            if extra:
+                missing = cam.images[0].with_name(extra[0].stem + cam.images[0].suffix)
+                return (f"{missing}: frame is missing "
+                        f"(camera {other.name} has it; {len(other)} vs {len(cam)} frames)")
+    return (f"unequal frame counts: {a.images[0].parent if a.images else a.name} has {len(a)} frames, "
+            f"{b.images[0].parent if b.images else b.name} has {len(b)}")
