@@ -1,43 +1,210 @@
 """Pose files.
 
-Convention: every pose is camera-to-world, a 4x4 float64 matrix.
+Convention: every pose is camera-to-world, a 4x4 float64 matrix; quaternions in code are (w, x, y, z).
 
-* KITTI: one pose a line, 12 numbers, the row-major top 3x4 of the matrix.
+* KITTI: one pose a line, 12 numbers, the row-major top 3x4 of the matrix. No timestamps (KITTI keeps
+  them in a separate ``times.txt``, one number a line).
+* TUM: ``timestamp tx ty tz qx qy qz qw`` a line (qw LAST in the file), timestamps strictly increasing.
+
+Both: ``#`` comments and blank lines are skipped, numbers are separated by whitespace or commas. Every
+format error is an :class:`~ocalib.errors.InputError` naming ``file:line``. NaN/inf values and
+non-orthonormal rotations are *not* read errors (the calibration skips and counts them): check them with
+:func:`pose_validity` and report them with :func:`describe_invalid`.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from ocalib.errors import InputError
+from ocalib.geometry import orthonormality_error, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+
+KITTI_COLUMNS = 12
+TUM_COLUMNS = 8
+
+
+@dataclass
+class Trajectory:
+    """One camera's poses as read from a file.
+
+    poses: (N, 4, 4) float64, camera-to-world. times: (N,) float64 seconds, strictly increasing, or None
+    (KITTI without times.txt). path: the file. lines: (N,) int, the 1-based file line of each pose.
+    """
+
+    poses: np.ndarray
+    times: np.ndarray | None
+    path: Path
+    lines: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
+def _read_rows(path: str | Path, columns: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Numbers of a pose file -> rows (N, C) float64 and their 1-based lines (N,).
+
+    ``columns=None`` takes the count of the first data line, which must be 12 (KITTI) or 8 (TUM).
+    """
+    path = Path(path)
+    rows, lines = [], []
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        try:
+            values = [float(v) for v in text.replace(",", " ").split()]
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: not a number in {text[:60]!r}") from None
+        if columns is None:
+            if len(values) not in (KITTI_COLUMNS, TUM_COLUMNS):
+                raise InputError(
+                    f"{path}:{lineno}: cannot tell the pose format: {len(values)} numbers on the line, expected "
+                    f"{KITTI_COLUMNS} (KITTI: row-major 3x4 pose) or {TUM_COLUMNS} (TUM: t tx ty tz qx qy qz qw)"
+                )
+            columns = len(values)
+        elif len(values) != columns:
+            kind = "KITTI: a row-major 3x4 pose" if columns == KITTI_COLUMNS else "TUM: t tx ty tz qx qy qz qw"
+            raise InputError(f"{path}:{lineno}: expected {columns} numbers ({kind}), got {len(values)}")
+        rows.append(values)
+        lines.append(lineno)
+    if not rows:
+        raise InputError(f"{path}: no poses in the file (empty, or only comments)")
+    return np.asarray(rows, dtype=np.float64), np.asarray(lines)
+
+
+def _check_times(times: np.ndarray, path: Path, lines: np.ndarray) -> None:
+    """Raise InputError at the first non-finite, duplicate or decreasing timestamp."""
+    bad = ~np.isfinite(times)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(f"{path}:{lines[i]}: timestamp is {times[i]}")
+    step = np.diff(times)
+    if (step <= 0).any():
+        i = int(np.argmax(step <= 0)) + 1
+        what = "duplicate timestamp" if step[i - 1] == 0 else "timestamp goes back in time"
+        raise InputError(
+            f"{path}:{lines[i]}: {what}: {float(times[i])!r} after {float(times[i - 1])!r} at line {lines[i - 1]} "
+            "(timestamps must be strictly increasing)"
+        )
 
 
 def read_kitti(path: str | Path) -> np.ndarray:
     """Read a KITTI pose file -> (N, 4, 4) float64. Errors name the file and line."""
-    path = Path(path)
-    rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        try:
-            values = [float(v) for v in line.replace(",", " ").split()]
-        except ValueError:
-            raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:60]!r}") from None
-        if len(values) != 12:
-            raise InputError(f"{path}:{lineno}: expected 12 numbers (a row-major 3x4 pose), got {len(values)}")
-        rows.append(values)
-    if not rows:
-        raise InputError(f"{path}: no poses in the file")
+    return _kitti_poses(_read_rows(path, KITTI_COLUMNS)[0])
+
+
+def _kitti_poses(rows: np.ndarray) -> np.ndarray:
     poses = np.zeros((len(rows), 4, 4))
-    poses[:, :3, :] = np.asarray(rows).reshape(-1, 3, 4)
+    poses[:, :3, :] = rows.reshape(-1, 3, 4)
     poses[:, 3, 3] = 1
     return poses
 
 
 def write_kitti(path: str | Path, poses) -> None:
     """Write poses (N, 4, 4) (numpy or torch) as a KITTI pose file."""
-    poses = np.asarray(poses.detach().cpu() if hasattr(poses, "detach") else poses, dtype=np.float64)
+    poses = _numpy(poses)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     np.savetxt(path, poses[:, :3, :].reshape(-1, 12), fmt="%.9e")
+
+
+def read_times(path: str | Path) -> np.ndarray:
+    """Read a KITTI ``times.txt`` (one timestamp a line) -> (N,) float64, strictly increasing."""
+    path = Path(path)
+    rows, lines = _read_rows(path, 1)
+    _check_times(rows[:, 0], path, lines)
+    return rows[:, 0]
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory file -> Trajectory with times (N,).
+
+    Convention: the file stores ``qx qy qz qw``; quaternions are normalised on read, and a quaternion of
+    (near-)zero norm is an InputError. Timestamps must be finite and strictly increasing.
+    """
+    path = Path(path)
+    return _tum_trajectory(*_read_rows(path, TUM_COLUMNS), path)
+
+
+def _tum_trajectory(rows: np.ndarray, lines: np.ndarray, path: Path) -> Trajectory:
+    times = rows[:, 0].copy()
+    _check_times(times, path, lines)
+    q = rows[:, [7, 4, 5, 6]]  # (w, x, y, z)
+    norm = np.linalg.norm(q, axis=1)
+    tiny = norm < 1e-6  # NaN norms fall through: a NaN pose, flagged by pose_validity
+    if tiny.any():
+        i = int(np.argmax(tiny))
+        raise InputError(f"{path}:{lines[i]}: quaternion (qx qy qz qw) = {rows[i, 4:].tolist()} has norm {norm[i]:.3g}")
+    poses = np.zeros((len(rows), 4, 4))
+    poses[:, :3, :3] = quaternion_to_rotation_matrix(torch.from_numpy(q)).numpy()
+    poses[:, :3, 3] = rows[:, 1:4]
+    poses[:, 3, 3] = 1
+    return Trajectory(poses, times, path, lines)
+
+
+def write_tum(path: str | Path, times, poses) -> None:
+    """Write times (N,) and poses (N, 4, 4) (numpy or torch) as a TUM file ``t tx ty tz qx qy qz qw``."""
+    times, poses = _numpy(times), _numpy(poses)
+    if times.shape != poses.shape[:1]:
+        raise InputError(f"{path}: {len(times)} timestamps for {len(poses)} poses")
+    q = rotation_matrix_to_quaternion(torch.from_numpy(poses[:, :3, :3].copy())).numpy()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w") as f:
+        f.write("# timestamp tx ty tz qx qy qz qw\n")
+        for t, xyz, (w, x, y, z) in zip(times, poses[:, :3, 3], q):
+            f.write(f"{t:.9f} " + " ".join(f"{v:.9e}" for v in (*xyz, x, y, z, w)) + "\n")
+
+
+def read_poses(path: str | Path, format: str = "auto", times: str | Path | None = None) -> Trajectory:
+    """Read a KITTI or TUM pose file -> Trajectory.
+
+    format: "auto" (12 numbers a line -> KITTI, 8 -> TUM, from the first pose line), "kitti" or "tum".
+    times: a KITTI ``times.txt`` with one timestamp per pose (KITTI only; TUM files carry their own).
+    """
+    path = Path(path)
+    columns = {"auto": None, "kitti": KITTI_COLUMNS, "tum": TUM_COLUMNS}.get(format, -1)
+    if columns == -1:
+        raise InputError(f"{path}: unknown pose format {format!r} (auto, kitti or tum)")
+    rows, lines = _read_rows(path, columns)
+    if rows.shape[1] == TUM_COLUMNS:
+        if times is not None:
+            raise InputError(f"{path}: a TUM file carries its own timestamps; drop the times file {times}")
+        return _tum_trajectory(rows, lines, path)
+    stamps = None
+    if times is not None:
+        stamps = read_times(times)
+        if len(stamps) != len(rows):
+            raise InputError(f"{times}: {len(stamps)} timestamps for the {len(rows)} poses of {path}")
+    return Trajectory(_kitti_poses(rows), stamps, path, lines)
+
+
+def pose_validity(poses, tol: float = 1e-3) -> np.ndarray:
+    """Which poses (N, 4, 4) are usable -> bool (N,): all finite, rotation orthonormal with det +1 within tol."""
+    poses = _numpy(poses)
+    finite = np.isfinite(poses).all(axis=(1, 2))
+    R = np.where(finite[:, None, None], poses[:, :3, :3], np.eye(3))  # keep NaN out of det
+    return finite & (orthonormality_error(torch.from_numpy(R)).numpy() <= tol)
+
+
+def describe_invalid(path: str | Path, mask, lines=None, shown: int = 10) -> str | None:
+    """Readable summary of the invalid poses (``mask`` False), or None when all are valid.
+
+    lines: (N,) file line of each pose (``Trajectory.lines``); default pose index + 1. For example
+    ``"cam1.txt: 3 of 500 poses invalid at lines 17, 18, 40 (NaN/inf or non-orthonormal rotation)"``.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    lines = np.arange(1, len(mask) + 1) if lines is None else np.asarray(lines)
+    bad = lines[~mask]
+    if not len(bad):
+        return None
+    listed = ", ".join(str(v) for v in bad[:shown]) + (f" and {len(bad) - shown} more" if len(bad) > shown else "")
+    where = "line" if len(bad) == 1 else "lines"
+    return f"{path}: {len(bad)} of {len(mask)} poses invalid at {where} {listed} (NaN/inf or non-orthonormal rotation)"
+
+
+def _numpy(x) -> np.ndarray:
+    """numpy or torch -> float64 numpy."""
+    return np.asarray(x.detach().cpu() if hasattr(x, "detach") else x, dtype=np.float64)

@@ -1,0 +1,230 @@
+"""Timestamps of cameras on one rig: association and clock offset.
+
+Convention: a time offset is ADDED to camera 1's timestamps to put them on camera 0's clock,
+``t0 = t1 + offset``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ocalib.errors import InputError
+from ocalib.geometry import rotation_angle
+from ocalib.io.poses import pose_validity
+
+# estimate_time_offset: lags overlapping less than MIN_OVERLAP of the shorter recording are not
+# considered (short overlaps give spurious peaks). The answer is an error rather than a guess when its
+# normalised correlation is below MIN_CORRELATION, or when another lag (outside the peak's lobe) comes
+# close: 1 - runner_up < MIN_DISTINCTNESS * (1 - correlation).
+MIN_OVERLAP = 0.3
+MIN_CORRELATION = 0.5
+MIN_DISTINCTNESS = 2.0
+MIN_MOTIONS = 10
+
+
+def associate(times0, times1, max_dt: float, offset: float = 0.0, names=("camera 0", "camera 1")):
+    """Pair each camera-0 timestamp with the nearest camera-1 timestamp -> (idx0, idx1), int (M,) each.
+
+    times0 (N0,), times1 (N1,): strictly increasing seconds. Pairs with ``|t0 - (t1 + offset)| > max_dt``
+    are dropped; a camera-1 stamp nearest to several camera-0 stamps keeps only the closest, so the
+    pairing is one-to-one and both index arrays are strictly increasing. O(N log N).
+    names: how errors call the two inputs (e.g. their files).
+    Convention: ``t0 = t1 + offset``.
+    """
+    t0 = _increasing(times0, names[0])
+    t1 = _increasing(times1, names[1]) + offset
+    if not max_dt >= 0:
+        raise InputError(f"max_dt must be >= 0 seconds, got {max_dt}")
+    right = np.searchsorted(t1, t0).clip(0, len(t1) - 1)
+    left = (right - 1).clip(0)
+    j = np.where(np.abs(t0 - t1[left]) <= np.abs(t1[right] - t0), left, right)
+    dt = np.abs(t0 - t1[j])
+    i = np.flatnonzero(dt <= max_dt)
+    if not len(i):
+        raise InputError(_no_pairs_message(t0, t1, offset, max_dt, dt.min(), names))
+    j, dt = j[i], dt[i]
+    order = np.lexsort((dt, j))  # by camera-1 index, closest first
+    first = np.r_[True, j[order][1:] != j[order][:-1]]
+    keep = order[first]
+    return i[keep], j[keep]
+
+
+def _no_pairs_message(t0, t1, offset, max_dt, closest, names) -> str:
+    shift = f" (with time offset {offset:+.6f} s)" if offset else ""
+    spans = (
+        f"{names[0]} spans [{t0[0]:.6f}, {t0[-1]:.6f}] s, "
+        f"{names[1]} spans [{t1[0]:.6f}, {t1[-1]:.6f}] s{shift}"
+    )
+    if t1[0] > t0[-1] or t1[-1] < t0[0]:
+        gap = max(t1[0] - t0[-1], t0[0] - t1[-1])
+        return (
+            f"no timestamps to pair: {spans}; the time ranges never overlap (gap {gap:.6f} s). "
+            "If the cameras' clocks differ, use --time-offset auto (or give the offset in seconds)"
+        )
+    return f"no timestamp pair within max_dt = {max_dt} s: {spans}; the closest pair is {closest:.6f} s apart"
+
+
+def _increasing(times, name: str) -> np.ndarray:
+    times = np.asarray(times, dtype=np.float64)
+    if times.ndim != 1 or not len(times):
+        raise InputError(f"{name}: expected a non-empty 1-D array of timestamps, got shape {times.shape}")
+    if not (np.isfinite(times).all() and (np.diff(times) > 0).all()):
+        raise InputError(f"{name}: timestamps must be finite and strictly increasing")
+    return times
+
+
+def angular_speed(times, poses) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation speed of consecutive valid poses -> (mid times (M,), speed (M,) in rad/s).
+
+    times (N,) seconds, poses (N, 4, 4) camera-to-world; invalid poses (see ``pose_validity``) are
+    skipped. The speed is the same for every camera of a rigid rig, whatever its mounting.
+    """
+    times = np.asarray(times, dtype=np.float64)
+    poses = np.asarray(poses, dtype=np.float64)
+    ok = pose_validity(poses)
+    times, R = times[ok], torch.from_numpy(poses[ok, :3, :3])
+    angle = rotation_angle(R[:-1].mT @ R[1:]).numpy()
+    return (times[1:] + times[:-1]) / 2, angle / np.diff(times)
+
+
+@dataclass(frozen=True)
+class OffsetQuality:
+    """How trustworthy an estimated time offset is.
+
+    correlation: normalised cross-correlation of the two angular speeds at the offset, in [-1, 1].
+    runner_up: the best correlation at any other offset (outside the peak's lobe); periodic motion or
+    unrelated recordings bring it close to ``correlation``. overlap: seconds of motion the two cameras
+    share at the offset. step: seconds between samples of the coarse correlation grid.
+    """
+
+    correlation: float
+    runner_up: float
+    overlap: float
+    step: float
+
+
+def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "camera 1")):
+    """Clock offset between two cameras of one rig -> (offset seconds, OffsetQuality).
+
+    times0 (N0,), poses0 (N0, 4, 4), times1 (N1,), poses1 (N1, 4, 4): each camera on its own clock, any
+    rates; the offset may be arbitrarily large (Unix time against time since boot). Cross-correlates the
+    cameras' angular speeds: both are resampled on uniform grids of one step, every lag is scored by
+    FFT with the normalised correlation over the overlap, and the best is refined by a fine local search
+    with parabolic interpolation, to well below a frame period. InputError when the angular speed is
+    flat (no rotation), or the peak is weak or ambiguous (see MIN_CORRELATION, MIN_DISTINCTNESS).
+    Convention: ``t0 = t1 + offset`` (ADD the offset to times1).
+    """
+    m0, w0 = _speed_signal(times0, poses0, names[0])
+    m1, w1 = _speed_signal(times1, poses1, names[1])
+    step = min(np.median(np.diff(m0)), np.median(np.diff(m1))) / 2
+    step = max(step, max(m0[-1] - m0[0], m1[-1] - m1[0]) / 2**20)  # bounds the FFT size
+    g0 = m0[0] + step * np.arange(int((m0[-1] - m0[0]) / step) + 1)
+    g1 = m1[0] + step * np.arange(int((m1[-1] - m1[0]) / step) + 1)
+    x, y = np.interp(g0, m0, w0), np.interp(g1, m1, w1)
+    lags, ncc, counts = _normalised_xcorr(x, y)
+    ncc[counts < MIN_OVERLAP * min(len(x), len(y))] = -np.inf
+    best = int(np.argmax(ncc))
+    runner_up, second = _runner_up(ncc, best)
+    coarse = g0[0] - g1[0] + lags[best] * step
+
+    # Fine search: correlate the camera-0 grid with camera 1's speed interpolated at the shifted times.
+    fine = coarse + np.linspace(-step, step, 21)
+    scores = np.array([_ncc_at(g0, x, m1, w1, tau) for tau in fine])
+    k = int(np.argmax(scores))
+    offset, peak = fine[k], scores[k]
+    if 0 < k < len(fine) - 1:
+        a, b, c = scores[k - 1 : k + 2]
+        curvature = a - 2 * b + c
+        if curvature < 0:
+            delta = 0.5 * (a - c) / curvature
+            offset += delta * (fine[1] - fine[0])
+            peak = b - 0.25 * (a - c) * delta
+    peak = min(peak, 1.0)
+    overlap = min(m0[-1], m1[-1] + offset) - max(m0[0], m1[0] + offset)
+    found = f"{peak:.3f} at offset {offset:+.6f} s (over {overlap:.1f} s)"
+    if not peak >= MIN_CORRELATION:
+        raise InputError(
+            f"no clear time offset between {names[0]} and {names[1]}: the best normalised correlation of their "
+            f"angular speeds is {found}, below {MIN_CORRELATION}. The recordings may share too little time (at "
+            f"least {MIN_OVERLAP:.0%} of the shorter one is needed) or not show the same motion; "
+            "give --time-offset SECONDS"
+        )
+    if 1 - runner_up < MIN_DISTINCTNESS * (1 - peak):
+        other = g0[0] - g1[0] + lags[second] * step
+        raise InputError(
+            f"ambiguous time offset between {names[0]} and {names[1]}: the normalised correlation of their angular "
+            f"speeds is {found}, but {runner_up:.3f} at offset {other:+.6f} s. The motion may be repetitive or the "
+            f"recordings may share too little time (at least {MIN_OVERLAP:.0%} of the shorter one is needed); "
+            "give --time-offset SECONDS"
+        )
+    return float(offset), OffsetQuality(float(peak), runner_up, float(overlap), float(step))
+
+
+def _speed_signal(times, poses, name: str):
+    times = _increasing(times, name)
+    if np.shape(poses) != (len(times), 4, 4):
+        raise InputError(f"{name}: {len(times)} timestamps but poses of shape {np.shape(poses)}")
+    m, w = angular_speed(times, poses)
+    if len(m) < MIN_MOTIONS:
+        raise InputError(
+            f"{name}: {len(m)} motions between valid poses, at least {MIN_MOTIONS} are needed to estimate a time offset"
+        )
+    if np.std(w) <= 1e-3 * max(np.mean(w), 1.0):
+        raise InputError(
+            f"{name}: angular speed too flat to estimate a time offset "
+            f"(mean {np.mean(w):.3g} rad/s, std {np.std(w):.2g} rad/s); give --time-offset SECONDS"
+        )
+    return m, w
+
+
+def _normalised_xcorr(x: np.ndarray, y: np.ndarray):
+    """Normalised correlation of x[i] with y[i - k] over their overlap, for every lag k.
+
+    -> lags (L,), ncc (L,), overlap counts (L,), with k from -(len(y) - 1) to len(x) - 1.
+    """
+    n0, n1 = len(x), len(y)
+    x, y = x - x.mean(), y - y.mean()
+    n = 1 << int(np.ceil(np.log2(n0 + n1 - 1)))
+    circular = np.fft.irfft(np.fft.rfft(x, n) * np.conj(np.fft.rfft(y, n)), n)
+    lags = np.arange(-(n1 - 1), n0)
+    sxy = circular[lags % n]
+    lo0, hi0 = np.maximum(0, lags), np.minimum(n0, n1 + lags)
+    lo1, hi1 = lo0 - lags, hi0 - lags
+    cx, cxx = np.r_[0, np.cumsum(x)], np.r_[0, np.cumsum(x * x)]
+    cy, cyy = np.r_[0, np.cumsum(y)], np.r_[0, np.cumsum(y * y)]
+    count = hi0 - lo0
+    sx, sxx = cx[hi0] - cx[lo0], cxx[hi0] - cxx[lo0]
+    sy, syy = cy[hi1] - cy[lo1], cyy[hi1] - cyy[lo1]
+    var = (sxx - sx * sx / count) * (syy - sy * sy / count)
+    tiny = var <= 1e-12 * (sxx * syy).clip(1e-300)
+    ncc = np.where(tiny, -np.inf, (sxy - sx * sy / count) / np.sqrt(np.where(tiny, 1.0, var)))
+    return lags, ncc, count
+
+
+def _runner_up(ncc: np.ndarray, best: int) -> tuple[float, int]:
+    """Highest score and its index outside the main lobe (from ``best`` downhill to the first valley each side)."""
+    d = np.diff(np.maximum(ncc, -2.0))
+    up_right = np.flatnonzero(d[best:] > 0)
+    down_left = np.flatnonzero(d[:best] < 0)
+    hi = best + up_right[0] if len(up_right) else len(ncc)
+    lo = down_left[-1] + 1 if len(down_left) else 0
+    outside = np.r_[ncc[:lo], ncc[hi + 1 :]]
+    if not len(outside):
+        return -np.inf, best
+    k = int(np.argmax(outside))
+    return float(outside[k]), k if k < lo else k - lo + hi + 1
+
+
+def _ncc_at(g0, x, m1, w1, offset) -> float:
+    """Normalised correlation of x on grid g0 with camera 1's speed (m1, w1) shifted by offset."""
+    inside = (g0 >= m1[0] + offset) & (g0 <= m1[-1] + offset)
+    if inside.sum() < 3:
+        return -np.inf
+    a = x[inside] - x[inside].mean()
+    b = np.interp(g0[inside] - offset, m1, w1)
+    b = b - b.mean()
+    denom = np.sqrt((a @ a) * (b @ b))
+    return float(a @ b / denom) if denom > 0 else -np.inf

@@ -1,0 +1,128 @@
+"""Timestamp association and clock-offset estimation between the cameras of a rig."""
+
+import numpy as np
+import pytest
+
+from ocalib.errors import InputError
+from ocalib.io.poses import read_poses, write_tum
+from ocalib.io.timing import angular_speed, associate, estimate_time_offset
+
+FRAME = 1 / 30  # camera 0's frame period; camera 1 runs at 20 Hz
+
+
+def brute_force_associate(t0, t1, max_dt):
+    """Nearest neighbour by an O(N^2) search, then the closest camera-0 stamp per camera-1 stamp."""
+    d = np.abs(t0[:, None] - t1[None])
+    j = d.argmin(1)
+    best = {}
+    for i, (jj, dt) in enumerate(zip(j, d[np.arange(len(t0)), j])):
+        if dt <= max_dt and (jj not in best or dt < best[jj][1]):
+            best[jj] = (i, dt)
+    pairs = sorted((i, jj) for jj, (i, _) in best.items())
+    return np.array([p[0] for p in pairs], int), np.array([p[1] for p in pairs], int)
+
+
+def test_associate_matches_brute_force():
+    rng = np.random.default_rng(0)
+    t0 = np.cumsum(rng.uniform(0.02, 0.05, 400))
+    t1 = np.cumsum(rng.uniform(0.01, 0.12, 200)) + 0.3
+    for max_dt in (0.005, 0.02, 1.0):
+        i0, i1 = associate(t0, t1, max_dt)
+        e0, e1 = brute_force_associate(t0, t1, max_dt)
+        np.testing.assert_array_equal(i0, e0)
+        np.testing.assert_array_equal(i1, e1)
+        assert (np.diff(i0) > 0).all() and (np.diff(i1) > 0).all()
+        assert (np.abs(t0[i0] - t1[i1]) <= max_dt).all()
+    i0, i1 = associate(t0, t0[5::7], 0.0)  # exact matches survive max_dt = 0
+    np.testing.assert_array_equal(i0, np.arange(5, 400, 7))
+
+
+def test_associate_one_to_one_and_offset():
+    t0 = np.arange(0, 10, 0.1)  # 10 Hz
+    t1 = np.arange(0, 10, 0.5) + 100.02  # 2 Hz on another clock
+    i0, i1 = associate(t0, t1, 0.03, offset=-100.0)
+    np.testing.assert_array_equal(i1, np.arange(20))  # each camera-1 stamp once, to its closest
+    np.testing.assert_allclose(t0[i0], np.arange(0, 10, 0.5), atol=1e-9)
+    with pytest.raises(InputError, match="no timestamp pair within max_dt = 0.01 s.*closest pair is 0.020000 s"):
+        associate(t0, t1, 0.01, offset=-100.0)
+
+
+def test_associate_never_overlapping_ranges():
+    t0 = np.arange(0, 10, 0.1) + 1.7e9
+    t1 = np.arange(0, 10, 0.1) + 12.0
+    with pytest.raises(InputError) as err:
+        associate(t0, t1, 0.01, names=("cam0.txt", "cam1.txt"))
+    message = str(err.value)
+    assert "cam0.txt spans [1700000000.000000, 1700000009.900000] s" in message
+    assert "cam1.txt spans [12.000000, 21.900000] s" in message
+    assert "never overlap" in message and "--time-offset auto" in message
+
+
+def test_associate_rejects_unsorted_times():
+    with pytest.raises(InputError, match="cam1: timestamps must be finite and strictly increasing"):
+        associate([0.0, 1.0], [1.0, 0.5], 0.1, names=("cam0", "cam1"))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_offset_unix_against_boot_clock(rig, seed):
+    t0, p0, t1, p1 = rig(seed, jitter1=0.3)
+    offset, quality = estimate_time_offset(t0 + 1_700_000_000.0, p0, t1 + 5.25, p1)
+    assert abs(offset - (1_700_000_000.0 - 5.25)) < 0.2 * FRAME
+    assert quality.correlation > 0.9 and quality.runner_up < quality.correlation
+    assert quality.overlap > 55
+
+
+def test_offset_1234_567_with_noise_through_files(tmp_path, rig):
+    t0, p0, t1, p1 = rig(3, jitter1=0.3, noise=0.01)
+    write_tum(tmp_path / "cam0.tum", t0, p0)
+    write_tum(tmp_path / "cam1.tum", t1 + 1234.567, p1)
+    cam0, cam1 = read_poses(tmp_path / "cam0.tum"), read_poses(tmp_path / "cam1.tum")
+    offset, _ = estimate_time_offset(cam0.times, cam0.poses, cam1.times, cam1.poses)
+    assert abs(offset + 1234.567) < 0.2 * FRAME  # t0 = t1 + offset
+    # Sign convention: the offset puts camera 1 on camera 0's clock for association.
+    with pytest.raises(InputError, match="--time-offset auto"):
+        associate(cam0.times, cam1.times, 0.01)
+    i0, i1 = associate(cam0.times, cam1.times, FRAME / 2, offset=offset)
+    np.testing.assert_array_equal(i1, np.arange(len(t1)))  # every 20 Hz frame has a 30 Hz partner
+    assert np.abs(t0[i0] - t1[i1]).max() < FRAME / 2 + 0.2 * FRAME
+
+
+def test_offset_with_partial_overlap_and_invalid_poses(rig):
+    t0, p0, t1, p1 = rig(4, start1=48.0)  # camera 1 sees only the last 12 s of camera 0's 60 s
+    p0[[10, 11, 300]] = np.nan
+    offset, quality = estimate_time_offset(t0, p0, t1 - 1234.567, p1)
+    assert abs(offset - 1234.567) < 0.2 * FRAME
+    assert 11 < quality.overlap < 12.1
+
+
+def test_offset_barely_overlapping_recordings_is_an_error(rig):
+    t0, p0, t1, p1 = rig(0, duration=115)
+    keep0, keep1 = t0 < 60, t1 > 55  # 5 s shared of two 60 s recordings
+    with pytest.raises(InputError, match="ambiguous time offset|no clear time offset"):
+        estimate_time_offset(t0[keep0], p0[keep0], t1[keep1], p1[keep1])
+
+
+def test_offset_flat_angular_speed(rig):
+    t0, p0, t1, p1 = rig(0, rotation=0.0)  # pure translation
+    with pytest.raises(InputError, match="camera 0: angular speed too flat to estimate a time offset"):
+        estimate_time_offset(t0, p0, t1, p1)
+    spin = np.tile(np.eye(4), (len(t0), 1, 1))  # constant rate about z
+    c, s = np.cos(0.5 * t0), np.sin(0.5 * t0)
+    spin[:, 0, 0], spin[:, 0, 1], spin[:, 1, 0], spin[:, 1, 1] = c, -s, s, c
+    with pytest.raises(InputError, match="angular speed too flat"):
+        estimate_time_offset(t0, spin, t0, spin)
+
+
+def test_offset_too_few_poses(rig):
+    t0, p0, t1, p1 = rig(0, duration=0.2)
+    with pytest.raises(InputError, match="at least 10 are needed"):
+        estimate_time_offset(t0, p0, t1, p1)
+
+
+def test_angular_speed_is_mounting_invariant(rig):
+    t0, p0, _, _ = rig(0, rate1=30.0)
+    _, _, t1, p1 = rig(0, rate0=30.0, rate1=30.0)
+    m0, w0 = angular_speed(t0, p0)
+    m1, w1 = angular_speed(t1, p1)
+    np.testing.assert_allclose(m0, m1)
+    np.testing.assert_allclose(w0, w1, atol=1e-9)
