@@ -30,18 +30,20 @@ def open_rig(path: str | Path) -> Sequence:
     rig = read_rig_yaml(path / "rig.yaml")
     cameras = []
     for spec in rig.cameras:
-        folder = path / spec.name
-        images = list_frames(folder / "images")
-        depth = list_frames(folder / "depth", (".png",)) if (folder / "depth").is_dir() else None
-        if depth is not None and [p.stem for p in depth] != [p.stem for p in images]:
-            raise InputError(f"{folder / 'depth'}: depth frames do not match {folder / 'images'} "
-                             f"({len(depth)} vs {len(images)} files)")
-        poses = read_kitti(folder / "poses.txt") if (folder / "poses.txt").is_file() else None
-        if poses is not None and len(poses) != len(images):
-            raise InputError(f"{folder / 'poses.txt'}: {len(poses)} poses for {len(images)} images")
-        cameras.append(Camera(spec.name, images, spec.K, (spec.height, spec.width),
-                              np.asarray(spec.T_cam0_cam, dtype=np.float64), poses, depth))
-    sequence = Sequence(path.name, path, "rig", cameras)
+        images = list_frames(path / spec.name / "images")
+        cameras.append(Camera(spec.name, images, spec.K, (spec.height, spec.width), np.asarray(spec.T_cam0_cam)))
+    sequence = Sequence(path.name, path, "rig", cameras)  # checks the cameras' frame counts first
+    for cam in cameras:
+        folder = path / cam.name
+        if (folder / "depth").is_dir():
+            cam.depth = list_frames(folder / "depth", (".png",))
+            if [p.stem for p in cam.depth] != [p.stem for p in cam.images]:
+                raise InputError(f"{folder / 'depth'}: depth frames do not match {folder / 'images'} "
+                                 f"({len(cam.depth)} vs {len(cam.images)} files)")
+        if (folder / "poses.txt").is_file():
+            cam.poses = read_kitti(folder / "poses.txt")
+            if len(cam.poses) != len(cam.images):
+                raise InputError(f"{folder / 'poses.txt'}: {len(cam.poses)} poses for {len(cam.images)} images")
     times_file = path / "times.txt"
     if times_file.is_file():
         sequence.times = read_numbers(times_file, 1)[:, 0]
