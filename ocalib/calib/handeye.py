@@ -18,6 +18,8 @@ for any rotation model.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import torch
 from torch import Tensor
 
@@ -61,13 +63,23 @@ def normal_equations(Z: Tensor, maps: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         ``|t0|^2 - 2 x.g + x^T H x`` for the unknown ``x = (dT, c)``.
     """
     m = maps.shape[-3]
+    # z' = D z = (vec(I - R0), L_1 t1, ..., L_m t1, t0), and the moment of z' is D Z D^T.
+    D = Z.new_zeros(*maps.shape[:-3], 12 + 3 * m, FEATURES)
+    D[..., :9, :9] = torch.eye(9, dtype=Z.dtype, device=Z.device)
+    D[..., 9 : 9 + 3 * m, 9:12] = maps.flatten(-3, -2)
+    D[..., 9 + 3 * m :, 12:] = torch.eye(3, dtype=Z.dtype, device=Z.device)
+    Zd = D @ Z @ D.mT
+    # Equation r of a pair reads z'[idx[r]] = (row r of I - R0, (L_k t1)_r for each k | (t0)_r).
+    idx = _row_index(m, Z.device)
+    K = Zd[..., idx[:, :, None], idx[:, None, :]].sum(-3)
     n = 3 + m
-    # E[r] maps z to (row r of the design matrix | target r): (..., 3, n + 1, 15).
-    E = Z.new_zeros(*maps.shape[:-3], 3, n + 1, FEATURES)
-    rows = torch.arange(3, device=Z.device)
-    for i in range(3):
-        E[..., rows, i, 3 * rows + i] = 1.0
-    E[..., :, 3:n, 9:12] = maps.transpose(-3, -2)  # E[r, 3 + k, 9 + b] = L_k[r, b]
-    E[..., rows, n, 12 + rows] = 1.0
-    K = (E @ Z.unsqueeze(-3) @ E.mT).sum(-3)
     return K[..., :n, :n], K[..., :n, n], K[..., n, n]
+
+
+@lru_cache(maxsize=None)
+def _row_index(m: int, device: torch.device) -> Tensor:
+    """(3, 4 + m) indices into z' of equation r's unknown coefficients and target."""
+    return torch.tensor(
+        [[3 * r, 3 * r + 1, 3 * r + 2] + [9 + 3 * k + r for k in range(m)] + [9 + 3 * m + r] for r in range(3)],
+        device=device,
+    )

@@ -36,4 +36,6 @@ class _GuardedEigh(torch.autograd.Function):
 def guarded_eigh(M: Tensor) -> tuple[Tensor, Tensor]:
     """Eigen-decomposition of symmetric ``M`` (..., n, n): eigenvalues ascending (..., n), eigenvectors
     as columns (..., n, n); gradients finite for repeated eigenvalues (see module docstring)."""
-    return _GuardedEigh.apply(M)
+    if torch.is_grad_enabled() and M.requires_grad:
+        return _GuardedEigh.apply(M)
+    return torch.linalg.eigh(M)

@@ -123,8 +123,8 @@ class OnlineCalibrator(nn.Module):
 
     def detach_(self) -> OnlineCalibrator:
         """Cut the autograd history of the state (call between training windows)."""
-        for name, buf in self.named_buffers():
-            setattr(self, name, buf.detach())
+        for name, buf in self._buffers.items():
+            self._buffers[name] = buf.detach()
         return self
 
     def forward(self, poses: Tensor) -> Calibration:
@@ -135,69 +135,70 @@ class OnlineCalibrator(nn.Module):
             raise ValueError(
                 f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}"
             )
-        poses = poses.to(self.S.dtype)
+        st = self._buffers  # the state, read and replaced directly (nn.Module attribute access is slow)
+        poses = poses.to(st["S"].dtype)
         valid = poses.isfinite().flatten(-2).all(-1)
         eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
         poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
         valid = valid & (orthonormality_error(poses[..., :3, :3]) < self.pose_tolerance)
         poses = torch.where(valid[..., None, None], poses, eye)
-
-        start = valid.all(-1) & ~self.first_valid
-        self.first = torch.where(start[:, None, None, None], poses, self.first)
-        self.first_valid = self.first_valid | start
+        frame = st["frame"]
 
         # Motion pairs (gap g: frame t-g to t; gap 0: frame 0 to t): (B, C, P, 4, 4).
-        slots = (self.frame - self.gap_tensor) % self.history_size
-        prev = [self.history.index_select(2, slots)]
-        prev_valid = [self.history_valid.index_select(2, slots)]
+        slots = (frame - st["gap_tensor"]) % self.history_size
+        prev = [st["history"].index_select(2, slots)]
+        prev_valid = [st["history_valid"].index_select(2, slots)]
         if 0 in self.gaps:
-            prev.append(self.first.unsqueeze(2))
-            prev_valid.append(self.first_valid[:, None, None].expand(-1, self.num_cameras, 1))
+            start = valid.all(-1) & ~st["first_valid"]
+            st["first"] = torch.where(start[:, None, None, None], poses, st["first"])
+            st["first_valid"] = st["first_valid"] | start
+            prev.append(st["first"].unsqueeze(2))
+            prev_valid.append(st["first_valid"][:, None, None].expand(-1, self.num_cameras, 1))
         prev, prev_valid = torch.cat(prev, 2), torch.cat(prev_valid, 2)
         motion = invert_pose(prev) @ poses.unsqueeze(2)
         pair_valid = prev_valid & valid.unsqueeze(-1)
+        pair_valid = pair_valid[:, :1] & pair_valid[:, 1:]  # (B, K, P): camera 0 and camera k
         q = rotation_matrix_to_quaternion(motion[..., :3, :3])
         angle = quaternion_angle(q)
-        ok = pair_valid[:, :1] & pair_valid[:, 1:]  # (B, K, P)
 
         # Screw congruence: a rigid rig's cameras rotate by the same angle.
         screw = (angle[:, :1] - angle[:, 1:]).abs()
-        ok = ok & (screw <= self._screw_threshold().unsqueeze(-1))
-        self._update_screw_scale(screw, pair_valid[:, :1] & pair_valid[:, 1:])
+        ok = pair_valid & (screw <= self._screw_threshold(st).unsqueeze(-1))
+        self._update_screw_scale(st, screw, pair_valid)
 
         # Rotation: incremental SVD of the weighted blocks.
         A = rotation_block(q[:, :1].expand_as(q[:, 1:]), q[:, 1:])  # (B, K, P, 4, 4)
         moving = (angle[:, :1] + angle[:, 1:]) / 2 >= self.min_rotation
-        w_rot = (ok & moving).to(poses.dtype) * self._robust_weight(A)
+        w_rot = (ok & moving).to(poses.dtype) * self._robust_weight(st, A)
         W = (w_rot.sqrt()[..., None, None] * A).flatten(-3, -2)
         lam = self.forgetting
-        self.S, self.V = incremental_svd_update(self.S, self.V, W, lam)
-        self.rotation_rows = lam * self.rotation_rows + w_rot.sum(-1)
+        S, V = st["S"], st["V"] = incremental_svd_update(st["S"], st["V"], W, lam)
+        st["rotation_rows"] = lam * st["rotation_rows"] + w_rot.sum(-1)
 
         # Translation moment.
         w_tr = ok.to(poses.dtype)
-        R0, t0 = motion[:, :1, :, :3, :3], motion[:, :1, :, :3, 3]
-        z = translation_features(R0, t0, motion[:, 1:, :, :3, 3])  # (B, K, P, 15)
-        self.Z = lam * self.Z + (z * w_tr.unsqueeze(-1)).mT @ z
-        self.translation_rows = lam * self.translation_rows + w_tr.sum(-1)
+        R0, t0, t1 = motion[:, :1, :, :3, :3], motion[:, :1, :, :3, 3], motion[:, 1:, :, :3, 3]
+        z = translation_features(R0, t0.expand_as(t1), t1)  # (B, K, P, 15)
+        Z = st["Z"] = lam * st["Z"] + (z * w_tr.unsqueeze(-1)).mT @ z
+        st["translation_rows"] = lam * st["translation_rows"] + w_tr.sum(-1)
 
         # Rotation estimate (through the translation constraint when the motion is planar).
-        quat = rotation_solution(self.V)
+        quat = rotation_solution(V)
         dR = quaternion_to_rotation_matrix(quat)
-        planar = planar_motion(self.S)
-        dR_planar, axis = planar_rotation(self.Z, self.V)
+        planar = planar_motion(S)
+        dR_planar, axis = planar_rotation(Z, V)
         dR = torch.where(planar[..., None, None], dR_planar, dR)
         quat = torch.where(planar[..., None], rotation_matrix_to_quaternion(dR), quat)
 
-        tr = solve_translation(self.Z, dR, self.translation_rows)
+        tr = solve_translation(Z, dR, st["translation_rows"])
         translation, scale = tr["translation"], tr["scale"]
         if self.solver == "rls":
-            B, b = translation_rows(R0.expand_as(motion[:, 1:, :, :3, :3]), t0, motion[:, 1:, :, :3, 3], dR[:, :, None])
+            B, b = translation_rows(R0.expand_as(motion[:, 1:, :, :3, :3]), t0.expand_as(t1), t1, dR[:, :, None])
             sw = w_tr.sqrt()[..., None]
-            x, C = rls_update(self.rls_x, self.rls_C, (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2), lam)
-            go = (self.frame >= self.rls_delay)
-            self.rls_x, self.rls_C = torch.where(go, x, self.rls_x), torch.where(go, C, self.rls_C)
-            translation, scale = self.rls_x[..., :3], self.rls_x[..., 3]
+            x, C = rls_update(st["rls_x"], st["rls_C"], (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2), lam)
+            go = frame >= self.rls_delay
+            st["rls_x"], st["rls_C"] = torch.where(go, x, st["rls_x"]), torch.where(go, C, st["rls_C"])
+            translation, scale = st["rls_x"][..., :3], st["rls_x"][..., 3]
 
         unobservable = unobservable_directions(tr["information"])
         along_axis = (tr["directions"] * axis.unsqueeze(-1)).sum(-2).abs() > 0.9
@@ -207,51 +208,50 @@ class OnlineCalibrator(nn.Module):
         translation_std = torch.where(leak, math.inf, torch.diagonal(cov[..., :3, :3], dim1=-2, dim2=-1).sqrt())
 
         used = ok.any(-1)
-        self.frames_used = self.frames_used + used
-        self.frames_rejected = self.frames_rejected + (~used & (self.frame > 0))
-        slot = (self.frame % self.history_size).reshape(1)
-        self.history = self.history.index_copy(2, slot, poses.unsqueeze(2))
-        self.history_valid = self.history_valid.index_copy(2, slot, valid.unsqueeze(2))
-        self.frame = self.frame + 1
+        st["frames_used"] = st["frames_used"] + used
+        st["frames_rejected"] = st["frames_rejected"] + (~used & (frame > 0))
+        slot = (frame % self.history_size).reshape(1)
+        st["history"] = st["history"].index_copy(2, slot, poses.unsqueeze(2))
+        st["history_valid"] = st["history_valid"].index_copy(2, slot, valid.unsqueeze(2))
+        st["frame"] = frame + 1
 
         return Calibration(
             rotation=dR,
             quaternion=quat,
             translation=translation,
             scale=scale,
-            rotation_singular_values=self.S,
-            rotation_observable=rotation_observable(self.S),
+            rotation_singular_values=S,
+            rotation_observable=rotation_observable(S),
             planar_motion=planar,
             translation_information=tr["information"],
             translation_directions=tr["directions"],
             translation_unobservable=unobservable,
-            rotation_std=rotation_std(self.S, self.V, self.rotation_rows),
+            rotation_std=rotation_std(S, V, st["rotation_rows"]),
             translation_std=translation_std,
             scale_std=cov[..., 3, 3].sqrt(),
-            frames_used=self.frames_used,
-            frames_rejected=self.frames_rejected,
+            frames_used=st["frames_used"],
+            frames_rejected=st["frames_rejected"],
         )
 
-    def _screw_threshold(self) -> Tensor:
-        robust_std = 1.25 * self.screw_scale  # mean absolute deviation -> std, for Gaussian noise
+    def _screw_threshold(self, st: dict[str, Tensor]) -> Tensor:
+        robust_std = 1.25 * st["screw_scale"]  # mean absolute deviation -> std, for Gaussian noise
         thr = torch.clamp_min(self.screw_gate_sigma * robust_std, self.screw_gate)
-        return torch.where(self.screw_count >= 10, thr, math.inf)
+        return torch.where(st["screw_count"] >= 10, thr, math.inf)
 
-    def _update_screw_scale(self, screw: Tensor, valid: Tensor) -> None:
+    def _update_screw_scale(self, st: dict[str, Tensor], screw: Tensor, valid: Tensor) -> None:
         """Running mean absolute screw residual, each sample clipped at 5 robust std (outliers barely count)."""
-        clip = torch.where(self.screw_count >= 10, 5 * 1.25 * self.screw_scale, math.inf).unsqueeze(-1)
-        x = torch.minimum(screw, clip) * valid
+        scale, count = st["screw_scale"], st["screw_count"]
+        clip = torch.where(count >= 10, 5 * 1.25 * scale, math.inf).unsqueeze(-1)
+        x = torch.minimum(screw.detach(), clip) * valid
         n = valid.sum(-1).to(screw.dtype)
-        count = (self.screw_count + n).clamp_max(1000.0)
-        self.screw_scale = torch.where(
-            n > 0, self.screw_scale + (x.sum(-1) - n * self.screw_scale) / count.clamp_min(1), self.screw_scale
-        ).detach()
-        self.screw_count = count
+        count = (count + n).clamp_max(1000.0)
+        st["screw_scale"] = scale + (x.sum(-1) - n * scale) / count.clamp_min(1)
+        st["screw_count"] = count
 
-    def _robust_weight(self, A: Tensor) -> Tensor:
+    def _robust_weight(self, st: dict[str, Tensor], A: Tensor) -> Tensor:
         """VINS-Mono's down-weighting: residual angle d of the current estimate, weight robust/d above robust."""
-        q = rotation_solution(self.V).detach()
-        r = (A @ q[:, :, None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)
+        q = rotation_solution(st["V"]).detach()
+        r = (A.detach() @ q[:, :, None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)
         d = 4 * torch.asin((r / 2).clamp(max=1.0))
-        established = rotation_observable(self.S).unsqueeze(-1)
+        established = rotation_observable(st["S"]).unsqueeze(-1)
         return torch.where(established & (d > self.robust), self.robust / d.clamp_min(1e-12), 1.0).detach()

@@ -1,10 +1,13 @@
 """Unit quaternions, (w, x, y, z) order as in kornia.
 
-Written for speed on tiny batches (the calibration head calls them every frame): each function
-is a handful of tensor operations, differentiable, and works for any leading batch shape.
+Written for speed on tiny batches (the calibration head calls them every frame): the linear maps
+(product matrices, Shepperd's candidates) are single matrix products with constant bases, so each
+function is a handful of tensor operations; all are differentiable, for any leading batch shape.
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import torch
 from torch import Tensor
@@ -17,36 +20,45 @@ def quaternion_multiply(p: Tensor, q: Tensor) -> Tensor:
 
 def left_product_matrix(q: Tensor) -> Tensor:
     """``L(q)`` with ``q * p = L(q) p``. Shape (..., 4) -> (..., 4, 4)."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            torch.stack([w, -x, -y, -z], -1),
-            torch.stack([x, w, -z, y], -1),
-            torch.stack([y, z, w, -x], -1),
-            torch.stack([z, -y, x, w], -1),
-        ],
-        -2,
-    )
+    return (q @ _bases(q.dtype, q.device)[0]).unflatten(-1, (4, 4))
 
 
 def right_product_matrix(q: Tensor) -> Tensor:
     """``R(q)`` with ``p * q = R(q) p``. Shape (..., 4) -> (..., 4, 4)."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            torch.stack([w, -x, -y, -z], -1),
-            torch.stack([x, w, z, -y], -1),
-            torch.stack([y, -z, w, x], -1),
-            torch.stack([z, y, -x, w], -1),
-        ],
-        -2,
-    )
+    return (q @ _bases(q.dtype, q.device)[1]).unflatten(-1, (4, 4))
+
+
+def _left(w, x, y, z):
+    return [[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]]
+
+
+def _right(w, x, y, z):
+    return [[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]]
+
+
+def _shepperd(r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """Row i: ``4 q_i q``, written with the i-th pivot ``4 q_i^2 = 1 (+-) r00 (+-) r11 (+-) r22``."""
+    return [
+        [1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01],
+        [r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20],
+        [r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21],
+        [r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22],
+    ]
+
+
+@lru_cache(maxsize=None)
+def _bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Constant matrices of the linear maps above: L (4, 16), R (4, 16), Shepperd (9, 16) + offset (16,)."""
+    eye4, eye9 = torch.eye(4, dtype=torch.float64), torch.eye(9, dtype=torch.float64)
+    as_rows = lambda f, basis: torch.tensor([sum(f(*e), []) for e in basis.tolist()], dtype=torch.float64)  # noqa: E731
+    offset = torch.tensor(sum(_shepperd(*[0.0] * 9), []), dtype=torch.float64)
+    bases = (as_rows(_left, eye4), as_rows(_right, eye4), as_rows(_shepperd, eye9) - offset, offset)
+    return tuple(b.to(dtype=dtype, device=device) for b in bases)
 
 
 def canonical_quaternion(q: Tensor) -> Tensor:
     """The sign of ``q`` with ``w >= 0`` (q and -q are the same rotation). Shape (..., 4)."""
-    sign = torch.where(q[..., :1] < 0, -1.0, 1.0).to(q.dtype)
-    return q * sign
+    return torch.where(q[..., :1] < 0, -q, q)
 
 
 def rotation_matrix_to_quaternion(R: Tensor) -> Tensor:
@@ -55,35 +67,20 @@ def rotation_matrix_to_quaternion(R: Tensor) -> Tensor:
     Shepperd's method: of the four algebraically equal formulas, each element uses the one with the
     largest pivot, so the result is accurate for every rotation angle (including 180 degrees).
     """
-    r = R.reshape(*R.shape[:-2], 9)
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r.unbind(-1)
-    # Row i is 4 * q_i * q, written with the i-th pivot 4 * q_i^2 = 1 + (+-)r00 (+-)r11 (+-)r22.
-    candidates = torch.stack(
-        [
-            torch.stack([1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01], -1),
-            torch.stack([r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20], -1),
-            torch.stack([r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21], -1),
-            torch.stack([r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22], -1),
-        ],
-        -2,
-    )
+    _, _, basis, offset = _bases(R.dtype, R.device)
+    candidates = (R.flatten(-2) @ basis + offset).unflatten(-1, (4, 4))
     pivot = torch.diagonal(candidates, dim1=-2, dim2=-1).argmax(-1, keepdim=True)
     q = torch.take_along_dim(candidates, pivot[..., None], dim=-2).squeeze(-2)
     return canonical_quaternion(q / q.norm(dim=-1, keepdim=True))
 
 
 def quaternion_to_rotation_matrix(q: Tensor) -> Tensor:
-    """Quaternion (..., 4), (w, x, y, z), any norm > 0 -> rotation matrix (..., 3, 3)."""
+    """Quaternion (..., 4), (w, x, y, z), any norm > 0 -> rotation matrix (..., 3, 3).
+
+    ``q * p * conj(q) = L(q) R(q)^T p`` for unit q; the rotation is its lower-right 3x3 block.
+    """
     q = q / q.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        -1,
-    ).reshape(*q.shape[:-1], 3, 3)
+    return (left_product_matrix(q) @ right_product_matrix(q).mT)[..., 1:, 1:]
 
 
 def quaternion_angle(q: Tensor) -> Tensor:
