@@ -1,0 +1,408 @@
+"""Rig calibration from pose files: the engine of ``ocalib calibrate-poses``.
+
+:func:`load_rig` reads one pose file per camera (KITTI or TUM), puts the cameras on camera 0's clock
+and pairs their poses into synchronised frames; :func:`calibrate_rig` streams the frames through the
+on-line head (:class:`~ocalib.calib.online.OnlineCalibrator`), or solves them at once (``batch``), and
+returns a :class:`CalibrationRun` with the per-frame estimates, the result JSON and warnings.
+
+Convention: poses camera-to-world (each camera in its own world and units: only motions are used);
+the result is ``T_cam0_camk`` (``p_cam0 = R p_camk + t``, camera-0 units) and the scale that multiplies
+camera-k units into camera-0 units; a time offset is ADDED to camera k's timestamps (``t0 = tk + offset``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass, field, fields
+from functools import reduce
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ocalib.calib.batch import batch_calibrate
+from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.planar import planar_axis
+from ocalib.calib.result import Calibration
+from ocalib.calib.rotation import (
+    ROTATION_OBSERVABLE_MIN_SV,
+    ROTATION_OBSERVABLE_RATIO,
+    batch_rotation,
+    planar_motion,
+    rotation_observable,
+)
+from ocalib.errors import InputError
+from ocalib.io.poses import describe_invalid, pose_validity, read_poses
+from ocalib.io.timing import associate, estimate_time_offset
+
+MIN_FRAMES = 3  # synchronised frames with every pose valid, below which there is nothing to calibrate
+PROGRESS_EVERY = 100  # frames between progress-bar updates (and between copies of the per-frame estimates)
+POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
+SOLVERS = ("exact", "rls", "batch")
+
+# The per-camera keys of the result JSON, in the order of the issue's format.
+CAMERA_KEYS = (
+    "camera", "rotation", "quaternion_wxyz", "translation", "scale", "time_offset", "frames_used",
+    "frames_rejected", "rotation_std_deg", "translation_std", "scale_std", "observability",
+)  # fmt: skip
+
+
+@dataclass
+class RigPoses:
+    """The synchronised poses of a rig of C cameras over T frames.
+
+    files: (C,) the pose files, camera 0 first. poses: (T, C, 4, 4) float64 camera-to-world.
+    times: (T,) camera-0 seconds, or None (KITTI without times). lines: (T, C) the file line of each pose.
+    time_offsets: (C,) seconds added to camera k's clock (0 for camera 0), None without timestamps.
+    offset_quality: per camera, the ``OffsetQuality`` of an estimated (``auto``) offset, else None.
+    max_dt: the association tolerance used, seconds (None without timestamps).
+    """
+
+    files: list[str]
+    poses: np.ndarray
+    times: np.ndarray | None
+    lines: np.ndarray
+    time_offsets: list[float | None]
+    offset_quality: list = field(default_factory=list)
+    max_dt: float | None = None
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(T, C) bool: finite pose with an orthonormal rotation."""
+        return np.stack([pose_validity(self.poses[:, c], POSE_TOLERANCE) for c in range(len(self.files))], 1)
+
+
+def load_rig(
+    files: list[str | Path],
+    format: str = "auto",
+    times: list[str | Path] | None = None,
+    time_offset: list[float | str] | None = None,
+    max_dt: float | None = None,
+) -> RigPoses:
+    """Read C >= 2 pose files and pair their poses into synchronised frames.
+
+    Args:
+        files: pose files, camera 0 (the reference) first. format: ``auto``, ``kitti`` or ``tum``.
+        times: KITTI ``times.txt`` files, one per pose file (TUM files carry their own timestamps).
+        time_offset: one value for every camera k >= 1, or one per camera: seconds, or ``"auto"``
+            (estimated by cross-correlating angular speeds). Needs timestamps.
+        max_dt: association tolerance in seconds; default half camera 0's median frame period.
+
+    Without timestamps the files must hold one pose per frame (equal lengths). With timestamps every
+    camera is paired with camera 0 (nearest stamp within ``max_dt``) and only frames that every camera
+    has are kept. Raises InputError naming the file (and line) on any bad input.
+    """
+    files = [str(f) for f in files]
+    if len(files) < 2:
+        raise InputError(f"a rig needs at least 2 pose files (camera 0 and one more), got {len(files)}")
+    if times is not None and len(times) != len(files):
+        raise InputError(f"--times: {len(times)} times files for {len(files)} pose files; give one per pose file")
+    trajs = [read_poses(f, format, None if times is None else times[c]) for c, f in enumerate(files)]
+    offsets = _offset_specs(time_offset, len(files) - 1)
+    timed = [t.times is not None for t in trajs]
+
+    if not any(timed):
+        if time_offset is not None:
+            raise InputError(
+                f"--time-offset needs timestamps: {files[0]} has none (KITTI); give TUM files or --times"
+            )
+        for f, t in zip(files[1:], trajs[1:]):
+            if len(t) != len(trajs[0]):
+                raise InputError(
+                    f"unequal lengths: {files[0]} has {len(trajs[0])} poses but {f} has {len(t)}; without "
+                    "timestamps (KITTI) the files must hold one pose per frame. Give --times to pair poses by time"
+                )
+        rig = RigPoses(files, np.stack([t.poses for t in trajs], 1), None, np.stack([t.lines for t in trajs], 1),
+                       [None] * len(files), [None] * len(files))  # fmt: skip
+    elif not all(timed):
+        missing = ", ".join(f for f, ok in zip(files, timed) if not ok)
+        raise InputError(f"{missing}: no timestamps, while the other files have them; give --times for KITTI files")
+    else:
+        rig = _associate(files, trajs, offsets, max_dt)
+
+    valid = rig.valid.all(1)
+    if valid.sum() < MIN_FRAMES:
+        counts = ", ".join(f"{f}: {len(t)}" for f, t in zip(files, trajs))
+        paired = "" if rig.times is None else f"{len(valid)} paired in time, "
+        raise InputError(
+            f"too few frames: {paired}{int(valid.sum())} with every pose valid ({counts} poses); "
+            f"at least {MIN_FRAMES} are needed"
+        )
+    return rig
+
+
+def _offset_specs(time_offset, cameras: int) -> list[float | str | None]:
+    """--time-offset values -> one per camera 1..K: a float, "auto" or None."""
+    if time_offset is None:
+        return [None] * cameras
+    values = [v if v == "auto" else float(v) for v in time_offset]
+    if len(values) == 1:
+        return values * cameras
+    if len(values) != cameras:
+        raise InputError(f"--time-offset: {len(values)} values for {cameras} cameras; give one, or one per camera")
+    return values
+
+
+def _associate(files, trajs, offsets, max_dt) -> RigPoses:
+    """Pair every camera's poses with camera 0's by timestamp; keep the frames every camera has."""
+    t0 = trajs[0].times
+    if max_dt is None:
+        max_dt = 0.5 * float(np.median(np.diff(t0))) if len(t0) > 1 else 0.0
+    resolved, quality, pairs = [0.0], [None], []
+    for f, t, spec in zip(files[1:], trajs[1:], offsets):
+        q = None
+        if spec == "auto":
+            spec, q = estimate_time_offset(t0, trajs[0].poses, t.times, t.poses, names=(files[0], f))
+        resolved.append(float(spec or 0.0))
+        quality.append(q)
+        pairs.append(associate(t0, t.times, max_dt, resolved[-1], names=(files[0], f)))
+    frames = reduce(np.intersect1d, [i0 for i0, _ in pairs])
+    if not len(frames):
+        raise InputError(
+            f"no frame where every camera has a pose within max_dt = {max_dt} s of {files[0]}'s: "
+            + ", ".join(f"{f}: {len(i0)} pairs" for f, (i0, _) in zip(files[1:], pairs))
+        )
+    index = [frames] + [i1[np.searchsorted(i0, frames)] for i0, i1 in pairs]
+    return RigPoses(
+        files,
+        np.stack([t.poses[i] for t, i in zip(trajs, index)], 1),
+        t0[frames],
+        np.stack([t.lines[i] for t, i in zip(trajs, index)], 1),
+        resolved,
+        quality,
+        max_dt,
+    )
+
+
+@dataclass
+class CalibrationRun:
+    """The outcome of :func:`calibrate_rig`.
+
+    estimates: the estimate after each frame, the frame on the Calibration's batch axis: fields lead
+    with (F, K), F = T frames (one for the batch solver). frames: (F,) the frame index of each estimate.
+    """
+
+    rig: RigPoses
+    estimates: Calibration
+    frames: np.ndarray
+    settings: dict
+    warnings: list[str]
+
+    def result_json(self) -> dict:
+        """The result in the issue's format, plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
+        final = self.estimates
+        extrinsics = []
+        for k, f in enumerate(self.rig.files[1:]):
+            cam = final.camera_json(-1, k)
+            cam.update(camera=f, time_offset=self.rig.time_offsets[k + 1])
+            extrinsics.append({key: cam[key] for key in CAMERA_KEYS} | {k2: v for k2, v in cam.items() if k2 not in CAMERA_KEYS})
+        out = {"reference": self.rig.files[0], "extrinsics": extrinsics, "settings": self.settings}
+        estimated = [
+            {"camera": f, "time_offset": o, "correlation": q.correlation, "runner_up": q.runner_up, "overlap_s": q.overlap}
+            for f, o, q in zip(self.rig.files, self.rig.time_offsets, self.rig.offset_quality)
+            if q is not None
+        ]
+        if estimated:
+            out["time_offset_estimates"] = estimated
+        out["warnings"] = self.warnings
+        return out
+
+    def trace(self) -> dict[str, np.ndarray]:
+        """Per-frame estimates: name -> array (F, K, n) (``frame``, ``time``: (F,)); angles in degrees."""
+        e = self.estimates
+        time = self.rig.times[self.frames] if self.rig.times is not None else np.full(len(self.frames), np.nan)
+        col = lambda x: x.detach().double().cpu().numpy()  # noqa: E731
+        return {
+            "frame": self.frames,
+            "time": time,
+            "quaternion": col(e.quaternion),
+            "translation": col(e.translation),
+            "scale": col(e.scale)[..., None],
+            "rotation_singular_values": col(e.rotation_singular_values),
+            "rotation_observable": col(e.rotation_observable)[..., None],
+            "planar_motion": col(e.planar_motion)[..., None],
+            "unobservable_translation_dims": col(e.translation_unobservable.sum(-1))[..., None],
+            "rotation_std_deg": np.rad2deg(col(e.rotation_std)),
+            "translation_std": col(e.translation_std),
+            "scale_std": col(e.scale_std)[..., None],
+            "frames_used": col(e.frames_used)[..., None],
+            "frames_rejected": col(e.frames_rejected)[..., None],
+        }
+
+    def trace_table(self) -> tuple[list[str], np.ndarray]:
+        """The trace as a long table, one row per (frame, camera k): header and rows (F * K, n)."""
+        tr = self.trace()
+        F, K = tr["quaternion"].shape[:2]
+        names = {
+            "quaternion": ["qw", "qx", "qy", "qz"], "translation": ["tx", "ty", "tz"],
+            "rotation_singular_values": [f"rotation_sv{i}" for i in range(4)],
+            "rotation_std_deg": ["rotation_std_x_deg", "rotation_std_y_deg", "rotation_std_z_deg"],
+            "translation_std": ["translation_std_x", "translation_std_y", "translation_std_z"],
+        }  # fmt: skip
+        header, columns = ["frame", "time", "camera"], [
+            np.repeat(tr["frame"], K),
+            np.repeat(tr["time"], K),
+            np.tile(np.arange(1, K + 1), F),
+        ]
+        for name, values in tr.items():
+            if name in ("frame", "time"):
+                continue
+            header += names.get(name, [name])
+            columns += list(values.reshape(F * K, -1).T)
+        return header, np.stack(columns, 1)
+
+
+def calibrate_rig(
+    rig: RigPoses,
+    motion: str = "multi",
+    solver: str = "exact",
+    forgetting: float = 1.0,
+    progress: bool | None = False,
+) -> CalibrationRun:
+    """Calibrate cameras 1..K of ``rig`` against camera 0.
+
+    solver: ``exact`` or ``rls`` stream the frames through the on-line head (an estimate per frame);
+    ``batch`` solves all frames with every pose valid at once (one estimate). progress: a tqdm bar
+    (None: only on a terminal).
+    """
+    if solver not in SOLVERS:
+        raise InputError(f"unknown solver {solver!r}: {', '.join(SOLVERS)}")
+    poses = torch.from_numpy(rig.poses)
+    if solver == "batch":
+        estimates, frames = _batch(poses, rig.valid.all(1), motion), np.array([len(poses) - 1])
+    else:
+        head = OnlineCalibrator(rig.poses.shape[1], motion=motion, solver=solver, forgetting=forgetting,
+                                pose_tolerance=POSE_TOLERANCE)  # fmt: skip
+        estimates, frames = _stream(head, poses, progress), np.arange(len(poses))
+    settings = {"motion": motion, "solver": solver, "forgetting": forgetting, "frames": len(poses), "max_dt": rig.max_dt}
+    run = CalibrationRun(rig, estimates, frames, settings, [])
+    run.warnings = _warnings(run)
+    return run
+
+
+def calibrate_files(
+    files: list[str | Path],
+    format: str = "auto",
+    times: list[str | Path] | None = None,
+    time_offset: list[float | str] | None = None,
+    max_dt: float | None = None,
+    motion: str = "multi",
+    solver: str = "exact",
+    forgetting: float = 1.0,
+    progress: bool | None = False,
+) -> CalibrationRun:
+    """:func:`load_rig` then :func:`calibrate_rig`; see both for the arguments."""
+    rig = load_rig(files, format, times, time_offset, max_dt)
+    run = calibrate_rig(rig, motion, solver, forgetting, progress)
+    run.settings["format"] = format
+    return run
+
+
+@contextlib.contextmanager
+def _single_thread():
+    """One intra-op thread: the head's tensors are tiny, and threads only add hand-over cost."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) -> Calibration:
+    """Every frame through the head -> the estimates of all frames, frames on the batch axis (T, K)."""
+    names = [f.name for f in fields(Calibration)]
+    chunks, pending = [], []
+    with torch.inference_mode(), _single_thread(), tqdm(
+        total=len(poses), unit="frame", disable=progress is not None and not progress, leave=False
+    ) as bar:
+        for pose in poses:
+            pending.append(head(pose))
+            if len(pending) == PROGRESS_EVERY:
+                chunks.append({n: torch.cat([getattr(o, n) for o in pending]) for n in names})
+                bar.update(len(pending))
+                bar.set_postfix_str(_progress_text(pending[-1]), refresh=False)
+                pending = []
+        if pending:
+            chunks.append({n: torch.cat([getattr(o, n) for o in pending]) for n in names})
+    return Calibration(**{n: torch.cat([c[n] for c in chunks]) for n in names})
+
+
+def _progress_text(out: Calibration) -> str:
+    """Camera 1's current estimate: rotation angle (deg), translation and scale."""
+    q, t, s = out.quaternion[0, 0].tolist(), out.translation[0, 0].tolist(), float(out.scale[0, 0])
+    angle = math.degrees(2 * math.atan2(math.hypot(*q[1:]), abs(q[0])))
+    return f"cam1 rot {angle:.2f}deg t=({t[0]:+.3f},{t[1]:+.3f},{t[2]:+.3f}) s={s:.3f}"
+
+
+def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
+    """The batch solution of the frames with every pose valid, as a one-frame Calibration (1, K).
+
+    Its uncertainty comes from the same batch system (rotation blocks and translation features).
+    """
+    out = batch_calibrate(poses[torch.from_numpy(valid)], motion)
+    _, S, V = batch_rotation(out["blocks"])
+    features = out["features"]
+    rows = torch.full(S.shape[:1], float(features.shape[1]), dtype=S.dtype)
+    planar = planar_motion(S)
+    used = torch.full(S.shape[:1], int(valid.sum()))
+    return Calibration(
+        rotation=out["rotation"][None],
+        quaternion=out["quaternion"][None],
+        translation=out["translation"][None],
+        scale=out["scale"][None],
+        rotation_singular_values=S[None],
+        rotation_observable=rotation_observable(S)[None],
+        planar_motion=planar[None],
+        planar_axis=torch.where(planar[:, None], planar_axis(V), 0.0)[None],
+        frames_used=used[None],
+        frames_rejected=(len(valid) - used)[None],
+        rotation_basis=V[None],
+        rotation_rows=rows[None],
+        translation_moment=(features.mT @ features)[None],
+        translation_rows=rows[None],
+    )
+
+
+def _warnings(run: CalibrationRun) -> list[str]:
+    """Readable warnings about the input and the final estimate."""
+    rig, e = run.rig, run.estimates
+    out = [
+        msg
+        for c, f in enumerate(rig.files)
+        if (msg := describe_invalid(f, pose_validity(rig.poses[:, c], POSE_TOLERANCE), rig.lines[:, c]))
+    ]
+    frames = len(rig.poses)
+    for k, f in enumerate(rig.files[1:]):
+        S = e.rotation_singular_values[-1, k].tolist()
+        if not bool(e.rotation_observable[-1, k]):
+            out.append(
+                f"{f}: rotation not observable: rotation singular values {_fmt(S)}, the third must exceed "
+                f"{ROTATION_OBSERVABLE_MIN_SV} and {ROTATION_OBSERVABLE_RATIO}x the fourth. The motion rotates too "
+                "little or about too few axes (pure translation?); rotation, translation and scale are unreliable"
+            )
+        if bool(e.planar_motion[-1, k]):
+            axis = e.planar_axis[-1, k].tolist()
+            out.append(
+                f"{f}: planar motion: every rotation is about one axis {_fmt(axis)} (camera 0's frame); the rotation "
+                "is recovered through the translation constraint and the translation along that axis is unobservable "
+                "(reported as 0, std null)"
+            )
+        unobservable = e.translation_directions[-1, k].mT[e.translation_unobservable[-1, k]].tolist()
+        if unobservable and not bool(e.planar_motion[-1, k]):
+            out.append(f"{f}: translation unobservable along {', '.join(_fmt(d) for d in unobservable)} (camera 0's frame)")
+        rejected = int(e.frames_rejected[-1, k])
+        if rejected:
+            out.append(
+                f"{f}: {rejected} of {frames} frames rejected (an invalid pose of camera 0 or this camera, "
+                "or motions failing the screw-congruence gate)"
+            )
+    if run.settings["solver"] == "batch" and bool(e.planar_motion[-1].any()):
+        out.append("the batch solver does not recover rotation under planar motion; use --solver exact")
+    return out
+
+
+def _fmt(values) -> str:
+    return "[" + ", ".join(f"{v:.4g}" for v in values) + "]"
