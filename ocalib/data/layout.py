@@ -40,21 +40,28 @@ def detect_layout(path: str | Path) -> str | None:
         return "kitti_odometry"
     if (path / "cam.txt").is_file():
         return "sfmlearner"
-    if find_intrinsics(path) and any(p.suffix.lower() in IMAGE_SUFFIXES for p in path.iterdir()):
+    if find_intrinsics(path) and _has_images(path):
         return "folder"
     return None
+
+
+def _has_images(path: Path) -> bool:
+    return path.is_dir() and any(p.suffix.lower() in IMAGE_SUFFIXES for p in path.iterdir())
 
 
 def open_sequence(path: str | Path, cameras: list[str] | None = None, intrinsics: str | Path | None = None) -> Sequence:
     """Open the sequence at ``path`` whatever its layout.
 
     ``cameras``: names to keep, in order (the first becomes the extrinsics reference); None keeps all.
-    ``intrinsics``: an intrinsics file for a plain image folder (else one is searched for beside the images).
+    ``intrinsics``: the intrinsics file of a plain image folder (else one is searched for beside the images);
+    other layouts carry their own and ignore it.
     """
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
-    layout = "folder" if intrinsics is not None and path.is_dir() else detect_layout(path)
+    layout = detect_layout(path)
+    if layout is None and intrinsics is not None and path.is_dir():
+        layout = "folder"
     if layout is None:
         if path.is_dir() and not any(path.iterdir()):
             raise InputError(f"{path}: the folder is empty")
@@ -69,13 +76,13 @@ def open_sequence(path: str | Path, cameras: list[str] | None = None, intrinsics
 
 
 def find_sequences(path: str | Path) -> list[Path]:
-    """Expand ``path`` to sequence folders, sorted: a sequence itself; a split file (``train.txt``) naming
+    """Expand ``path`` to sequence folders, sorted: a sequence (or a folder of images) itself; a split file (``train.txt``) naming
     scene folders; a KITTI odometry ``dataset`` (its ``sequences/XX``); or a folder of sequences (a KITTI
     date folder, an SfMLearner root, a folder of rigs)."""
     path = Path(path)
     if path.is_file() and path.suffix == ".txt":
         return read_split(path)
-    if detect_layout(path):
+    if detect_layout(path) or _has_images(path):
         return [path]
     if (path / "sequences").is_dir():
         path = path / "sequences"

@@ -22,6 +22,7 @@ def test_rig_layout(tmp_path):
 
 def test_rig_camera_selection_rereferences_extrinsics(tmp_path):
     truth = write_rig(tmp_path / "rig", n=3)
+    assert open_sequence(tmp_path / "rig", intrinsics="unused.yaml").layout == "rig"
     seq = open_sequence(tmp_path / "rig", cameras=["cam1", "cam0"])
     assert seq.names == ["cam1", "cam0"]
     np.testing.assert_allclose(seq.cameras[0].T_cam0_cam, np.eye(4), atol=1e-12)
@@ -98,6 +99,7 @@ def test_plain_folder_with_explicit_intrinsics(tmp_path):
     assert detect_layout(folder) is None
     seq = open_sequence(folder, intrinsics=folder / "elsewhere.txt")
     np.testing.assert_allclose(seq.cameras[0].K, K)
+    assert find_sequences(folder) == [folder]
 
 
 def test_find_sequences_in_a_date_folder(tmp_path):
