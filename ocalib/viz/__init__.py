@@ -1,0 +1,1 @@
+"""Plots of calibration results (matplotlib, imported on use)."""

@@ -1,0 +1,110 @@
+"""Per-frame calibration estimates as a figure: rotation, translation, scale and observability.
+
+Convention: as :meth:`ocalib.calib.pipeline.CalibrationRun.trace` -- arrays (F, K, n) over F frames and
+K cameras; rotations are shown as the rotation from the final estimate to each frame's, about camera
+k's axes (the axes of ``rotation_std_deg``), in degrees.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+AXES = "xyz"
+COLORS = ("tab:red", "tab:green", "tab:blue", "tab:gray")
+
+
+def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Path) -> None:
+    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frames, K = trace["frame"], trace["quaternion"].shape[1]
+    fig, axes = plt.subplots(4, K, figsize=(6.5 * K, 11), sharex=True, squeeze=False)
+    for k in range(K):
+        q = trace["quaternion"][:, k]
+        delta = np.rad2deg(rotation_vector(_multiply(_conjugate(q[-1]), q)))
+        ax = axes[0, k]
+        rpy = ", ".join(f"{v:.3f}" for v in rpy_deg(q[-1]))
+        _bands(ax, frames, delta, trace["rotation_std_deg"][:, k], [f"about {a}" for a in AXES])
+        ax.set_title(f"{Path(cameras[k]).name}\nrotation - final (deg); final roll, pitch, yaw = ({rpy}) deg", fontsize=9)
+
+        ax = axes[1, k]
+        t = trace["translation"][:, k]
+        _bands(ax, frames, t, trace["translation_std"][:, k], [f"t{a} = {v:.4f}" for a, v in zip(AXES, t[-1])])
+        ax.set_title("translation in camera 0's frame (camera-0 units)", fontsize=9)
+
+        ax = axes[2, k]
+        s = trace["scale"][:, k]
+        _bands(ax, frames, s, trace["scale_std"][:, k], [f"scale = {s[-1, 0]:.5f}"])
+        ax.set_title("scale (camera-k units -> camera-0 units)", fontsize=9)
+
+        ax = axes[3, k]
+        sv = trace["rotation_singular_values"][:, k]
+        for i in range(4):
+            ax.plot(frames, np.maximum(sv[:, i], 1e-12), color=COLORS[i], lw=1, label=f"S{i}")
+        ax.set_yscale("log")
+        tail = sv[len(sv) // 10 :]
+        ax.set_ylim(max(tail[tail > 0].min(initial=1.0) / 3, 1e-9), tail.max(initial=1.0) * 3)
+        for flag, color, label in (
+            (trace["rotation_observable"][:, k, 0] == 0, "red", "rotation unobservable"),
+            (trace["planar_motion"][:, k, 0] == 1, "orange", "planar motion"),
+        ):
+            if flag.any():
+                ax.fill_between(frames, 0, 1, where=flag, transform=ax.get_xaxis_transform(), color=color,
+                                alpha=0.15, step="mid", label=label)  # fmt: skip
+        ax.set_title("observability: rotation singular values", fontsize=9)
+        ax.set_xlabel("frame")
+    for ax in axes.flat:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right" if ax.get_yscale() == "log" else "upper right")
+        if ax.get_yscale() == "linear":
+            ax.ticklabel_format(axis="y", useOffset=False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str]) -> None:
+    """Lines y (F, n) with +-1 sigma bands (infinite sigma: no band); y-limits from the last 90% of frames."""
+    for i, label in enumerate(labels):
+        color = COLORS[i] if y.shape[1] > 1 else "black"
+        ax.plot(x, y[:, i], color=color, lw=1, label=label)
+        s = np.where(np.isfinite(std[:, i]), std[:, i], np.nan)
+        ax.fill_between(x, y[:, i] - s, y[:, i] + s, color=color, alpha=0.2, lw=0)
+    tail = slice(len(x) // 10, None)
+    s = np.where(np.isfinite(std[tail]), std[tail], 0.0)
+    lo, hi = np.nanmin(y[tail] - s), np.nanmax(y[tail] + s)
+    if np.isfinite(lo) and np.isfinite(hi):
+        pad = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), 1.0)) * 0.15
+        ax.set_ylim(lo - pad, hi + pad)
+
+
+def _conjugate(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (w, x, y, z) quaternions, broadcast."""
+    aw, av, bw, bv = a[..., :1], a[..., 1:], b[..., :1], b[..., 1:]
+    return np.concatenate([aw * bw - (av * bv).sum(-1, keepdims=True), aw * bv + bw * av + np.cross(av, bv)], -1)
+
+
+def rotation_vector(q: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternions -> (..., 3) rotation vectors in radians (the shorter way round)."""
+    q = np.where(q[..., :1] < 0, -q, q)
+    norm = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    angle = 2 * np.arctan2(norm, q[..., :1])
+    return q[..., 1:] * np.where(norm > 1e-12, angle / np.maximum(norm, 1e-300), 2.0)
+
+
+def rpy_deg(q: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw in degrees of ``R = Rz(yaw) Ry(pitch) Rx(roll)`` for a (w, x, y, z) quaternion."""
+    w, x, y, z = q
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1, 1))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return np.rad2deg([roll, pitch, yaw])
