@@ -86,7 +86,11 @@ class SnippetDataModule(pl.LightningDataModule):
     def _dataset(self, paths: list[Path], transform) -> SnippetDataset:
         h = self.hparams
         sequences = [open_sequence(p, h.cameras, h.intrinsics) for p in paths]
-        return SnippetDataset(sequences, h.offsets, (h.height, h.width), h.static_threshold, transform)
+        dataset = SnippetDataset(sequences, h.offsets, (h.height, h.width), h.static_threshold, transform)
+        if not len(dataset):
+            raise InputError(f"{paths[0]}: no snippets with offsets {list(h.offsets)} in {len(paths)} sequence(s) "
+                             "(too few frames, or all filtered as static)")
+        return dataset
 
     def _loader(self, dataset: SnippetDataset, shuffle: bool) -> DataLoader:
         h = self.hparams

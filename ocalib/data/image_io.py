@@ -79,6 +79,8 @@ def list_frames(folder: str | Path, suffixes=IMAGE_SUFFIXES) -> list[Path]:
     if all(p.stem.isdigit() for p in files):
         numbers = [int(p.stem) for p in files]
         for prev, path, number in zip(files, files[1:], numbers[1:]):
+            if number == int(prev.stem):
+                raise InputError(f"{path}: frame {prev.stem} is there twice ({prev.name}, {path.name})")
             if number != int(prev.stem) + 1:
                 missing = str(int(prev.stem) + 1).zfill(len(prev.stem)) + prev.suffix
                 raise InputError(f"{folder / missing}: frame is missing (the folder has {prev.name}, then {path.name})")

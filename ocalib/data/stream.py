@@ -53,12 +53,11 @@ class RigStream(Dataset):
             raise IndexError(t)
         views = []
         for cam in self.sequence.cameras:
-            view = {"image": read_image(cam.images[t], cam.size)[None], "K": torch.from_numpy(cam.K).float()}
+            view = {"image": read_image(cam.images[t], cam.size)[None], "K": torch.from_numpy(cam.K).float()[None]}
             if cam.depth is not None:
                 view["depth"] = read_depth(cam.depth[t], cam.depth_scale, cam.size)[None]
             views.append(resize(view, self.size) if self.size else view)
-        frame = {key: torch.cat([v[key] for v in views]) if key != "K" else torch.stack([v[key] for v in views])
-                 for key in views[0] if all(key in v for v in views)}
+        frame = {key: torch.cat([v[key] for v in views]) for key in views[0] if all(key in v for v in views)}
         cams = self.sequence.cameras
         if all(cam.poses is not None for cam in cams):
             frame["poses"] = torch.from_numpy(np.stack([cam.poses[t] for cam in cams]))

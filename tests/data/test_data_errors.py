@@ -142,3 +142,9 @@ def test_unknown_layout_and_missing_path(tmp_path):
     write_png(tmp_path / "x" / "a.png", noise_image(0))
     assert "intrinsics" in raises_naming(tmp_path / "x", open_sequence, tmp_path / "x")
     raises_naming(tmp_path / "nope", open_sequence, tmp_path / "nope")
+
+
+def test_duplicate_frame_number(tmp_path):
+    write_rig(tmp_path, n=3)
+    write_png(tmp_path / "cam0" / "images" / "000001.jpg", noise_image(0))
+    assert "twice" in raises_naming(tmp_path / "cam0" / "images", open_sequence, tmp_path)

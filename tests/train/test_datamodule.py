@@ -80,7 +80,7 @@ def test_split_needs_two_sequences_and_no_overlap(tmp_path):
 
 def test_same_augmentation_on_every_frame_of_a_snippet(tmp_path):
     write_blob_rig(tmp_path / "still", n=5, static=True)
-    write_blob_rig(tmp_path / "other", n=3)
+    write_blob_rig(tmp_path / "other", n=5)
     torch.manual_seed(0)
     dm = SnippetDataModule([str(tmp_path / "still")], val_sequences=[str(tmp_path / "other")], height=H, width=W,
                            offsets=(-2, -1, 1, 2), batch_size=8)
@@ -139,3 +139,10 @@ def test_trains_with_lightning(tmp_path):
                          enable_model_summary=False, default_root_dir=tmp_path)
     trainer.fit(_Tiny(), datamodule=dm)
     assert trainer.state.finished
+
+
+def test_too_short_sequences_are_a_clear_error(tmp_path):
+    write_blob_rig(tmp_path / "a", n=2)
+    dm = SnippetDataModule([str(tmp_path / "a")], val_fraction=0.0, offsets=(-1, 1))
+    with pytest.raises(InputError, match="no snippets"):
+        dm.setup("fit")
