@@ -1,0 +1,226 @@
+"""``ocalib calibrate-poses`` end to end on simulated pose files, and its answers to bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from ocalib.cli import main
+from ocalib.geometry import rotation_angle
+from ocalib.io.poses import write_kitti, write_tum
+from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, straight_trajectory
+
+FRAMES = 300
+SCALES = (2.0, 0.5)
+CAMERA_KEYS = [
+    "camera", "rotation", "quaternion_wxyz", "translation", "scale", "time_offset", "frames_used",
+    "frames_rejected", "rotation_std_deg", "translation_std", "scale_std", "observability",
+]  # fmt: skip
+OBSERVABILITY_KEYS = {
+    "rotation_singular_values", "rotation_observable", "planar_motion", "unobservable_translation_directions"
+}
+
+
+def simulate(cameras=2, frames=FRAMES, trajectory="lds", noise=1e-3, seed=0):
+    """-> poses (frames, cameras, 4, 4) and the true T_cam0_camk (K, 4, 4)."""
+    g = torch.Generator().manual_seed(seed)
+    X = torch.stack([random_rig(g) for _ in range(cameras - 1)])
+    cam0 = {
+        "lds": lambda: lds_trajectory(frames, g),
+        "car": lambda: car_trajectory(frames, g),
+        "straight": lambda: straight_trajectory(frames),
+    }[trajectory]()
+    poses = rig_trajectories(cam0, X, torch.tensor(SCALES[: cameras - 1], dtype=torch.float64))
+    return add_noise(poses, noise, g).numpy(), X
+
+
+def write_files(tmp_path, poses, fmt="kitti", times=None):
+    """One pose file per camera -> list of paths (str). times: per camera (N_c,) for TUM."""
+    paths = []
+    for c in range(poses.shape[1]):
+        path = tmp_path / f"cam{c}.{'txt' if fmt == 'kitti' else 'tum'}"
+        if fmt == "kitti":
+            write_kitti(path, poses[:, c])
+        else:
+            write_tum(path, times[c], poses[:, c])
+        paths.append(str(path))
+    return paths
+
+
+def calibrate(capsys, *args):
+    """Run the command in-process -> (exit code, stdout, stderr)."""
+    code = main(["calibrate-poses", *map(str, args)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def check_accuracy(cam, X, scale, rot_deg=0.1, trans=0.01):
+    R = torch.tensor(cam["rotation"], dtype=torch.float64)
+    assert math.degrees(float(rotation_angle(R.T @ X[:3, :3]))) < rot_deg
+    assert np.linalg.norm(np.subtract(cam["translation"], X[:3, 3].numpy())) < trans
+    assert abs(cam["scale"] - scale) < 1e-2 * scale
+
+
+def test_kitti_end_to_end(tmp_path, capsys):
+    poses, X = simulate()
+    files = write_files(tmp_path, poses)
+    out, trace, plot = tmp_path / "result.json", tmp_path / "trace.csv", tmp_path / "plot.png"
+    code, stdout, err = calibrate(capsys, *files, "--out", out, "--trace", trace, "--plot", plot)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["reference"] == files[0] and doc["warnings"] == []
+    (cam,) = doc["extrinsics"]
+    assert list(cam) == CAMERA_KEYS
+    assert OBSERVABILITY_KEYS <= set(cam["observability"])
+    assert cam["camera"] == files[1] and cam["time_offset"] is None
+    assert cam["frames_used"] == FRAMES - 1 and cam["frames_rejected"] == 0
+    assert cam["observability"]["rotation_observable"] and not cam["observability"]["planar_motion"]
+    assert cam["observability"]["unobservable_translation_directions"] == []
+    assert all(0 < s < 0.05 for s in cam["rotation_std_deg"] + cam["translation_std"])
+    check_accuracy(cam, X[0], SCALES[0])
+    assert files[1] in stdout and "translation" in stdout and "scale" in stdout
+
+    with open(trace) as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == FRAMES
+    assert [int(r["frame"]) for r in rows] == list(range(FRAMES))
+    assert np.allclose([float(rows[-1][k]) for k in ("tx", "ty", "tz")], cam["translation"])
+    used = [int(r["frames_used"]) for r in rows]
+    assert used == sorted(used) and used[-1] == cam["frames_used"]  # every frame's own estimate
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_three_cameras_and_solvers(tmp_path, capsys):
+    poses, X = simulate(cameras=3, frames=200)
+    files = write_files(tmp_path, poses)
+    results = {}
+    for solver in ("exact", "rls", "batch"):
+        out = tmp_path / f"{solver}.json"
+        code, _, err = calibrate(capsys, *files, "--solver", solver, "--out", out)
+        assert code == 0, err
+        results[solver] = json.loads(out.read_text())
+        assert [c["camera"] for c in results[solver]["extrinsics"]] == files[1:]
+        for cam, x, s in zip(results[solver]["extrinsics"], X, SCALES):
+            check_accuracy(cam, x, s)
+    for a, b in zip(results["exact"]["extrinsics"], results["batch"]["extrinsics"]):
+        assert np.allclose(a["translation"], b["translation"], atol=1e-3)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1500.0])
+def test_tum_association_and_time_offset(tmp_path, capsys, offset):
+    """Camera 1 misses every 4th frame and runs on a clock ``offset`` s behind; auto recovers it."""
+    poses, X = simulate(frames=400, trajectory="lds")
+    t = 1e9 + np.arange(len(poses)) / 20.0  # camera 0: Unix time, 20 Hz
+    keep = np.arange(len(poses)) % 4 != 3
+    t1 = t[keep] - offset + np.random.default_rng(0).normal(0, 1e-3, keep.sum())
+    paths = []
+    for c, (times, p) in enumerate([(t, poses[:, 0]), (t1, poses[keep, 1])]):
+        paths.append(str(tmp_path / f"cam{c}.tum"))
+        write_tum(paths[-1], times, p)
+    out = tmp_path / "result.json"
+    code, stdout, err = calibrate(capsys, *paths, "--time-offset", "auto", "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    (cam,) = doc["extrinsics"]
+    assert abs(cam["time_offset"] - offset) < 5e-3
+    assert doc["settings"]["frames"] == keep.sum()
+    assert doc["time_offset_estimates"][0]["correlation"] > 0.9
+    check_accuracy(cam, X[0], SCALES[0])
+    assert "time offset" in stdout
+
+
+def test_nan_and_non_orthonormal_poses_are_counted(tmp_path, capsys):
+    poses, X = simulate()
+    poses[[40, 41], 1] = np.nan
+    poses[100, 1, :3, :3] *= 1.1
+    files = write_files(tmp_path, poses)
+    out = tmp_path / "result.json"
+    code, _, err = calibrate(capsys, *files, "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    (cam,) = doc["extrinsics"]
+    assert cam["frames_rejected"] == 3
+    check_accuracy(cam, X[0], SCALES[0])
+    invalid = [w for w in doc["warnings"] if "poses invalid" in w]
+    assert invalid == [f"{files[1]}: 3 of {FRAMES} poses invalid at lines 41, 42, 101 (NaN/inf or non-orthonormal rotation)"]
+    assert invalid[0] in err and "3 of 300 frames rejected" in err
+
+
+def test_pure_translation_is_flagged(tmp_path, capsys):
+    poses, _ = simulate(trajectory="straight", frames=50, noise=0.0)
+    out = tmp_path / "result.json"
+    code, stdout, err = calibrate(capsys, *write_files(tmp_path, poses), "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert not doc["extrinsics"][0]["observability"]["rotation_observable"]
+    assert any("rotation not observable" in w for w in doc["warnings"])
+    assert "rotation not observable" in err and "ROTATION UNOBSERVABLE" in stdout
+
+
+def test_planar_motion_is_flagged(tmp_path, capsys):
+    poses, X = simulate(trajectory="car", frames=300, noise=1e-4)
+    out = tmp_path / "result.json"
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--out", out)
+    assert code == 0, err
+    (cam,) = json.loads(out.read_text())["extrinsics"]
+    assert cam["observability"]["planar_motion"]
+    (axis,) = cam["observability"]["unobservable_translation_directions"]
+    assert abs(abs(axis[1]) - 1) < 1e-2  # the car turns about camera 0's y axis
+    assert cam["translation_std"][1] is None and "planar motion" in err
+    R = torch.tensor(cam["rotation"], dtype=torch.float64)
+    assert math.degrees(float(rotation_angle(R.T @ X[0, :3, :3]))) < 0.5
+
+
+def test_unequal_lengths(tmp_path, capsys):
+    poses, _ = simulate(frames=20)
+    a, b = tmp_path / "a.txt", tmp_path / "b.txt"
+    write_kitti(a, poses[:, 0])
+    write_kitti(b, poses[:15, 1])
+    code, _, err = calibrate(capsys, a, b)
+    assert code == 2
+    assert "unequal lengths" in err and f"{a} has 20 poses" in err and f"{b} has 15" in err
+
+
+def test_garbage_line(tmp_path, capsys):
+    poses, _ = simulate(frames=20)
+    files = write_files(tmp_path, poses)
+    lines = open(files[1]).read().splitlines()
+    lines[4] = "1 2 3 4 5 6 seven 8 9 10 11 12"
+    open(files[1], "w").write("\n".join(lines) + "\n")
+    code, _, err = calibrate(capsys, *files)
+    assert code == 2 and f"{files[1]}:5:" in err and "seven" in err
+
+
+def test_empty_file(tmp_path, capsys):
+    poses, _ = simulate(frames=20)
+    files = write_files(tmp_path, poses)
+    open(files[1], "w").write("# no poses\n")
+    code, _, err = calibrate(capsys, *files)
+    assert code == 2 and files[1] in err and "no poses" in err
+
+
+def test_too_few_frames(tmp_path, capsys):
+    poses, _ = simulate(frames=2)
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses))
+    assert code == 2 and "too few frames" in err and "at least 3" in err
+
+
+def test_timestamps_never_overlap(tmp_path, capsys):
+    poses, _ = simulate(frames=50)
+    t = np.arange(50) / 10.0
+    files = write_files(tmp_path, poses, "tum", [t, t + 1000.0])
+    code, _, err = calibrate(capsys, *files)
+    assert code == 2
+    assert "never overlap" in err and files[0] in err and files[1] in err
+    assert "[0.000000, 4.900000]" in err and "[1000.000000, 1004.900000]" in err
+
+
+def test_time_offset_needs_timestamps(tmp_path, capsys):
+    poses, _ = simulate(frames=20)
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--time-offset", "auto")
+    assert code == 2 and "--time-offset needs timestamps" in err
