@@ -1,6 +1,7 @@
 """Snippet augmentation: one random draw per snippet, applied identically to all of its frames.
 
-Colour jitter (kornia: brightness shift, contrast and saturation factors, hue rotation), a horizontal flip
+Colour jitter (kornia: brightness shift, contrast and saturation factors; a hue rotation in YIQ space, a 3x3
+matrix ~10x cheaper than kornia's HSV round trip), a horizontal flip
 and a random crop resized back to the input size; K, depth and poses follow (see :mod:`ocalib.data.transforms`).
 
 Convention: images (S, 3, H, W) in [0, 1]; draws come from torch's global RNG, which the ``DataLoader``
@@ -16,6 +17,17 @@ import kornia.enhance as ke
 import torch
 
 from ocalib.data.transforms import crop, hflip, resize
+
+
+_RGB_TO_YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
+
+
+def rotate_hue(image: torch.Tensor, angle: float) -> torch.Tensor:
+    """Rotate the chroma of RGB images (..., 3, H, W) by ``angle`` radians about the luma axis (YIQ)."""
+    c, s = math.cos(angle), math.sin(angle)
+    rotation = torch.tensor([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+    M = (torch.linalg.inv(_RGB_TO_YIQ) @ rotation @ _RGB_TO_YIQ).to(image)
+    return torch.einsum("ij,...jhw->...ihw", M, image)
 
 
 def _uniform(low: float, high: float) -> float:
@@ -43,7 +55,7 @@ class SnippetAugmentation:
         image = ke.adjust_brightness(image, _uniform(-self.brightness, self.brightness))
         image = ke.adjust_contrast(image, _uniform(1 - self.contrast, 1 + self.contrast))
         image = ke.adjust_saturation_with_gray_subtraction(image, _uniform(1 - self.saturation, 1 + self.saturation))
-        image = ke.adjust_hue(image, 2 * math.pi * _uniform(-self.hue, self.hue)).clamp(0, 1)
+        image = rotate_hue(image, 2 * math.pi * _uniform(-self.hue, self.hue)).clamp(0, 1)
         sample = {**sample, "image": image}
         if torch.rand(()).item() < self.flip_p:
             sample = hflip(sample)

@@ -26,33 +26,42 @@ def _imread(path: Path) -> np.ndarray:
     return array
 
 
-def read_image(path: str | Path, size: tuple[int, int] | None = None) -> Tensor:
-    """Read an image -> (3, H, W) float32 in [0, 1]. ``size`` (H, W), if given, must match the file."""
+def read_image(path: str | Path, size: tuple[int, int] | None = None,
+               out_size: tuple[int, int] | None = None) -> Tensor:
+    """Read an image -> (3, H, W) float32 in [0, 1]. ``size`` (H, W), if given, must match the file;
+    ``out_size`` (H', W') resizes it (cv2: area when shrinking, else bilinear; pixel centres map as
+    u -> (u + 0.5) s - 0.5, see :func:`ocalib.data.intrinsics.resize_intrinsics`)."""
     path = Path(path)
-    array = _imread(path)
-    if size is not None and array.shape[:2] != tuple(size):
-        raise InputError(f"{path}: image is {array.shape[0]}x{array.shape[1]} (HxW), expected {size[0]}x{size[1]}")
+    array = _checked_size(_imread(path), size, path, "image")
     scale = {np.uint8: 255.0, np.uint16: 65535.0}.get(array.dtype.type)
     if scale is None:
         raise InputError(f"{path}: unsupported pixel type {array.dtype} (expected 8 or 16 bit)")
-    if array.ndim == 2:
-        array = np.repeat(array[:, :, None], 3, axis=2)
-    elif array.shape[2] == 1:
-        array = np.repeat(array, 3, axis=2)
-    else:
-        array = cv2.cvtColor(array[:, :, :3], cv2.COLOR_BGR2RGB)
-    return torch.from_numpy(array.astype(np.float32) / scale).permute(2, 0, 1).contiguous()
+    if array.ndim == 3:  # BGR(A) -> RGB; grey + alpha -> grey
+        array = cv2.cvtColor(array[:, :, :3], cv2.COLOR_BGR2RGB) if array.shape[2] >= 3 else array[:, :, 0]
+    if out_size is not None and tuple(out_size) != array.shape[:2]:
+        shrink = out_size[0] <= array.shape[0] and out_size[1] <= array.shape[1]
+        array = cv2.resize(array, (out_size[1], out_size[0]), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    image = torch.from_numpy(array.astype(np.float32) / scale)
+    return image.permute(2, 0, 1).contiguous() if image.ndim == 3 else image.expand(3, -1, -1).contiguous()
 
 
-def read_depth(path: str | Path, scale: float = 256.0, size: tuple[int, int] | None = None) -> Tensor:
-    """Read a uint16 depth PNG (metres x ``scale``, 0 = no surface) -> (1, H, W) float32 metres."""
+def read_depth(path: str | Path, scale: float = 256.0, size: tuple[int, int] | None = None,
+               out_size: tuple[int, int] | None = None) -> Tensor:
+    """Read a uint16 depth PNG (metres x ``scale``, 0 = no surface) -> (1, H, W) float32 metres; ``size`` and
+    ``out_size`` as :func:`read_image`, resizing by nearest neighbour (``INTER_NEAREST_EXACT``)."""
     path = Path(path)
-    array = _imread(path)
+    array = _checked_size(_imread(path), size, path, "depth")
     if array.dtype != np.uint16 or array.ndim != 2:
         raise InputError(f"{path}: depth must be a single-channel uint16 image, got {array.dtype} {array.shape}")
-    if size is not None and array.shape != tuple(size):
-        raise InputError(f"{path}: depth is {array.shape[0]}x{array.shape[1]} (HxW), expected {size[0]}x{size[1]}")
+    if out_size is not None and tuple(out_size) != array.shape:
+        array = cv2.resize(array, (out_size[1], out_size[0]), interpolation=cv2.INTER_NEAREST_EXACT)
     return torch.from_numpy(array.astype(np.float32) / scale)[None]
+
+
+def _checked_size(array: np.ndarray, size, path: Path, what: str) -> np.ndarray:
+    if size is not None and array.shape[:2] != tuple(size):
+        raise InputError(f"{path}: {what} is {array.shape[0]}x{array.shape[1]} (HxW), expected {size[0]}x{size[1]}")
+    return array
 
 
 def image_size(path: str | Path) -> tuple[int, int]:

@@ -23,7 +23,7 @@ from torch.utils.data import Dataset, default_collate
 from ocalib.data.image_io import read_depth, read_image
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import snippet_motion, thumbnails
-from ocalib.data.transforms import resize
+from ocalib.data.intrinsics import resize_intrinsics
 from ocalib.errors import InputError
 
 
@@ -60,20 +60,19 @@ class SnippetDataset(Dataset):
         seq = self.sequences[si]
         cam = seq.cameras[ci]
         frames = [t] + [t + o for o in self.offsets]
+        size = tuple(self.size or cam.size)
         sample = {
-            "image": torch.stack([read_image(cam.images[f], cam.size) for f in frames]),
-            "K": torch.from_numpy(cam.K).float(),
+            "image": torch.stack([read_image(cam.images[f], cam.size, size) for f in frames]),
+            "K": resize_intrinsics(torch.from_numpy(cam.K), cam.size, size).float(),
             "sequence": seq.name,
             "camera": cam.name,
             "frame": t,
         }
         if cam.depth is not None:
-            sample["depth"] = torch.stack([read_depth(cam.depth[f], cam.depth_scale, cam.size) for f in frames])
+            sample["depth"] = torch.stack([read_depth(cam.depth[f], cam.depth_scale, cam.size, size) for f in frames])
         if cam.poses is not None:
             poses = np.linalg.inv(cam.poses[t]) @ cam.poses[frames]
             sample["poses"] = torch.from_numpy(poses).float()
-        if self.size is not None:
-            sample = resize(sample, self.size)
         return self.transform(sample) if self.transform else sample
 
 

@@ -21,7 +21,7 @@ from torch.utils.data import Dataset
 
 from ocalib.data.image_io import read_depth, read_image
 from ocalib.data.sequence import Sequence
-from ocalib.data.transforms import resize
+from ocalib.data.intrinsics import resize_intrinsics
 from ocalib.errors import InputError
 
 
@@ -51,14 +51,14 @@ class RigStream(Dataset):
     def __getitem__(self, t: int) -> dict:
         if not 0 <= t < len(self):
             raise IndexError(t)
-        views = []
-        for cam in self.sequence.cameras:
-            view = {"image": read_image(cam.images[t], cam.size)[None], "K": torch.from_numpy(cam.K).float()[None]}
-            if cam.depth is not None:
-                view["depth"] = read_depth(cam.depth[t], cam.depth_scale, cam.size)[None]
-            views.append(resize(view, self.size) if self.size else view)
-        frame = {key: torch.cat([v[key] for v in views]) for key in views[0] if all(key in v for v in views)}
         cams = self.sequence.cameras
+        sizes = [tuple(self.size or cam.size) for cam in cams]
+        frame = {
+            "image": torch.stack([read_image(c.images[t], c.size, s) for c, s in zip(cams, sizes)]),
+            "K": torch.stack([resize_intrinsics(torch.from_numpy(c.K), c.size, s) for c, s in zip(cams, sizes)]).float(),
+        }
+        if all(cam.depth is not None for cam in cams):
+            frame["depth"] = torch.stack([read_depth(c.depth[t], c.depth_scale, c.size, s) for c, s in zip(cams, sizes)])
         if all(cam.poses is not None for cam in cams):
             frame["poses"] = torch.from_numpy(np.stack([cam.poses[t] for cam in cams]))
         if self.extrinsics is not None:

@@ -80,3 +80,30 @@ def test_kitti_projection_matrix():
     K1, T = intrinsics_from_projection(P1)
     np.testing.assert_allclose(K1, P1[:, :3])
     np.testing.assert_allclose(T[:3, 3], [0.5372, 0, 0], atol=1e-4)
+
+
+@pytest.mark.parametrize("out_size", [(24, 80), (36, 120), (64, 200)])
+def test_resize_when_reading(tmp_path, out_size):
+    """cv2 resizing at read time (area / bilinear) keeps pixel centres as resize_intrinsics says."""
+    import cv2
+
+    from ocalib.data.image_io import read_image
+    from ocalib.data.intrinsics import resize_intrinsics
+
+    path = tmp_path / "blob.png"
+    cv2.imwrite(str(path), np.round(255 * sample()["image"][0].permute(1, 2, 0).numpy()).astype(np.uint8))
+    image = read_image(path, (H, W), out_size)
+    assert image.shape == (3, *out_size)
+    K_new = resize_intrinsics(K, (H, W), out_size)
+    np.testing.assert_allclose(centroid(image[None]), project(K_new, POINT), atol=0.05)
+
+
+def test_hue_rotation_keeps_grey_and_luma():
+    from ocalib.data.augment import rotate_hue
+
+    grey = torch.full((3, 4, 4), 0.4)
+    torch.testing.assert_close(rotate_hue(grey, 1.0), grey)
+    colour = torch.rand(3, 4, 4)
+    luma = torch.tensor([0.299, 0.587, 0.114])
+    torch.testing.assert_close(torch.einsum("c,chw->hw", luma, rotate_hue(colour, 0.7)), torch.einsum("c,chw->hw", luma, colour))
+    assert not torch.allclose(rotate_hue(colour, 0.7), colour)
