@@ -16,6 +16,7 @@ from ocalib.errors import InputError
 # command name -> module under ocalib.cli, one line each.
 COMMANDS = {
     "simulate": "simulate",
+    "synth": "synth",
     "calibrate-poses": "calibrate_poses",
 }
 

@@ -1,0 +1,155 @@
+"""What a synthetic sequence is made of: a rig of cameras, a trajectory, a size, a seed.
+
+A config is a small YAML mapping (see ``configs/synth/*.yaml``); every problem is an
+:class:`~ocalib.errors.InputError` naming the file and the field.
+
+Intrinsics are given normalised by the image size (``fx`` as a fraction of the width, ``fy`` of the
+height, ``cx``/``cy`` as fractions), so a preset renders at any ``--height/--width``.
+Convention: pixel centres are integer, so ``K = [[fx W, 0, cx W - 0.5], [0, fy H, cy H - 0.5], [0, 0, 1]]``.
+
+Extrinsics: ``position`` (metres) and ``rotation_deg: [rx, ry, rz]`` of the camera in camera 0's
+frame (x right, y down, z forward), ``R = Rz(rz) Ry(ry) Rx(rx)``: ``ry = -90`` looks left, ``90`` right,
+``180`` backwards; ``rx > 0`` looks down. Camera 0 must have the identity.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ocalib.errors import InputError
+
+TRAJECTORIES = ("drive", "handheld", "lds")
+
+
+@dataclass
+class CameraConfig:
+    name: str
+    fx: float = 0.58
+    fy: float = 1.92
+    cx: float = 0.5
+    cy: float = 0.5
+    position: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rotation_deg: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def K(self, height: int, width: int) -> np.ndarray:
+        """(3, 3) float64 pixel intrinsics at this size (integer pixel centres)."""
+        return np.array(
+            [[self.fx * width, 0, self.cx * width - 0.5], [0, self.fy * height, self.cy * height - 0.5], [0, 0, 1]]
+        )
+
+    def T_cam0_cam(self) -> np.ndarray:
+        """(4, 4) float64 pose of this camera in camera 0's frame."""
+        rx, ry, rz = np.radians(self.rotation_deg)
+        cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
+        Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        T = np.eye(4)
+        T[:3, :3] = Rz @ Ry @ Rx
+        T[:3, 3] = self.position
+        return T
+
+
+@dataclass
+class SynthConfig:
+    """One synthetic sequence. ``trajectory`` holds ``kind`` (drive | handheld | lds) and its options."""
+
+    name: str
+    cameras: list[CameraConfig]
+    trajectory: dict = field(default_factory=lambda: {"kind": "drive"})
+    frames: int = 300
+    seed: int = 0
+    frame_rate: float = 10.0
+    height: int = 128
+    width: int = 416
+    supersample: int = 2
+    photometric: bool = False
+
+    def with_overrides(self, **kw) -> SynthConfig:
+        """A copy with the given fields replaced (``None`` values are ignored), validated."""
+        cfg = dataclasses.replace(self, **{k: v for k, v in kw.items() if v is not None})
+        validate(cfg)
+        return cfg
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
+    """Check sizes and values; raise :class:`InputError` naming ``where`` and the field."""
+    checks = [
+        ("frames", cfg.frames, cfg.frames >= 1),
+        ("height", cfg.height, 8 <= cfg.height <= 4096),
+        ("width", cfg.width, 8 <= cfg.width <= 4096),
+        ("supersample", cfg.supersample, cfg.supersample in (1, 2, 3, 4)),
+        ("frame_rate", cfg.frame_rate, cfg.frame_rate > 0),
+    ]
+    for name, value, ok in checks:
+        if not ok:
+            raise InputError(f"{where}: bad {name}: {value!r}")
+    if not cfg.cameras:
+        raise InputError(f"{where}: needs at least one camera")
+    names = [c.name for c in cfg.cameras]
+    if len(set(names)) != len(names) or not all(n and "/" not in n for n in names):
+        raise InputError(f"{where}: camera names must be unique folder names, got {names}")
+    for c in cfg.cameras:
+        if len(c.position) != 3 or len(c.rotation_deg) != 3:
+            raise InputError(f"{where}: camera {c.name}: position and rotation_deg need 3 numbers each")
+        if min(c.fx, c.fy) <= 0 or not all(map(math.isfinite, [c.fx, c.fy, c.cx, c.cy, *c.position, *c.rotation_deg])):
+            raise InputError(f"{where}: camera {c.name}: fx, fy must be > 0 and all numbers finite")
+    c0 = cfg.cameras[0]
+    if any(c0.position) or any(c0.rotation_deg):
+        raise InputError(f"{where}: camera 0 ({c0.name}) defines the rig frame: its position and rotation must be 0")
+    if cfg.trajectory.get("kind") not in TRAJECTORIES:
+        raise InputError(f"{where}: trajectory.kind must be one of {', '.join(TRAJECTORIES)}")
+    return cfg
+
+
+def config_from_dict(data, where: str = "config") -> SynthConfig:
+    """Build and validate a :class:`SynthConfig` from a plain mapping (e.g. parsed YAML)."""
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: expected a mapping of config fields")
+    known = {f.name for f in dataclasses.fields(SynthConfig)}
+    unknown = set(data) - known
+    if unknown:
+        raise InputError(f"{where}: unknown field(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(known))})")
+    if "name" not in data or "cameras" not in data:
+        raise InputError(f"{where}: needs 'name' and 'cameras'")
+    if not isinstance(data["cameras"], list):
+        raise InputError(f"{where}: 'cameras' must be a list")
+    try:
+        cameras = [CameraConfig(**c) for c in data["cameras"]]
+        kw = {k: v for k, v in data.items() if k != "cameras"}
+        cfg = SynthConfig(cameras=cameras, **kw)
+        for name, kind in [("frames", int), ("seed", int), ("height", int), ("width", int), ("supersample", int)]:
+            if not isinstance(getattr(cfg, name), kind) or isinstance(getattr(cfg, name), bool):
+                raise TypeError(f"{name} must be an integer")
+        cfg.frame_rate = float(cfg.frame_rate)
+        for c in cameras:
+            c.name = str(c.name)
+            c.fx, c.fy, c.cx, c.cy = (float(v) for v in (c.fx, c.fy, c.cx, c.cy))
+            c.position = [float(v) for v in c.position]
+            c.rotation_deg = [float(v) for v in c.rotation_deg]
+        if not isinstance(cfg.trajectory, dict):
+            raise TypeError("trajectory must be a mapping")
+    except (TypeError, ValueError) as err:
+        raise InputError(f"{where}: malformed field ({err})") from None
+    return validate(cfg, where)
+
+
+def load_config(path: str | Path) -> SynthConfig:
+    """Read a YAML config file (errors name the file)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such config file")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise InputError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
+    return config_from_dict(data, str(path))

@@ -1,0 +1,53 @@
+"""The built-in presets (mirrored by ``configs/synth/<name>.yaml``; a test keeps them equal).
+
+All cameras default to KITTI-like normalised intrinsics (``fx = 0.58 W``, ``fy = 1.92 H``, ~80x29 deg).
+"""
+
+from __future__ import annotations
+
+import copy
+
+from ocalib.errors import InputError
+from ocalib.synth.config import SynthConfig, config_from_dict
+
+PRESETS: dict[str, dict] = {
+    "front-rear": {
+        "name": "front-rear",
+        "trajectory": {"kind": "drive", "speed": 8.0, "height": 1.65},
+        "cameras": [
+            {"name": "front"},
+            {"name": "rear", "position": [0.0, 0.1, -2.2], "rotation_deg": [0.0, 180.0, 0.0]},
+        ],
+    },
+    "front-left": {
+        "name": "front-left",
+        "trajectory": {"kind": "drive", "speed": 8.0, "height": 1.65},
+        "cameras": [
+            {"name": "front"},
+            {"name": "left", "position": [-0.9, 0.3, -1.0], "rotation_deg": [0.0, -100.0, 0.0]},
+        ],
+    },
+    "handheld": {
+        "name": "handheld",
+        "trajectory": {"kind": "handheld", "speed": 1.4, "height": 1.5},
+        "cameras": [
+            {"name": "cam0", "fx": 0.5, "fy": 1.6},
+            {"name": "cam1", "fx": 0.5, "fy": 1.6, "position": [0.12, 0.0, -0.05], "rotation_deg": [0.0, 120.0, 0.0]},
+        ],
+    },
+    "stereo": {
+        "name": "stereo",
+        "trajectory": {"kind": "drive", "speed": 8.0, "height": 1.65},
+        "cameras": [
+            {"name": "left"},
+            {"name": "right", "position": [0.54, 0.0, 0.0]},
+        ],
+    },
+}
+
+
+def preset(name: str) -> SynthConfig:
+    """The validated :class:`SynthConfig` of a built-in preset."""
+    if name not in PRESETS:
+        raise InputError(f"unknown preset {name!r} (presets: {', '.join(PRESETS)})")
+    return config_from_dict(copy.deepcopy(PRESETS[name]), f"preset {name}")

@@ -1,0 +1,118 @@
+"""Render a whole synthetic rig sequence, in memory or to the native layout on disk.
+
+Convention: camera 0's poses come from the trajectory; every camera's world pose is computed as
+``pose_cam0 @ T_cam0_cam`` in float64, so the rig is exactly rigid. Poses are camera-to-world.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ocalib.data.rig import CameraSpec, RigSpec
+from ocalib.errors import InputError
+from ocalib.synth.config import SynthConfig
+from ocalib.synth.photometric import Photometric
+from ocalib.synth.render import FAR, WorldTensors, render_view
+from ocalib.synth.trajectory import trajectory
+from ocalib.synth.world import World, make_world
+from ocalib.synth.writer import write_frame, write_header
+
+
+@dataclass
+class SynthSequence:
+    """An in-memory sequence of K cameras and N frames.
+
+    images (K, N, 3, H, W) float32 in [0, 1]; depth (K, N, H, W) float32 metres (0 = sky);
+    poses (K, N, 4, 4) float64 camera-to-world; times (N,) seconds; rig (intrinsics, extrinsics).
+    """
+
+    images: Tensor
+    depth: Tensor
+    poses: Tensor
+    times: Tensor
+    rig: RigSpec
+
+
+def rig_spec(cfg: SynthConfig) -> RigSpec:
+    """The rig.yaml description of a config at its resolution."""
+    cams = [CameraSpec(c.name, cfg.width, cfg.height, c.K(cfg.height, cfg.width), c.T_cam0_cam()) for c in cfg.cameras]
+    return RigSpec(cams, cfg.frame_rate)
+
+
+def camera_poses(cfg: SynthConfig) -> np.ndarray:
+    """World poses (K, N, 4, 4) float64 of every camera: ``pose_cam0 @ T_cam0_cam``."""
+    opts = {k: v for k, v in cfg.trajectory.items() if k != "kind"}
+    unknown = set(opts) - {"speed", "height"}
+    if unknown:
+        raise InputError(f"trajectory: unknown option(s) {', '.join(sorted(unknown))} (options: speed, height)")
+    cam0 = trajectory(cfg.trajectory["kind"], cfg.frames, cfg.frame_rate, cfg.seed, **opts)
+    return np.stack([cam0 @ c.T_cam0_cam() for c in cfg.cameras])
+
+
+def world_for(cfg: SynthConfig, poses: np.ndarray) -> World:
+    """The city around all camera positions, out to the render distance."""
+    xy = poses[..., :2, 3].reshape(-1, 2)
+    return make_world(cfg.seed, xy.min(0) - FAR - 5, xy.max(0) + FAR + 5)
+
+
+def frames(cfg: SynthConfig, device="cpu", progress: bool = False):
+    """Yield ``(index, [(image (3, H, W), depth (H, W)) per camera])`` frame by frame."""
+    poses = camera_poses(cfg)
+    world = WorldTensors.from_world(world_for(cfg, poses), device)
+    photometric = Photometric(cfg.seed, len(cfg.cameras)) if cfg.photometric else None
+    Ks = [c.K(cfg.height, cfg.width) for c in cfg.cameras]
+    indices = range(cfg.frames)
+    if progress:
+        from tqdm import tqdm
+
+        indices = tqdm(indices, desc=f"synth {cfg.name}", unit="frame")
+    for n in indices:
+        views = []
+        for k, K in enumerate(Ks):
+            image, depth = render_view(world, K, poses[k, n], cfg.height, cfg.width, cfg.supersample)
+            if photometric is not None:
+                image = photometric.apply(image, k, n)
+            views.append((image, depth))
+        yield n, views
+
+
+def render_rig(cfg: SynthConfig, device="cpu", progress: bool = False) -> SynthSequence:
+    """Render a sequence in memory (for tests and small experiments)."""
+    images, depths = [], []
+    for _, views in frames(cfg, device, progress):
+        images.append(torch.stack([v[0] for v in views]))
+        depths.append(torch.stack([v[1] for v in views]))
+    poses = torch.from_numpy(camera_poses(cfg))
+    times = torch.arange(cfg.frames, dtype=torch.float64) / cfg.frame_rate
+    return SynthSequence(torch.stack(images, 1).cpu(), torch.stack(depths, 1).cpu(), poses, times, rig_spec(cfg))
+
+
+def render_sequence(cfg: SynthConfig, out_dir, device="cpu", progress: bool = True, overwrite: bool = False) -> Path:
+    """Render a sequence and write the native rig layout to ``out_dir``; returns the folder.
+
+    A non-empty ``out_dir`` is an :class:`InputError` unless ``overwrite``, which replaces rig.yaml,
+    times.txt and the camera folders of this config (nothing else is touched).
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise InputError(f"{out}: folder is not empty (pass --overwrite to replace a rendered sequence)")
+        for name in ["rig.yaml", "times.txt"]:
+            (out / name).unlink(missing_ok=True)
+        for c in cfg.cameras:
+            shutil.rmtree(out / c.name, ignore_errors=True)
+    times = np.arange(cfg.frames) / cfg.frame_rate
+    write_header(out, rig_spec(cfg), times, camera_poses(cfg))
+    with torch.inference_mode():
+        for n, views in frames(cfg, device, progress):
+            for c, (image, depth) in zip(cfg.cameras, views):
+                write_frame(out, c.name, n, image, depth)
+    return out
