@@ -26,7 +26,7 @@ class _GuardedEigh(torch.autograd.Function):
     def backward(ctx, g_evals: Tensor, g_evecs: Tensor):
         evals, evecs = ctx.saved_tensors
         d = evals.unsqueeze(-2) - evals.unsqueeze(-1)  # d[i, j] = lambda_j - lambda_i
-        eps = BROADENING * evals.abs().amax(-1, keepdim=True).unsqueeze(-1).clamp_min(1e-300)
+        eps = (BROADENING * evals.abs().amax(-1, keepdim=True).unsqueeze(-1)).clamp_min(1e-100)  # eps^2 > 0
         F = d / (d * d + eps * eps)
         inner = torch.diag_embed(g_evals) + F * (evecs.mT @ g_evecs)
         grad = evecs @ inner @ evecs.mT

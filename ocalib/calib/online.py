@@ -20,9 +20,9 @@ from ocalib.calib.rotation import (
     planar_motion,
     rotation_observable,
     rotation_solution,
-    rotation_std,
+    singular_values,
 )
-from ocalib.calib.translation import rls_update, solve_translation, unobservable_directions
+from ocalib.calib.translation import rls_update, solve_translation
 from ocalib.geometry.pose import invert_pose, orthonormality_error
 from ocalib.geometry.quaternion import quaternion_angle, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
@@ -106,7 +106,7 @@ class OnlineCalibrator(nn.Module):
             "history_valid": torch.zeros(B, C, self.history_size, dtype=torch.bool, device=self._device),
             "first": eye4.expand(B, C, 4, 4).clone(),
             "first_valid": torch.zeros(B, dtype=torch.bool, device=self._device),
-            "S": torch.zeros(B, K, 4, **f),
+            "S2": torch.zeros(B, K, 4, **f),
             "V": eye4.expand(B, K, 4, 4).clone(),
             "rotation_rows": torch.zeros(B, K, **f),
             "Z": torch.zeros(B, K, FEATURES, FEATURES, **f),
@@ -136,7 +136,7 @@ class OnlineCalibrator(nn.Module):
                 f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}"
             )
         st = self._buffers  # the state, read and replaced directly (nn.Module attribute access is slow)
-        poses = poses.to(st["S"].dtype)
+        poses = poses.to(st["S2"].dtype)
         valid = poses.isfinite().flatten(-2).all(-1)
         eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
         poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
@@ -172,40 +172,38 @@ class OnlineCalibrator(nn.Module):
         w_rot = (ok & moving).to(poses.dtype) * self._robust_weight(st, A)
         W = (w_rot.sqrt()[..., None, None] * A).flatten(-3, -2)
         lam = self.forgetting
-        S, V = st["S"], st["V"] = incremental_svd_update(st["S"], st["V"], W, lam)
+        S2, V = st["S2"], st["V"] = incremental_svd_update(st["S2"], st["V"], W, lam)
+        S = singular_values(S2)
         st["rotation_rows"] = lam * st["rotation_rows"] + w_rot.sum(-1)
 
         # Translation moment.
         w_tr = ok.to(poses.dtype)
-        R0, t0, t1 = motion[:, :1, :, :3, :3], motion[:, :1, :, :3, 3], motion[:, 1:, :, :3, 3]
-        z = translation_features(R0, t0.expand_as(t1), t1)  # (B, K, P, 15)
+        t1 = motion[:, 1:, :, :3, 3]
+        R0, t0 = motion[:, :1, :, :3, :3].expand_as(motion[:, 1:, :, :3, :3]), motion[:, :1, :, :3, 3].expand_as(t1)
+        z = translation_features(R0, t0, t1)  # (B, K, P, 15)
         Z = st["Z"] = lam * st["Z"] + (z * w_tr.unsqueeze(-1)).mT @ z
         st["translation_rows"] = lam * st["translation_rows"] + w_tr.sum(-1)
 
-        # Rotation estimate (through the translation constraint when the motion is planar).
+        # Rotation estimate (through the translation constraint when the motion is planar). On the
+        # CPU the planar solve is skipped when no rig needs it; on other devices it always runs, so
+        # that a frame never waits for the host.
         quat = rotation_solution(V)
         dR = quaternion_to_rotation_matrix(quat)
         planar = planar_motion(S)
-        dR_planar, axis = planar_rotation(Z, V)
-        dR = torch.where(planar[..., None, None], dR_planar, dR)
-        quat = torch.where(planar[..., None], rotation_matrix_to_quaternion(dR), quat)
+        axis = torch.zeros_like(quat[..., 1:])
+        if planar.device.type != "cpu" or planar.any():
+            dR_planar, axis = planar_rotation(Z, V)
+            dR = torch.where(planar[..., None, None], dR_planar, dR)
+            quat = torch.where(planar[..., None], rotation_matrix_to_quaternion(dR), quat)
 
-        tr = solve_translation(Z, dR, st["translation_rows"])
-        translation, scale = tr["translation"], tr["scale"]
+        x = solve_translation(Z, dR)
         if self.solver == "rls":
-            B, b = translation_rows(R0.expand_as(motion[:, 1:, :, :3, :3]), t0.expand_as(t1), t1, dR[:, :, None])
+            B, b = translation_rows(R0, t0, t1, dR[:, :, None])
             sw = w_tr.sqrt()[..., None]
             x, C = rls_update(st["rls_x"], st["rls_C"], (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2), lam)
             go = frame >= self.rls_delay
-            st["rls_x"], st["rls_C"] = torch.where(go, x, st["rls_x"]), torch.where(go, C, st["rls_C"])
-            translation, scale = st["rls_x"][..., :3], st["rls_x"][..., 3]
-
-        unobservable = unobservable_directions(tr["information"])
-        along_axis = (tr["directions"] * axis.unsqueeze(-1)).sum(-2).abs() > 0.9
-        unobservable = unobservable | (planar.unsqueeze(-1) & along_axis)
-        leak = (tr["directions"] ** 2 * unobservable.unsqueeze(-2)).sum(-1) > 0.01  # (B, K, 3) camera axes
-        cov = tr["covariance"]
-        translation_std = torch.where(leak, math.inf, torch.diagonal(cov[..., :3, :3], dim1=-2, dim2=-1).sqrt())
+            x = st["rls_x"] = torch.where(go, x, st["rls_x"])
+            st["rls_C"] = torch.where(go, C, st["rls_C"])
 
         used = ok.any(-1)
         st["frames_used"] = st["frames_used"] + used
@@ -218,19 +216,18 @@ class OnlineCalibrator(nn.Module):
         return Calibration(
             rotation=dR,
             quaternion=quat,
-            translation=translation,
-            scale=scale,
+            translation=x[..., :3],
+            scale=x[..., 3],
             rotation_singular_values=S,
             rotation_observable=rotation_observable(S),
             planar_motion=planar,
-            translation_information=tr["information"],
-            translation_directions=tr["directions"],
-            translation_unobservable=unobservable,
-            rotation_std=rotation_std(S, V, st["rotation_rows"]),
-            translation_std=translation_std,
-            scale_std=cov[..., 3, 3].sqrt(),
+            planar_axis=axis,
             frames_used=st["frames_used"],
             frames_rejected=st["frames_rejected"],
+            rotation_basis=V,
+            rotation_rows=st["rotation_rows"],
+            translation_moment=Z,
+            translation_rows=st["translation_rows"],
         )
 
     def _screw_threshold(self, st: dict[str, Tensor]) -> Tensor:
@@ -253,5 +250,5 @@ class OnlineCalibrator(nn.Module):
         q = rotation_solution(st["V"]).detach()
         r = (A.detach() @ q[:, :, None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)
         d = 4 * torch.asin((r / 2).clamp(max=1.0))
-        established = rotation_observable(st["S"]).unsqueeze(-1)
+        established = rotation_observable(singular_values(st["S2"])).unsqueeze(-1)
         return torch.where(established & (d > self.robust), self.robust / d.clamp_min(1e-12), 1.0).detach()

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from functools import cached_property
 
 import torch
 from torch import Tensor
+
+from ocalib.calib.rotation import rotation_std
+from ocalib.calib.translation import translation_uncertainty, unobservable_directions
 
 
 @dataclass
@@ -16,6 +20,9 @@ class Calibration:
     Convention: ``rotation``/``translation`` form ``T_cam0_camk``, the pose of camera k in camera 0's
     frame (``p_cam0 = R p_camk + t``); ``scale`` multiplies camera-k trajectory units into camera-0
     units; quaternions are (w, x, y, z), w >= 0. Shapes lead with (B, K).
+
+    The uncertainty (``*_std``, ``translation_*``) is computed from the solver's state when first read,
+    so a stream that does not look at it does not pay for it.
     """
 
     rotation: Tensor  # (B, K, 3, 3)
@@ -25,17 +32,57 @@ class Calibration:
     rotation_singular_values: Tensor  # (B, K, 4), descending
     rotation_observable: Tensor  # (B, K) bool
     planar_motion: Tensor  # (B, K) bool
-    translation_information: Tensor  # (B, K, 3) ascending, information on dT with s free
-    translation_directions: Tensor  # (B, K, 3, 3) its eigenvectors (columns), camera 0's frame
-    translation_unobservable: Tensor  # (B, K, 3) bool, per direction
-    rotation_std: Tensor  # (B, K, 3) radians, about camera k's axes
-    translation_std: Tensor  # (B, K, 3) camera-0 units along camera 0's axes; inf if unobservable
-    scale_std: Tensor  # (B, K)
+    planar_axis: Tensor  # (B, K, 3) common rotation axis (camera 0's frame) where planar_motion
     frames_used: Tensor  # (B, K) long
     frames_rejected: Tensor  # (B, K) long
+    rotation_basis: Tensor  # (B, K, 4, 4) right singular vectors of the rotation system
+    rotation_rows: Tensor  # (B, K) weighted motion pairs in the rotation system
+    translation_moment: Tensor  # (B, K, 15, 15) see ocalib.calib.handeye
+    translation_rows: Tensor  # (B, K) weighted motion pairs in the translation system
 
     def detach(self) -> Calibration:
         return Calibration(**{f.name: getattr(self, f.name).detach() for f in fields(self)})
+
+    @cached_property
+    def rotation_std(self) -> Tensor:
+        """(B, K, 3) 1-sigma rotation error in radians about camera k's axes."""
+        return rotation_std(self.rotation_singular_values, self.rotation_basis, self.rotation_rows)
+
+    @cached_property
+    def _translation(self) -> dict[str, Tensor]:
+        x = torch.cat([self.translation, self.scale.unsqueeze(-1)], -1)
+        out = translation_uncertainty(self.translation_moment, self.rotation, x, self.translation_rows)
+        unobservable = unobservable_directions(out["information"])
+        along_axis = (out["directions"] * self.planar_axis.unsqueeze(-1)).sum(-2).abs() > 0.9
+        out["unobservable"] = unobservable | (self.planar_motion.unsqueeze(-1) & along_axis)
+        return out
+
+    @property
+    def translation_information(self) -> Tensor:
+        """(B, K, 3) information on dT (s free), ascending; its eigenvectors are ``translation_directions``."""
+        return self._translation["information"]
+
+    @property
+    def translation_directions(self) -> Tensor:
+        """(B, K, 3, 3) eigenvectors (columns, camera 0's frame) of the translation information."""
+        return self._translation["directions"]
+
+    @property
+    def translation_unobservable(self) -> Tensor:
+        """(B, K, 3) bool: which ``translation_directions`` carry no information (planar: the axis)."""
+        return self._translation["unobservable"]
+
+    @property
+    def translation_std(self) -> Tensor:
+        """(B, K, 3) 1-sigma along camera 0's axes; inf for an axis with a share of an unobservable direction."""
+        leak = (self.translation_directions**2 * self.translation_unobservable.unsqueeze(-2)).sum(-1) > 0.01
+        cov = self._translation["covariance"]
+        return torch.where(leak, math.inf, torch.diagonal(cov[..., :3, :3], dim1=-2, dim2=-1).sqrt())
+
+    @property
+    def scale_std(self) -> Tensor:
+        """(B, K) 1-sigma of the scale."""
+        return self._translation["covariance"][..., 3, 3].sqrt()
 
     def camera_json(self, b: int, k: int) -> dict:
         """The JSON object of camera k+1 of rig b (see ``ocalib calibrate-poses``)."""

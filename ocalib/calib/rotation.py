@@ -2,7 +2,9 @@
 
 The stacked system ``[A_1; A_2; ...] dq = 0`` is never stored: only its right singular vectors ``V``
 (..., 4, 4) and singular values ``S`` (..., 4), descending. New rows ``W`` (..., r, 4) update them by
-the SVD of the small matrix ``[sqrt(lam) diag(S); W V]``; ``dq`` is the last column of ``V``.
+the SVD of the small matrix ``[sqrt(lam) diag(S); W V]``; ``dq`` is the last column of ``V``. The
+state carries ``S2 = S^2``: the square root at a zero singular value (the start, noise-free data)
+would cut the gradient, and ``S2`` is what the update needs.
 
 The small SVD is taken through its 4x4 Gram matrix ``lam diag(S^2) + (W V)^T (W V)`` with
 :func:`~ocalib.calib.linalg.guarded_eigh`: the same right singular vectors and singular values,
@@ -23,21 +25,26 @@ ROTATION_OBSERVABLE_RATIO = 3.0  # ... and stand this far above the noise floor 
 PLANAR_RATIO = 1.5  # S[2] this close to S[3]: a second null direction, the motion is planar
 
 
-def incremental_svd_update(S: Tensor, V: Tensor, W: Tensor, forgetting: float = 1.0) -> tuple[Tensor, Tensor]:
+def incremental_svd_update(S2: Tensor, V: Tensor, W: Tensor, forgetting: float = 1.0) -> tuple[Tensor, Tensor]:
     """One step of incremental SVD.
 
     Args:
-        S: (..., 4) singular values so far, descending. V: (..., 4, 4) right singular vectors (columns).
-        W: (..., r, 4) new rows (already weighted). forgetting: ``lam`` in (0, 1], old rows weigh ``lam``.
+        S2: (..., 4) squared singular values so far, descending. V: (..., 4, 4) right singular vectors
+            (columns). W: (..., r, 4) new rows (already weighted). forgetting: ``lam`` in (0, 1], old
+            rows weigh ``lam``.
 
     Returns:
-        The updated ``(S, V)`` of the stacked matrix ``[sqrt(lam) * old; W]``.
+        The updated ``(S2, V)`` of the stacked matrix ``[sqrt(lam) * old; W]``.
     """
     WV = W @ V
-    gram = torch.diag_embed(forgetting * S * S) + WV.mT @ WV
+    gram = torch.diag_embed(forgetting * S2) + WV.mT @ WV
     evals, evecs = guarded_eigh(gram)
-    S_new = evals.flip(-1).clamp_min(1e-300).sqrt()
-    return S_new, V @ evecs.flip(-1)
+    return evals.flip(-1), V @ evecs.flip(-1)
+
+
+def singular_values(S2: Tensor) -> Tensor:
+    """Singular values (..., 4) from their squares (rounding can make a zero one slightly negative)."""
+    return S2.clamp_min(0).sqrt()
 
 
 def rotation_solution(V: Tensor) -> Tensor:

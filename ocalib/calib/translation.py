@@ -20,7 +20,11 @@ from ocalib.calib.handeye import normal_equations
 from ocalib.calib.linalg import guarded_eigh
 
 RANK_TOLERANCE = 1e-9  # eigenvalues below this times the largest are treated as zero
-UNOBSERVABLE = 1e-6  # translation directions with less relative information are reported unobservable
+# A translation direction is unobservable with less information than 1e-6 of the best direction's,
+# or than one 14-degree rotation about an axis perpendicular to it (``(2 sin(7 deg))^2``: the excitation
+# rotation itself needs, see ``ocalib.calib.rotation.ROTATION_OBSERVABLE_MIN_SV``).
+UNOBSERVABLE_RELATIVE = 1e-6
+UNOBSERVABLE_ABSOLUTE = 0.25**2
 
 
 def pinv_solve(H: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
@@ -32,37 +36,37 @@ def pinv_solve(H: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     return (H_pinv @ g.unsqueeze(-1)).squeeze(-1), H_pinv
 
 
-def solve_translation(Z: Tensor, dR: Tensor, rows: Tensor) -> dict[str, Tensor]:
-    """Exact least-squares ``x = (dT, s)`` with the current rotation, and its uncertainty.
+def solve_translation(Z: Tensor, dR: Tensor) -> Tensor:
+    """Exact least-squares ``x = (dT, s)`` (..., 4) with the current rotation ``dR`` (..., 3, 3),
+    from the weighted moment ``Z`` (..., 15, 15) of the translation features."""
+    H, g, _ = normal_equations(Z, dR.unsqueeze(-3))
+    return pinv_solve(H, g)[0]
+
+
+def translation_uncertainty(Z: Tensor, dR: Tensor, x: Tensor, rows: Tensor) -> dict[str, Tensor]:
+    """Covariance and information of the translation estimate ``x = (dT, s)`` (..., 4).
 
     Args:
-        Z: (..., 15, 15) weighted moment of the translation features. dR: (..., 3, 3).
-        rows: (...) weighted number of motion pairs in ``Z`` (3 equations each).
+        Z: (..., 15, 15) moment. dR: (..., 3, 3). rows: (...) weighted number of motion pairs in ``Z``.
 
-    Returns a dict of tensors: ``translation`` (..., 3), ``scale`` (...), ``covariance`` (..., 4, 4),
-    ``information`` (..., 3) and ``directions`` (..., 3, 3): eigenvalues (ascending) and eigenvectors
-    (columns, camera 0's frame) of the information on ``dT`` with ``s`` free.
+    Returns ``covariance`` (..., 4, 4) (``sigma^2 H^+``, sigma from the residual), and ``information``
+    (..., 3) with ``directions`` (..., 3, 3): eigenvalues (ascending) and eigenvectors (columns, camera
+    0's frame) of the information on ``dT`` with ``s`` free (Schur complement of the scale entry).
     """
     H, g, tt = normal_equations(Z, dR.unsqueeze(-3))
-    x, H_pinv = pinv_solve(H, g)
+    _, H_pinv = pinv_solve(H, g)
     rss = (tt - 2 * (x * g).sum(-1) + (x.unsqueeze(-2) @ H @ x.unsqueeze(-1)).squeeze((-1, -2))).clamp_min(0)
     sigma2 = rss / (3 * rows - 4).clamp_min(1)
-    # Information on dT with s eliminated (Schur complement of the scale entry).
     h_ss = H[..., 3, 3].clamp_min(1e-300)
     info = H[..., :3, :3] - H[..., :3, 3:] @ H[..., 3:, :3] / h_ss[..., None, None]
     information, directions = guarded_eigh(info)
-    return {
-        "translation": x[..., :3],
-        "scale": x[..., 3],
-        "covariance": sigma2[..., None, None] * H_pinv,
-        "information": information,
-        "directions": directions,
-    }
+    return {"covariance": sigma2[..., None, None] * H_pinv, "information": information, "directions": directions}
 
 
 def unobservable_directions(information: Tensor) -> Tensor:
-    """Mask (..., 3) of information eigen-directions with less than 1e-6 of the largest information."""
-    return information < UNOBSERVABLE * information[..., -1:].clamp_min(1e-300)
+    """Mask (..., 3) of the information eigen-directions that carry too little information (see above)."""
+    relative = information < UNOBSERVABLE_RELATIVE * information[..., -1:]
+    return relative | (information < UNOBSERVABLE_ABSOLUTE)
 
 
 def rls_update(x: Tensor, C: Tensor, B: Tensor, b: Tensor, forgetting: float = 1.0) -> tuple[Tensor, Tensor]:
