@@ -21,9 +21,9 @@ import torch
 from torch.utils.data import Dataset, default_collate
 
 from ocalib.data.image_io import read_depth, read_image
+from ocalib.data.intrinsics import resize_intrinsics
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import snippet_motion, thumbnails
-from ocalib.data.intrinsics import resize_intrinsics
 from ocalib.errors import InputError
 
 

@@ -20,8 +20,8 @@ import torch
 from torch.utils.data import Dataset
 
 from ocalib.data.image_io import read_depth, read_image
-from ocalib.data.sequence import Sequence
 from ocalib.data.intrinsics import resize_intrinsics
+from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
 
 

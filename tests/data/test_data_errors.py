@@ -1,6 +1,5 @@
 """Bad input: each case is an InputError whose message names the file at fault."""
 
-import numpy as np
 import pytest
 
 from data_fixtures import write_folder, write_kitti_odometry, write_kitti_raw, write_png, write_rig, \

@@ -1,5 +1,7 @@
 """Training snippets, static-frame filtering, the synchronised stream and snippet augmentation."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -8,7 +10,6 @@ from data_fixtures import H, K, W, noise_image, trajectory, write_kitti_odometry
     write_rig
 from ocalib.data import RigStream, SnippetAugmentation, SnippetDataset, collate_snippets, open_sequence
 from ocalib.data.intrinsics import flip_pose
-from ocalib.data.sequence import replace
 from ocalib.errors import InputError
 
 
