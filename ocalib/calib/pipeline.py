@@ -180,24 +180,24 @@ def _associate(files, trajs, offsets, max_dt) -> RigPoses:
 class CalibrationRun:
     """The outcome of :func:`calibrate_rig`.
 
-    estimates: the estimate after each frame, the frame on the Calibration's batch axis: fields lead
-    with (F, K), F = T frames (one for the batch solver). frames: (F,) the frame index of each estimate.
+    final: the estimate after the last frame, fields (1, K). trace: per-frame estimates, name -> array
+    (F, K, n) for F estimates (every frame; the last only for the batch solver), with ``frame`` and
+    ``time`` (F,) (time NaN without timestamps); angles in degrees.
     """
 
     rig: RigPoses
-    estimates: Calibration
-    frames: np.ndarray
+    final: Calibration
+    trace: dict[str, np.ndarray]
     settings: dict
     warnings: list[str]
 
     def result_json(self) -> dict:
         """The result in the issue's format, plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
-        final = self.estimates
         extrinsics = []
         for k, f in enumerate(self.rig.files[1:]):
-            cam = final.camera_json(-1, k)
+            cam = self.final.camera_json(0, k)
             cam.update(camera=f, time_offset=self.rig.time_offsets[k + 1])
-            extrinsics.append({key: cam[key] for key in CAMERA_KEYS} | {k2: v for k2, v in cam.items() if k2 not in CAMERA_KEYS})
+            extrinsics.append({key: cam.pop(key) for key in CAMERA_KEYS} | cam)
         out = {"reference": self.rig.files[0], "extrinsics": extrinsics, "settings": self.settings}
         estimated = [
             {"camera": f, "time_offset": o, "correlation": q.correlation, "runner_up": q.runner_up, "overlap_s": q.overlap}
@@ -209,31 +209,9 @@ class CalibrationRun:
         out["warnings"] = self.warnings
         return out
 
-    def trace(self) -> dict[str, np.ndarray]:
-        """Per-frame estimates: name -> array (F, K, n) (``frame``, ``time``: (F,)); angles in degrees."""
-        e = self.estimates
-        time = self.rig.times[self.frames] if self.rig.times is not None else np.full(len(self.frames), np.nan)
-        col = lambda x: x.detach().double().cpu().numpy()  # noqa: E731
-        return {
-            "frame": self.frames,
-            "time": time,
-            "quaternion": col(e.quaternion),
-            "translation": col(e.translation),
-            "scale": col(e.scale)[..., None],
-            "rotation_singular_values": col(e.rotation_singular_values),
-            "rotation_observable": col(e.rotation_observable)[..., None],
-            "planar_motion": col(e.planar_motion)[..., None],
-            "unobservable_translation_dims": col(e.translation_unobservable.sum(-1))[..., None],
-            "rotation_std_deg": np.rad2deg(col(e.rotation_std)),
-            "translation_std": col(e.translation_std),
-            "scale_std": col(e.scale_std)[..., None],
-            "frames_used": col(e.frames_used)[..., None],
-            "frames_rejected": col(e.frames_rejected)[..., None],
-        }
-
     def trace_table(self) -> tuple[list[str], np.ndarray]:
         """The trace as a long table, one row per (frame, camera k): header and rows (F * K, n)."""
-        tr = self.trace()
+        tr = self.trace
         F, K = tr["quaternion"].shape[:2]
         names = {
             "quaternion": ["qw", "qx", "qy", "qz"], "translation": ["tx", "ty", "tz"],
@@ -269,15 +247,20 @@ def calibrate_rig(
     """
     if solver not in SOLVERS:
         raise InputError(f"unknown solver {solver!r}: {', '.join(SOLVERS)}")
+    if not 0 < forgetting <= 1:
+        raise InputError(f"forgetting must be in (0, 1], got {forgetting}")
     poses = torch.from_numpy(rig.poses)
     if solver == "batch":
-        estimates, frames = _batch(poses, rig.valid.all(1), motion), np.array([len(poses) - 1])
+        final = _batch(poses, rig.valid.all(1), motion)
+        trace, frames = _trace_rows(final), np.array([len(poses) - 1])
     else:
         head = OnlineCalibrator(rig.poses.shape[1], motion=motion, solver=solver, forgetting=forgetting,
                                 pose_tolerance=POSE_TOLERANCE)  # fmt: skip
-        estimates, frames = _stream(head, poses, progress), np.arange(len(poses))
+        (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
+    times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
+    trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
     settings = {"motion": motion, "solver": solver, "forgetting": forgetting, "frames": len(poses), "max_dt": rig.max_dt}
-    run = CalibrationRun(rig, estimates, frames, settings, [])
+    run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = _warnings(run)
     return run
 
@@ -311,23 +294,44 @@ def _single_thread():
         torch.set_num_threads(threads)
 
 
-def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) -> Calibration:
-    """Every frame through the head -> the estimates of all frames, frames on the batch axis (T, K)."""
+def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) -> tuple[Calibration, dict]:
+    """Every frame (T, C, 4, 4) through the head -> (the last estimate, the trace of every frame).
+
+    The head's outputs are gathered ``PROGRESS_EVERY`` frames at a time into one Calibration with the
+    frames on its batch axis, whose uncertainty is then computed at once (it is lazy in the head).
+    """
     names = [f.name for f in fields(Calibration)]
     chunks, pending = [], []
     with torch.inference_mode(), _single_thread(), tqdm(
-        total=len(poses), unit="frame", disable=progress is not None and not progress, leave=False
+        total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False
     ) as bar:
-        for pose in poses:
+        for t, pose in enumerate(poses):
             pending.append(head(pose))
-            if len(pending) == PROGRESS_EVERY:
-                chunks.append({n: torch.cat([getattr(o, n) for o in pending]) for n in names})
+            if len(pending) == PROGRESS_EVERY or t == len(poses) - 1:
+                chunk = Calibration(**{n: torch.cat([getattr(o, n) for o in pending]) for n in names})
+                chunks.append(_trace_rows(chunk))
                 bar.update(len(pending))
-                bar.set_postfix_str(_progress_text(pending[-1]), refresh=False)
-                pending = []
-        if pending:
-            chunks.append({n: torch.cat([getattr(o, n) for o in pending]) for n in names})
-    return Calibration(**{n: torch.cat([c[n] for c in chunks]) for n in names})
+                last, pending = pending[-1], []
+                bar.set_postfix_str(_progress_text(last), refresh=False)
+    return last, {k: torch.cat([c[k] for c in chunks]) for k in chunks[0]}
+
+
+def _trace_rows(e: Calibration) -> dict[str, torch.Tensor]:
+    """The trace columns of estimates ``e`` (frames on the batch axis): name -> (F, K, n), degrees."""
+    return {
+        "quaternion": e.quaternion,
+        "translation": e.translation,
+        "scale": e.scale[..., None],
+        "rotation_singular_values": e.rotation_singular_values,
+        "rotation_observable": e.rotation_observable[..., None],
+        "planar_motion": e.planar_motion[..., None],
+        "unobservable_translation_dims": e.translation_unobservable.sum(-1, keepdim=True),
+        "rotation_std_deg": torch.rad2deg(e.rotation_std),
+        "translation_std": e.translation_std,
+        "scale_std": e.scale_std[..., None],
+        "frames_used": e.frames_used[..., None],
+        "frames_rejected": e.frames_rejected[..., None],
+    }
 
 
 def _progress_text(out: Calibration) -> str:
@@ -368,7 +372,7 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
 
 def _warnings(run: CalibrationRun) -> list[str]:
     """Readable warnings about the input and the final estimate."""
-    rig, e = run.rig, run.estimates
+    rig, e = run.rig, run.final
     out = [
         msg
         for c, f in enumerate(rig.files)
@@ -376,30 +380,30 @@ def _warnings(run: CalibrationRun) -> list[str]:
     ]
     frames = len(rig.poses)
     for k, f in enumerate(rig.files[1:]):
-        S = e.rotation_singular_values[-1, k].tolist()
-        if not bool(e.rotation_observable[-1, k]):
+        S = e.rotation_singular_values[0, k].tolist()
+        if not bool(e.rotation_observable[0, k]) and not bool(e.planar_motion[0, k]):
             out.append(
                 f"{f}: rotation not observable: rotation singular values {_fmt(S)}, the third must exceed "
                 f"{ROTATION_OBSERVABLE_MIN_SV} and {ROTATION_OBSERVABLE_RATIO}x the fourth. The motion rotates too "
                 "little or about too few axes (pure translation?); rotation, translation and scale are unreliable"
             )
-        if bool(e.planar_motion[-1, k]):
-            axis = e.planar_axis[-1, k].tolist()
+        if bool(e.planar_motion[0, k]):
+            axis = e.planar_axis[0, k].tolist()
             out.append(
                 f"{f}: planar motion: every rotation is about one axis {_fmt(axis)} (camera 0's frame); the rotation "
                 "is recovered through the translation constraint and the translation along that axis is unobservable "
-                "(reported as 0, std null)"
+                "(its std null; the value there is not a measurement)"
             )
-        unobservable = e.translation_directions[-1, k].mT[e.translation_unobservable[-1, k]].tolist()
-        if unobservable and not bool(e.planar_motion[-1, k]):
+        unobservable = e.translation_directions[0, k].mT[e.translation_unobservable[0, k]].tolist()
+        if unobservable and not bool(e.planar_motion[0, k]):
             out.append(f"{f}: translation unobservable along {', '.join(_fmt(d) for d in unobservable)} (camera 0's frame)")
-        rejected = int(e.frames_rejected[-1, k])
+        rejected = int(e.frames_rejected[0, k])
         if rejected:
             out.append(
                 f"{f}: {rejected} of {frames} frames rejected (an invalid pose of camera 0 or this camera, "
                 "or motions failing the screw-congruence gate)"
             )
-    if run.settings["solver"] == "batch" and bool(e.planar_motion[-1].any()):
+    if run.settings["solver"] == "batch" and bool(e.planar_motion.any()):
         out.append("the batch solver does not recover rotation under planar motion; use --solver exact")
     return out
 

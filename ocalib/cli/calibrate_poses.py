@@ -65,7 +65,7 @@ def run(args) -> int:
     if args.plot:
         from ocalib.viz.calibration import plot_trace
 
-        plot_trace(result.trace(), args.files[1:], args.plot)
+        plot_trace(result.trace, args.files[1:], args.plot)
     print(summary(doc))
     for w in doc["warnings"]:
         print(f"warning: {w}", file=sys.stderr)
@@ -89,8 +89,8 @@ def summary(doc: dict) -> str:
         obs = e["observability"]
         rstd = e["rotation_std_deg"] or [None] * 3
         flags = [name for name, on in (
-            ("ROTATION UNOBSERVABLE", not obs["rotation_observable"]),
-            ("PLANAR MOTION", obs["planar_motion"]),
+            ("ROTATION UNOBSERVABLE", not obs["rotation_observable"] and not obs["planar_motion"]),
+            ("PLANAR MOTION (rotation from the translation constraint)", obs["planar_motion"]),
             (f"{len(obs['unobservable_translation_directions'])} translation direction(s) unobservable",
              bool(obs["unobservable_translation_directions"])),
         ) if on]  # fmt: skip

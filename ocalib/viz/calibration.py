@@ -34,7 +34,9 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
 
         ax = axes[1, k]
         t = trace["translation"][:, k]
-        _bands(ax, frames, t, trace["translation_std"][:, k], [f"t{a} = {v:.4f}" for a, v in zip(AXES, t[-1])])
+        t_std = trace["translation_std"][:, k]
+        labels = [f"t{a} = {v:.4f}" + ("" if np.isfinite(sd) else " (unobservable)") for a, v, sd in zip(AXES, t[-1], t_std[-1])]
+        _bands(ax, frames, t, t_std, labels)
         ax.set_title("translation in camera 0's frame (camera-0 units)", fontsize=9)
 
         ax = axes[2, k]
@@ -49,9 +51,10 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
         ax.set_yscale("log")
         tail = sv[len(sv) // 10 :]
         ax.set_ylim(max(tail[tail > 0].min(initial=1.0) / 3, 1e-9), tail.max(initial=1.0) * 3)
+        planar = trace["planar_motion"][:, k, 0] == 1
         for flag, color, label in (
-            (trace["rotation_observable"][:, k, 0] == 0, "red", "rotation unobservable"),
-            (trace["planar_motion"][:, k, 0] == 1, "orange", "planar motion"),
+            ((trace["rotation_observable"][:, k, 0] == 0) & ~planar, "red", "rotation unobservable"),
+            (planar, "orange", "planar motion (rotation from translation)"),
         ):
             if flag.any():
                 ax.fill_between(frames, 0, 1, where=flag, transform=ax.get_xaxis_transform(), color=color,
