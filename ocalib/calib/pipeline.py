@@ -137,7 +137,10 @@ def _offset_specs(time_offset, cameras: int) -> list[float | str | None]:
     """--time-offset values -> one per camera 1..K: a float, "auto" or None."""
     if time_offset is None:
         return [None] * cameras
-    values = [v if v == "auto" else float(v) for v in time_offset]
+    try:
+        values = [v if v == "auto" else float(v) for v in time_offset]
+    except ValueError:
+        raise InputError(f"--time-offset: expected seconds or 'auto', got {' '.join(map(str, time_offset))}") from None
     if len(values) == 1:
         return values * cameras
     if len(values) != cameras:

@@ -100,10 +100,12 @@ def test_three_cameras_and_solvers(tmp_path, capsys):
     files = write_files(tmp_path, poses)
     results = {}
     for solver in ("exact", "rls", "batch"):
-        out = tmp_path / f"{solver}.json"
-        code, _, err = calibrate(capsys, *files, "--solver", solver, "--out", out)
+        out, trace = tmp_path / f"{solver}.json", tmp_path / f"{solver}.csv"
+        code, _, err = calibrate(capsys, *files, "--solver", solver, "--out", out, "--trace", trace)
         assert code == 0, err
         results[solver] = json.loads(out.read_text())
+        rows = trace.read_text().splitlines()
+        assert len(rows) == 1 + 2 * (1 if solver == "batch" else 200)  # header, then a row per frame and camera
         assert [c["camera"] for c in results[solver]["extrinsics"]] == files[1:]
         for cam, x, s in zip(results[solver]["extrinsics"], X, SCALES):
             check_accuracy(cam, x, s)
@@ -172,6 +174,7 @@ def test_planar_motion_is_flagged(tmp_path, capsys):
     (axis,) = cam["observability"]["unobservable_translation_directions"]
     assert abs(abs(axis[1]) - 1) < 1e-2  # the car turns about camera 0's y axis
     assert cam["translation_std"][1] is None and "planar motion" in err
+    assert "rotation not observable" not in err  # recovered through the translation constraint
     R = torch.tensor(cam["rotation"], dtype=torch.float64)
     assert math.degrees(float(rotation_angle(R.T @ X[0, :3, :3]))) < 0.5
 
@@ -224,3 +227,15 @@ def test_time_offset_needs_timestamps(tmp_path, capsys):
     poses, _ = simulate(frames=20)
     code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--time-offset", "auto")
     assert code == 2 and "--time-offset needs timestamps" in err
+
+
+def test_bad_options(tmp_path, capsys):
+    poses, _ = simulate(frames=20)
+    t = np.arange(20) / 10.0
+    files = write_files(tmp_path, poses, "tum", [t, t])
+    code, _, err = calibrate(capsys, *files, "--time-offset", "soon")
+    assert code == 2 and "--time-offset: expected seconds or 'auto', got soon" in err
+    code, _, err = calibrate(capsys, *files, "--forgetting", "1.5")
+    assert code == 2 and "forgetting must be in (0, 1]" in err
+    code, _, err = calibrate(capsys, files[0])
+    assert code == 2 and "at least 2 pose files" in err
