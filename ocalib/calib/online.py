@@ -209,7 +209,10 @@ class OnlineCalibrator(nn.Module):
         st["frames_used"] = st["frames_used"] + used
         st["frames_rejected"] = st["frames_rejected"] + (~used & (frame > 0))
         slot = (frame % self.history_size).reshape(1)
-        st["history"] = st["history"].index_copy(2, slot, poses.unsqueeze(2))
+        if torch.is_grad_enabled() and poses.requires_grad:  # keep earlier frames' graph intact
+            st["history"] = st["history"].index_copy(2, slot, poses.unsqueeze(2))
+        else:  # in place: the ring buffer is the largest state (B x C x 32 poses)
+            st["history"] = st["history"].detach().index_copy_(2, slot, poses.unsqueeze(2))
         st["history_valid"] = st["history_valid"].index_copy(2, slot, valid.unsqueeze(2))
         st["frame"] = frame + 1
 
