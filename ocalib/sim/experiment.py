@@ -21,8 +21,6 @@ from ocalib.errors import InputError
 from ocalib.geometry.quaternion import rotation_angle, rotation_matrix_to_quaternion
 from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, straight_trajectory
 
-F64 = torch.float64
-
 _PAPER = dict(motion="first", solver="rls", rls_c0=1.0, rls_delay=0, screw_gate_deg=1e9, robust_deg=1e9, min_rotation_deg=0)
 
 # method name -> OnlineCalibrator keyword arguments
