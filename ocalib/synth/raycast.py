@@ -67,7 +67,7 @@ def ground_t(oz: float, d: Tensor, far: float) -> Tensor:
     return torch.where((d[..., 2] < 0) & (t < far), t, torch.full_like(t, float("inf")))
 
 
-def trace_tiles(dirs: Tensor, rel32: Tensor, boxes: Tensor, rect: Tensor, t_init: Tensor, tile: int = 8):
+def trace_tiles(dirs: Tensor, rel32: Tensor, boxes: Tensor, rect: Tensor, t_init: Tensor, tile: int = 4):
     """Nearest box hit of an image of rays.
 
     dirs (H, W, 3) float32 world directions; rel32 (P, 6) float32 relative bounds; boxes (B,) indices of

@@ -3,8 +3,10 @@
 Anti-aliasing is ``s x s`` supersampling. Pixel-centre rays are traced against all boxes (tiled,
 see :mod:`ocalib.synth.raycast`); a pixel whose 3x3 neighbourhood of centre rays hits one face of one
 box has all its sub-samples on that face's plane (the face is convex), so they are intersected with
-the plane directly; other pixels (edges, about 5-15%) trace their sub-samples against the boxes seen
-in the neighbourhood. This equals full supersampling except for objects thinner than a pixel.
+the plane directly; other pixels (edges, about 5-15%) trace each sub-sample against the boxes hit by
+the four pixel centres around it. This equals full supersampling except for objects thinner than a
+pixel. Interior pixels are shaded once with textures prefiltered to the pixel footprint
+(:mod:`ocalib.synth.texture`), edge pixels ``s x s`` times with the sub-sample footprint.
 
 Convention: ``pose`` is camera-to-world (``p_world = R p_cam + t``), float64; camera x right, y down,
 z forward; ``K`` in pixels with integer pixel centres. Depth is the z-depth of the hit of the pixel
@@ -106,14 +108,18 @@ def render_view(world: WorldTensors, K, pose, height: int, width: int, supersamp
     g = (torch.arange(s, dtype=torch.float64, device=dev) + 0.5) / s - 0.5
     off_v, off_u = torch.meshgrid(g, g, indexing="ij")
     d_e = _pixel_dirs(K, R, (edge % width)[:, None] + off_u.reshape(1, -1), (edge // width)[:, None] + off_v.reshape(1, -1))
-    pad = F.pad(hit.float().view(1, 1, height, width), (1, 1, 1, 1), value=SKY)
-    cand = F.unfold(pad, 3).view(9, -1).T.long()[edge]  # (E, 9) ids seen around each edge pixel
-    b = rel32[cand.clamp_min(0)]  # (E, 9, 6)
-    tb = raycast.slab(b[:, None, :, :3], b[:, None, :, 3:], raycast.safe_inverse(d_e)[:, :, None])
-    tb = torch.where((cand >= 0)[:, None], tb, torch.full_like(tb, float("inf")))
+    # A sub-sample lies between its pixel's centre and the 3 neighbouring centres of its quadrant.
+    pad = F.pad(hit.view(1, 1, height, width).float(), (1, 1, 1, 1), value=SKY)[0, 0].long()
+    row, col = (edge // width + 1)[:, None], (edge % width + 1)[:, None]
+    su, sv = torch.sign(off_u).long().view(1, -1), torch.sign(off_v).long().view(1, -1)
+    cand = torch.stack([pad[row, col].expand(-1, S), pad[row + sv, col], pad[row, col + su],
+                        pad[row + sv, col + su]], -1)  # (E, S, 4) ids seen around each sub-sample
+    b = rel32[cand.clamp_min(0)]  # (E, S, 4, 6)
+    tb = raycast.slab(b[..., :3], b[..., 3:], raycast.safe_inverse(d_e)[:, :, None])
+    tb = torch.where(cand >= 0, tb, torch.full_like(tb, float("inf")))
     tmin, arg = tb.min(-1)
     tg = raycast.ground_t(oz, d_e, FAR)
-    h_e = torch.where(tmin < tg, cand.gather(1, arg), torch.where(torch.isfinite(tg), GROUND, SKY))
+    h_e = torch.where(tmin < tg, cand.gather(2, arg[..., None]).squeeze(2), torch.where(torch.isfinite(tg), GROUND, SKY))
     d_e, h_e, t_e = d_e.reshape(-1, 3), h_e.reshape(-1), torch.minimum(tmin, tg).reshape(-1)
     a_e, _ = _faces(d_e, h_e, rel32, oz)
 

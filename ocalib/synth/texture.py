@@ -101,21 +101,25 @@ def _ground(p: Tensor, fp: Tensor) -> Tensor:
 
 def _building(u, v, axis, p, fp, base, par) -> Tensor:
     """Facades with a grid of windows (per-building spacing) on plaster, brick or panels; gravel roofs."""
+    out = torch.empty_like(base)
+    roof = (axis == 2).nonzero().squeeze(1)
+    out[roof] = (0.5 * base[roof] + 0.15) * (1 + 0.6 * fbm(u[roof] + par[roof, 3], v[roof], fp[roof], 1.0, 7))[:, None]
+    i = (axis != 2).nonzero().squeeze(1)
+    u, v, fp, base, par = u[i], v[i], fp[i], base[i], par[i]
     sx, sz, style, off = par[:, 0], par[:, 1], par[:, 2], par[:, 3]
-    n = fbm(u + off, v, fp, 0.25, 9)
-    wall = base * (1 + 0.35 * n)[:, None]
-    brick = (style == 1).float() * (1 - pulse(v / 0.075, 0.0, 0.85, fp / 0.075) * pulse(
-        (u + 0.12 * torch.floor(v / 0.075).remainder(2)) / 0.24, 0.0, 0.94, fp / 0.24))
+    wall = base * (1 + 0.35 * fbm(u + off, v, fp, 0.25, 9))[:, None]
+    row = v / 0.075
+    brick = (style == 1).float() * (1 - pulse(row, 0.0, 0.85, fp / 0.075) * pulse(
+        (u + 0.12 * torch.floor(row).remainder(2)) / 0.24, 0.0, 0.94, fp / 0.24))
     panel = (style == 2).float() * (1 - pulse(u / 1.2, 0.0, 0.97, fp / 1.2) * pulse(v / 0.9, 0.0, 0.97, fp / 0.9))
     wall = wall * (1 - 0.45 * (brick + panel))[:, None]
-    fu, fv = u / sx, v / sz
-    win = pulse(fu, 0.25, 0.75, fp / sx) * pulse(fv, 0.3, 0.8, fp / sz) * box(v, sz * 0.9, 1e4, fp)
-    frame = pulse(fu, 0.2, 0.8, fp / sx) * pulse(fv, 0.25, 0.85, fp / sz) * box(v, sz * 0.9, 1e4, fp) - win
-    glass = 0.12 + 0.25 * fbm(u * 0.3 + off, v * 0.3, fp, 0.3, 5) + 0.06 * fbm(u, v + off, fp, 2.0, 4)
+    fu, fv, upper = u / sx, v / sz, box(v, sz * 0.9, 1e4, fp)
+    win = pulse(fu, 0.25, 0.75, fp / sx) * pulse(fv, 0.3, 0.8, fp / sz) * upper
+    frame = pulse(fu, 0.2, 0.8, fp / sx) * pulse(fv, 0.25, 0.85, fp / sz) * upper - win
+    glass = 0.14 + 0.3 * fbm(u * 0.5 + off, v * 0.5, fp * 0.5, 0.5, 6)
     glass = glass[:, None] * torch.tensor([0.8, 0.9, 1.05], device=p.device)
-    facade = _lerp(_lerp(wall, 0.9 * torch.ones_like(wall), frame.clamp(0, 1) * 0.8), glass, win)
-    roof = (0.5 * base + 0.15) * (1 + 0.6 * fbm(u + off, v, fp, 1.0, 7))[:, None]
-    return torch.where((axis == 2)[:, None], roof, facade)
+    out[i] = _lerp(_lerp(wall, torch.full_like(wall, 0.9), frame.clamp(0, 1) * 0.8), glass, win)
+    return out
 
 
 def _surface(mat, u, v, axis, p, fp, base, par) -> Tensor:
