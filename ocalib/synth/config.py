@@ -24,7 +24,7 @@ import yaml
 
 from ocalib.errors import InputError
 
-TRAJECTORIES = ("drive", "handheld", "lds")
+TRAJECTORIES = ("drive", "handheld", "lds")  # see ocalib.synth.trajectory; options: speed (m/s), height (m)
 
 
 @dataclass
@@ -106,8 +106,16 @@ def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
     c0 = cfg.cameras[0]
     if any(c0.position) or any(c0.rotation_deg):
         raise InputError(f"{where}: camera 0 ({c0.name}) defines the rig frame: its position and rotation must be 0")
-    if cfg.trajectory.get("kind") not in TRAJECTORIES:
+    traj = cfg.trajectory
+    if traj.get("kind") not in TRAJECTORIES:
         raise InputError(f"{where}: trajectory.kind must be one of {', '.join(TRAJECTORIES)}")
+    unknown = set(traj) - {"kind", "speed", "height"}
+    if unknown:
+        raise InputError(f"{where}: trajectory: unknown option(s) {', '.join(sorted(unknown))} (options: speed, height)")
+    for name, lo, hi in (("speed", 0.0, 40.0), ("height", 0.5, 3.0)):
+        value = traj.get(name, lo + 1e-9)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (lo < value <= hi):
+            raise InputError(f"{where}: trajectory.{name} must be a number in ({lo}, {hi}], got {value!r}")
     return cfg
 
 
