@@ -17,7 +17,7 @@ def rotation_error_deg(R, R_true):
 
 @pytest.mark.parametrize("motion", ["first", "consecutive", "multi"])
 def test_streaming_equals_batch_every_frame(generator, motion):
-    poses, _, _ = lds_rig(generator, frames=48, noise=0.01)
+    poses, _, _ = lds_rig(generator, frames=64, noise=0.01)
     cal = OnlineCalibrator(2, motion=motion, **no_gating())
     compared = 0
     for t in range(len(poses)):

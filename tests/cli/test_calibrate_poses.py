@@ -108,7 +108,7 @@ def test_three_cameras_and_solvers(tmp_path, capsys):
         assert len(rows) == 1 + 2 * (1 if solver == "batch" else 200)  # header, then a row per frame and camera
         assert [c["camera"] for c in results[solver]["extrinsics"]] == files[1:]
         for cam, x, s in zip(results[solver]["extrinsics"], X, SCALES):
-            check_accuracy(cam, x, s, trans=0.03 if solver == "rls" else 0.01)  # RLS keeps early rotation errors
+            check_accuracy(cam, x, s, trans=0.03 if solver == "rls" else 0.02)  # RLS keeps early rotation errors
     for a, b in zip(results["exact"]["extrinsics"], results["batch"]["extrinsics"]):
         assert np.allclose(a["translation"], b["translation"], atol=1e-3)
 
