@@ -78,9 +78,9 @@ def trace_tiles(dirs: Tensor, rel32: Tensor, boxes: Tensor, rect: Tensor, t_init
     dev = dirs.device
     nty, ntx = -(-H // tile), -(-W // tile)
     Hp, Wp = nty * tile, ntx * tile
-    inv = torch.ones(Hp, Wp, 3, device=dev)
-    inv[:H, :W] = safe_inverse(dirs)
-    inv = inv.view(nty, tile, ntx, tile, 3).permute(0, 2, 1, 3, 4).reshape(nty * ntx, tile * tile, 3)
+    inv = torch.ones(3, Hp, Wp, device=dev)
+    inv[:, :H, :W] = safe_inverse(dirs).permute(2, 0, 1)
+    inv = inv.view(3, nty, tile, ntx, tile).permute(0, 1, 3, 2, 4).reshape(3, nty * ntx, tile * tile)
     ray_id = torch.arange(Hp * Wp, device=dev).view(nty, tile, ntx, tile).permute(0, 2, 1, 3).reshape(nty * ntx, -1)
     best = torch.full((Hp, Wp), float("inf"), device=dev)
     best[:H, :W] = t_init
@@ -95,7 +95,13 @@ def trace_tiles(dirs: Tensor, rel32: Tensor, boxes: Tensor, rect: Tensor, t_init
     k = torch.arange(len(pair_box), device=dev) - torch.repeat_interleave(torch.cumsum(count, 0) - count, count)
     pair_tile = (ty0[pair_box] + k // nx[pair_box]) * ntx + tx0[pair_box] + k % nx[pair_box]
     bounds = rel32[boxes][pair_box]  # (M, 6)
-    t = slab(bounds[:, None, :3], bounds[:, None, 3:], inv[pair_tile])  # (M, tile*tile)
+    tn = tf = None
+    for a in range(3):  # slab test axis by axis on (M, tile*tile)
+        ia = inv[a][pair_tile]
+        t1, t2 = bounds[:, a : a + 1] * ia, bounds[:, a + 3 : a + 4] * ia
+        near, far = torch.minimum(t1, t2), torch.maximum(t1, t2)
+        tn, tf = (near, far) if tn is None else (torch.maximum(tn, near), torch.minimum(tf, far))
+    t = torch.where((tn <= tf) & (tn > 0), tn, torch.full_like(tn, float("inf")))
     rid = ray_id[pair_tile]
     best.scatter_reduce_(0, rid.reshape(-1), t.reshape(-1), "amin")
     win = (t == best[rid]) & torch.isfinite(t)

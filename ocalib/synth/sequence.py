@@ -61,13 +61,13 @@ def world_for(cfg: SynthConfig, poses: np.ndarray) -> World:
     return make_world(cfg.seed, xy.min(0) - FAR - 5, xy.max(0) + FAR + 5)
 
 
-def frames(cfg: SynthConfig, device="cpu", progress: bool = False):
-    """Yield ``(index, [(image (3, H, W), depth (H, W)) per camera])`` frame by frame."""
+def frames(cfg: SynthConfig, device="cpu", progress: bool = False, indices=None):
+    """Yield ``(index, [(image (3, H, W), depth (H, W)) per camera])`` for every frame (or ``indices``)."""
     poses = camera_poses(cfg)
     world = WorldTensors.from_world(world_for(cfg, poses), device)
     photometric = Photometric(cfg.seed, len(cfg.cameras)) if cfg.photometric else None
     Ks = [c.K(cfg.height, cfg.width) for c in cfg.cameras]
-    indices = range(cfg.frames)
+    indices = range(cfg.frames) if indices is None else indices
     if progress:
         from tqdm import tqdm
 

@@ -47,10 +47,9 @@ def fbm(u: Tensor, v: Tensor, fp: Tensor, freq: float, octaves: int) -> Tensor:
     if len(fp):  # octaves that no sample can resolve are skipped (they would be faded to 0 anyway)
         octaves = max(1, min(octaves, int(math.floor(math.log2(0.5 / max(float(fp.min()), 1e-6) / freq))) + 1))
     f = freq * 2.0 ** torch.arange(octaves, device=dev, dtype=u.dtype)[:, None]  # (O, 1)
-    shift = torch.arange(octaves, device=dev, dtype=u.dtype)[:, None] * 37.3
-    gx = torch.remainder(u[None] * f + shift, _TABLE_SIZE) * (2.0 / _TABLE_SIZE) - 1
-    gy = torch.remainder(v[None] * f + shift * 1.7, _TABLE_SIZE) * (2.0 / _TABLE_SIZE) - 1
-    grid = torch.stack([gx, gy], -1)[:, None]  # (O, 1, N, 2)
+    shift = torch.arange(octaves, device=dev, dtype=u.dtype)[:, None, None] * torch.tensor([37.3, 63.4], device=dev)
+    uv = torch.stack([u, v], -1)[None] * f[:, :, None] + shift  # (O, N, 2), a different offset per octave
+    grid = (torch.remainder(uv, _TABLE_SIZE) * (2.0 / _TABLE_SIZE) - 1)[:, None]  # (O, 1, N, 2)
     vals = F.grid_sample(table.expand(octaves, 1, -1, -1), grid, align_corners=True).view(octaves, -1) - 0.5
     amp = 0.5 ** torch.arange(octaves, device=dev, dtype=u.dtype)[:, None]
     total = 2.0 - 0.5 ** (octaves_max - 1)
@@ -177,7 +176,7 @@ def shade(world, box_id: Tensor, axis: Tensor, p: Tensor, normal: Tensor, fp: Te
     u = torch.where(ax == 0, p[:, 1], p[:, 0])
     v = torch.where(ax == 2, p[:, 1], p[:, 2])
     mat_of = world.material[box_id.clamp_min(0)]
-    for mat in torch.unique(mat_of[~ground]).tolist():
+    for mat in torch.bincount(mat_of[~ground], minlength=1).nonzero().squeeze(1).tolist():
         idx = ((mat_of == mat) & ~ground).nonzero().squeeze(1)
         b = box_id[idx]
         albedo[idx] = _surface(mat, u[idx], v[idx], ax[idx], p[idx], fp[idx], world.albedo[b], world.params[b])
