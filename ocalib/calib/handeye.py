@@ -78,8 +78,10 @@ def normal_equations(Z: Tensor, maps: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 @lru_cache(maxsize=None)
 def _row_index(m: int, device: torch.device) -> Tensor:
-    """(3, 4 + m) indices into z' of equation r's unknown coefficients and target."""
-    return torch.tensor(
-        [[3 * r, 3 * r + 1, 3 * r + 2] + [9 + 3 * k + r for k in range(m)] + [9 + 3 * m + r] for r in range(3)],
-        device=device,
-    )
+    """(3, 4 + m) indices into z' of equation r's unknown coefficients and target (made outside
+    inference mode, like every cached constant, so that autograd can use it later)."""
+    with torch.inference_mode(False):
+        return torch.tensor(
+            [[3 * r, 3 * r + 1, 3 * r + 2] + [9 + 3 * k + r for k in range(m)] + [9 + 3 * m + r] for r in range(3)],
+            device=device,
+        )

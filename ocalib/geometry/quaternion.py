@@ -48,7 +48,15 @@ def _shepperd(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 
 @lru_cache(maxsize=None)
 def _bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Constant matrices of the linear maps above: L (4, 16), R (4, 16), Shepperd (9, 16) + offset (16,)."""
+    """Constant matrices of the linear maps above: L (4, 16), R (4, 16), Shepperd (9, 16) + offset (16,).
+
+    Made outside inference mode: cached inference tensors could not be used by autograd later.
+    """
+    with torch.inference_mode(False):
+        return _make_bases(dtype, device)
+
+
+def _make_bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     eye4, eye9 = torch.eye(4, dtype=torch.float64), torch.eye(9, dtype=torch.float64)
     as_rows = lambda f, basis: torch.tensor([sum(f(*e), []) for e in basis.tolist()], dtype=torch.float64)  # noqa: E731
     offset = torch.tensor(sum(_shepperd(*[0.0] * 9), []), dtype=torch.float64)

@@ -159,3 +159,18 @@ def test_any_input_dtype_and_device(generator, device, dtype):
 def test_wrong_shape_is_a_clear_error():
     with pytest.raises(ValueError, match=r"expected poses of shape \(1, 2, 4, 4\)"):
         OnlineCalibrator(2)(torch.eye(4, dtype=torch.float64).expand(3, 4, 4))
+
+
+def test_gradients_after_an_inference_mode_stream(generator):
+    """Constants cached during an inference-mode run must not break a later autograd run."""
+    poses, _, _ = lds_rig(generator, frames=10, noise=0.01)
+    with torch.inference_mode():
+        cal = OnlineCalibrator(2)
+        for t in range(len(poses)):
+            cal(poses[t])
+    poses = poses.clone().requires_grad_()
+    cal = OnlineCalibrator(2)
+    for t in range(len(poses)):
+        out = cal(poses[t])
+    out.translation.sum().backward()
+    assert torch.isfinite(poses.grad).all()
