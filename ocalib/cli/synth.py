@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
@@ -23,6 +24,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--photometric", action="store_true", default=None,
                    help="add per-camera gain, exposure jitter, vignetting and noise")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    p.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1),
+                   help="CPU processes rendering frames (default: CPUs, at most 4; output does not depend on it)")
     p.add_argument("--overwrite", action="store_true", help="replace a sequence already in --out")
     return p
 
@@ -42,6 +45,6 @@ def run(args) -> int:
         if not torch.cuda.is_available():
             raise InputError(f"--device {args.device}: CUDA is not available")
     out = Path(args.out) if args.out else Path("data") / "synth" / cfg.name
-    render_sequence(cfg, out, device=args.device, overwrite=args.overwrite)
+    render_sequence(cfg, out, device=args.device, overwrite=args.overwrite, workers=args.workers)
     print(f"wrote {cfg.frames} frames x {len(cfg.cameras)} cameras ({cfg.height}x{cfg.width}) to {out}")
     return 0

@@ -93,9 +93,23 @@ def render_rig(cfg: SynthConfig, device="cpu", progress: bool = False) -> SynthS
     return SynthSequence(torch.stack(images, 1).cpu(), torch.stack(depths, 1).cpu(), poses, times, rig_spec(cfg))
 
 
-def render_sequence(cfg: SynthConfig, out_dir, device="cpu", progress: bool = True, overwrite: bool = False) -> Path:
+def _write_frames(job) -> int:
+    """Worker: render and write frames ``indices`` of ``cfg`` with one torch thread; returns the count."""
+    cfg, out, device, indices = job
+    torch.set_num_threads(1)
+    with torch.inference_mode():
+        for n, views in frames(cfg, device, indices=indices):
+            for c, (image, depth) in zip(cfg.cameras, views):
+                write_frame(out, c.name, n, image, depth)
+    return len(indices)
+
+
+def render_sequence(cfg: SynthConfig, out_dir, device="cpu", progress: bool = True, overwrite: bool = False,
+                    workers: int = 1) -> Path:
     """Render a sequence and write the native rig layout to ``out_dir``; returns the folder.
 
+    ``workers > 1`` renders frames in that many processes (CPU, one torch thread each: robust on a busy
+    machine, where intra-op threads can spin). The output does not depend on ``workers``.
     A non-empty ``out_dir`` is an :class:`InputError` unless ``overwrite``, which replaces rig.yaml,
     times.txt and the camera folders of this config (nothing else is touched).
     """
@@ -109,10 +123,31 @@ def render_sequence(cfg: SynthConfig, out_dir, device="cpu", progress: bool = Tr
             (out / name).unlink(missing_ok=True)
         for c in cfg.cameras:
             shutil.rmtree(out / c.name, ignore_errors=True)
+    if workers < 1:
+        raise InputError(f"workers must be >= 1, got {workers}")
     times = np.arange(cfg.frames) / cfg.frame_rate
     write_header(out, rig_spec(cfg), times, camera_poses(cfg))
-    with torch.inference_mode():
-        for n, views in frames(cfg, device, progress):
-            for c, (image, depth) in zip(cfg.cameras, views):
-                write_frame(out, c.name, n, image, depth)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.frames, desc=f"synth {cfg.name}", unit="frame")
+    if workers == 1 or str(device).startswith("cuda"):
+        with torch.inference_mode():
+            for n, views in frames(cfg, device):
+                for c, (image, depth) in zip(cfg.cameras, views):
+                    write_frame(out, c.name, n, image, depth)
+                if bar is not None:
+                    bar.update(1)
+    else:
+        import multiprocessing
+
+        chunk = max(8, -(-cfg.frames // (4 * workers)))  # each job builds the world once (~0.1 s)
+        jobs = [(cfg, out, device, list(range(i, min(i + chunk, cfg.frames)))) for i in range(0, cfg.frames, chunk)]
+        with multiprocessing.get_context("spawn").Pool(workers) as pool:
+            for done in pool.imap_unordered(_write_frames, jobs):
+                if bar is not None:
+                    bar.update(done)
+    if bar is not None:
+        bar.close()
     return out

@@ -117,18 +117,21 @@ def trajectory(kind: str, frames: int, frame_rate: float, seed: int, speed: floa
     height = float(defaults[kind][1] if height is None else height)
     if not (0 < speed <= 40) or not (0.5 <= height <= 3.0):
         raise InputError(f"trajectory: speed must be in (0, 40] m/s and height in [0.5, 3] m, got {speed}, {height}")
-    rng = np.random.default_rng([seed, 7])
+    def rng(stream):  # one random stream per component: a longer sequence starts like a shorter one
+        return np.random.default_rng([seed, 7, stream])
+
     dt = 1.0 / frame_rate
-    xy, heading, kappa = route(rng, speed * 1.3 * frames * dt + 2 * PITCH)
+    xy, heading, kappa = route(rng(0), speed * 1.3 * frames * dt + 2 * PITCH)
     lateral = {"drive": -1.5, "handheld": 0.0, "lds": 0.0}[kind]
     xy = xy + lateral * np.stack([-np.sin(heading), np.cos(heading)], 1)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
     block = np.floor(s / PITCH)
-    cruise = speed * rng.uniform(0.6, 1.25, int(block.max()) + 1)[block.astype(int)]
+    cruise = speed * rng(1).uniform(0.6, 1.25, int(block.max()) + 1)[block.astype(int)]
     v = _speed_profile(s, kappa, cruise, a_lat=2.0 if kind == "drive" else 0.5)
     sf = _march(s, v, frames, dt)
     x, y, h, k, vel = _at(sf, s, xy[:, 0], xy[:, 1], heading, kappa, v)
     t = np.arange(frames) * dt
+    rng = rng(2)
     if kind == "drive":
         pitch = 0.008 * np.sin(2 * math.pi * sf / 23.0 + rng.uniform(0, 6)) + 0.004 * np.sin(2 * math.pi * sf / 6.1)
         roll = -0.012 * vel**2 * k + 0.005 * np.sin(2 * math.pi * sf / 17.0 + rng.uniform(0, 6))

@@ -69,8 +69,9 @@ def test_depth_is_exact_at_pixel_centres_on_the_ground(rendered):
     ground_z = -pose[2, 3] / ray[..., 2]  # z-depth where the centre ray meets the plane z = 0
     pts = backproject(seq.depth[0, 0], K, pose)
     on_ground = (seq.depth[0, 0] > 0) & (pts[..., 2].abs() < 1e-3)
-    assert on_ground.float().mean() > 0.2
-    assert torch.allclose(seq.depth[0, 0].double()[on_ground], ground_z[on_ground], rtol=1e-4, atol=1e-4)  # float32 rays
+    assert on_ground.float().mean() > 0.1
+    rel = ((seq.depth[0, 0].double() - ground_z).abs() / ground_z)[on_ground]
+    assert (rel < 1e-4).float().mean() > 0.99  # float32 rays; the rest are kerb faces within 1 mm of z = 0
 
 
 def overlap(seq, t):
@@ -101,7 +102,23 @@ def test_trajectories_stay_on_the_road(kind):
         p = trajectory(kind, 400, 10.0, seed)[:, :3, 3]
         off = np.abs((p[:, :2] + PITCH / 2) % PITCH - PITCH / 2)  # distance to the nearest centrelines
         near_crossing = (off.max(1) < ROAD + PAVE + 1) & (off.min(1) < ROAD - 1)  # no parked cars there
-        assert ((off.min(1) <= ROAD - 2.1) | near_crossing).all()
+        assert ((off.min(1) <= ROAD - 2.1) | near_crossing | (off.max(1) < ROAD)).all()
         assert ((p[:, 2] >= 0.5) & (p[:, 2] <= 3.0)).all()
         step = np.linalg.norm(np.diff(p, axis=0), axis=1)
         assert step.max() < 2.5 and step.mean() > 0.05
+
+
+@pytest.mark.parametrize("name", ["front-rear", "handheld"])
+def test_a_longer_sequence_starts_like_a_shorter_one(name):
+    short = camera_poses(preset(name).with_overrides(frames=20))
+    long = camera_poses(preset(name).with_overrides(frames=300))
+    assert np.abs(long[:, :20] - short).max() < 1e-9
+
+
+def test_lds_trajectory_excites_all_rotation_axes():
+    from ocalib.synth.trajectory import trajectory
+
+    R = trajectory("lds", 200, 10.0, 0)[:, :3, :3]
+    rel = np.einsum("nji,njk->nik", R[:-1], R[1:])  # camera-frame rotation between frames
+    axis = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]], 1)
+    assert (np.abs(axis).mean(0) > 0.1 * np.abs(axis).mean()).all()

@@ -49,7 +49,9 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
     a = digest(render_sequence(cfg, tmp_path / "a", progress=False))
     b = digest(render_sequence(cfg, tmp_path / "b", progress=False))
     c = digest(render_sequence(cfg.with_overrides(seed=1), tmp_path / "c", progress=False))
+    d = digest(render_sequence(cfg.with_overrides(frames=10), tmp_path / "d", progress=False, workers=2))
     assert a == b
+    assert all(d[k] == v for k, v in a.items() if "images" in k or "depth" in k)  # workers change nothing
     assert a["cam0/images/000000.png"] != c["cam0/images/000000.png"]
     assert a["cam0/poses.txt"] != c["cam0/poses.txt"]
 
