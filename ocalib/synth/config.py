@@ -74,8 +74,7 @@ class SynthConfig:
     def with_overrides(self, **kw) -> SynthConfig:
         """A copy with the given fields replaced (``None`` values are ignored), validated."""
         cfg = dataclasses.replace(self, **{k: v for k, v in kw.items() if v is not None})
-        validate(cfg)
-        return cfg
+        return validate(cfg, f"{self.name} (with overrides)")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
