@@ -122,12 +122,6 @@ class OnlineCalibrator(nn.Module):
         for name, value in state.items():
             self.register_buffer(name, value)
 
-    def detach_(self) -> OnlineCalibrator:
-        """Cut the autograd history of the state (call between training windows)."""
-        for name, buf in self._buffers.items():
-            self._buffers[name] = buf.detach()
-        return self
-
     def forward(self, poses: Tensor) -> Calibration:
         """Consume one synchronised frame. poses: (B, C, 4, 4) or (C, 4, 4) camera-to-world."""
         if poses.dim() == 3:

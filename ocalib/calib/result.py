@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import cached_property
 
 import torch
@@ -39,9 +39,6 @@ class Calibration:
     rotation_rows: Tensor  # (B, K) weighted motion pairs in the rotation system
     translation_moment: Tensor  # (B, K, 15, 15) see ocalib.calib.handeye
     translation_rows: Tensor  # (B, K) weighted motion pairs in the translation system
-
-    def detach(self) -> Calibration:
-        return Calibration(**{f.name: getattr(self, f.name).detach() for f in fields(self)})
 
     @cached_property
     def rotation_std(self) -> Tensor:

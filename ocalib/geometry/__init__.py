@@ -1,7 +1,6 @@
 """Small, batched, differentiable rigid-body geometry in torch (any dtype, any device)."""
 
 from ocalib.geometry.pose import (
-    compose,
     invert_pose,
     make_pose,
     orthonormality_error,
@@ -21,7 +20,6 @@ from ocalib.geometry.quaternion import (
 
 __all__ = [
     "canonical_quaternion",
-    "compose",
     "invert_pose",
     "left_product_matrix",
     "make_pose",

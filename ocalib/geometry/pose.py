@@ -24,14 +24,6 @@ def invert_pose(T: Tensor) -> Tensor:
     return make_pose(Rt, -(Rt @ T[..., :3, 3:]).squeeze(-1))
 
 
-def compose(*poses: Tensor) -> Tensor:
-    """Product ``T_1 T_2 ... T_n`` of poses (..., 4, 4)."""
-    out = poses[0]
-    for T in poses[1:]:
-        out = out @ T
-    return out
-
-
 def relative_pose(T_a: Tensor, T_b: Tensor) -> Tensor:
     """Pose of b in a's frame, ``T_a^-1 T_b``. Shapes (..., 4, 4)."""
     return invert_pose(T_a) @ T_b
