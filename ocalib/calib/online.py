@@ -200,6 +200,11 @@ class OnlineCalibrator(nn.Module):
             x = st["rls_x"] = torch.where(go, x, st["rls_x"])
             st["rls_C"] = torch.where(go, C, st["rls_C"])
 
+        # Planar motion: the translation along the rotation axis (a car's height) is unobservable. The
+        # solver's rank cut-off keeps whatever the noise made of it; report the minimum-norm value, 0.
+        dT = x[..., :3]
+        dT = torch.where(planar[..., None], dT - axis * (axis * dT).sum(-1, keepdim=True), dT)
+
         used = ok.any(-1)
         st["frames_used"] = st["frames_used"] + used
         st["frames_rejected"] = st["frames_rejected"] + (~used & (frame > 0))
@@ -214,7 +219,7 @@ class OnlineCalibrator(nn.Module):
         return Calibration(
             rotation=dR,
             quaternion=quat,
-            translation=x[..., :3],
+            translation=dT,
             scale=x[..., 3],
             rotation_singular_values=S,
             rotation_observable=rotation_observable(S),

@@ -105,6 +105,8 @@ def test_planar_motion_is_flagged_and_rotation_recovered(generator):
     unobservable = out.translation_directions[0, 0][:, out.translation_unobservable[0, 0]]
     assert unobservable.shape[1] == 1 and abs(unobservable[1, 0].item()) > 0.99
     assert math.isinf(out.translation_std[0, 0, 1].item())
+    # ... and its component is reported as the minimum-norm value, not as noise.
+    assert abs((out.translation[0, 0] * out.planar_axis[0, 0]).sum().item()) < 1e-12
     # The observable (ground-plane) components are right.
     torch.testing.assert_close(out.translation[0, 0, [0, 2]], X[0, [0, 2], 3], atol=0.05, rtol=0)
 
