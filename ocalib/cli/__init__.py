@@ -18,6 +18,8 @@ COMMANDS = {
     "simulate": "simulate",
     "synth": "synth",
     "calibrate-poses": "calibrate_poses",
+    "calibrate": "calibrate",
+    "demo": "demo",
 }
 
 

@@ -1,0 +1,88 @@
+"""The on-line calibration net: a pose network and the calibration head on one graph.
+
+Each call takes one synchronised set of frames of every camera of B rigs, runs the pose network on
+(previous, current) of every camera in one batch, chains the motions into each camera's trajectory and
+updates the head (:class:`~ocalib.calib.online.OnlineCalibrator`). Everything stays on one device and
+nothing is read back to the host inside a frame; the first frame is handled by masks, not branches.
+
+Convention: ``model.pose(target, source)`` is the pose of the source camera in the target's frame, so
+``pose(previous, current) = T_prev_cur`` and a camera's trajectory is ``T_first_cur = T_first_prev T_prev_cur``
+(camera-to-first-frame, in the network's units). The head returns ``T_cam0_camk`` (``p_cam0 = R p_camk + t``)
+in camera 0's network units and the scale that maps camera k's network units into camera 0's.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.result import Calibration
+
+SCALE_MODES = ("head", "normalise")
+
+
+class OnlineCalibrationNet(nn.Module):
+    """Frames in, rig extrinsics out, every frame.
+
+    Args:
+        model: an ego-motion model with ``pose(target, source) -> (N, 4, 4)`` (:class:`ocalib.models.EgoMotionModel`).
+        num_cameras: C, cameras per rig (camera 0 the reference).
+        batch_size: B, rigs calibrated at once.
+        scale: how the network's translation scale is handled. ``head``: trust each camera's network scale to
+            be consistent over time and let the head's scale unknown absorb the ratio between cameras.
+            ``normalise``: divide every step by a running mean of that camera's step lengths (momentum
+            ``scale_momentum``), for networks whose scale drifts slowly.
+        head_options: passed to :class:`OnlineCalibrator` (``motion``, ``solver``, ``forgetting``, ...).
+    """
+
+    def __init__(self, model: nn.Module, num_cameras: int = 2, batch_size: int = 1, scale: str = "head",
+                 scale_momentum: float = 0.95, **head_options):
+        super().__init__()
+        if scale not in SCALE_MODES:
+            raise ValueError(f"scale must be one of {SCALE_MODES}, got {scale!r}")
+        self.model, self.scale, self.scale_momentum = model, scale, scale_momentum
+        self.head = OnlineCalibrator(num_cameras, batch_size, **head_options)
+        self.num_cameras, self.batch_size = num_cameras, batch_size
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream: the next frame is frame 0 of every camera."""
+        B, C = self.batch_size, self.num_cameras
+        f = dict(dtype=torch.float64, device=self.head.S2.device)
+        self.head.reset()
+        self.head.to(f["device"])  # the head re-creates its state on the device it was built for
+        self.register_buffer("previous", torch.zeros(B, C, 3, self.model.height, self.model.width, device=f["device"]))
+        self.register_buffer("started", torch.zeros(B, C, 1, 1, dtype=torch.bool, device=f["device"]))
+        self.register_buffer("trajectory", torch.eye(4, **f).expand(B, C, 4, 4).clone())
+        self.register_buffer("step_length", torch.zeros(B, C, **f))
+
+    def forward(self, images: Tensor) -> Calibration:
+        """Consume one frame. images: (B, C, 3, H, W) or (C, 3, H, W) in [0, 1], at the model's resolution
+        (``model.height``, ``model.width``)."""
+        if images.dim() == 4:
+            images = images.unsqueeze(0)
+        B, C = self.batch_size, self.num_cameras
+        if images.shape != self.previous.shape:
+            raise ValueError(f"expected images of shape {tuple(self.previous.shape)} (B, C, 3, H, W at the model's "
+                             f"resolution), got {tuple(images.shape)}")
+        previous = torch.where(self.started.unsqueeze(-1), self.previous, images)
+        step = self.model.pose(previous.flatten(0, 1), images.flatten(0, 1)).view(B, C, 4, 4).to(torch.float64)
+        step = torch.where(self.started, step, torch.eye(4, dtype=step.dtype, device=step.device))
+        if self.scale == "normalise":
+            step = self._normalise(step)
+        self.trajectory = self.trajectory @ step
+        self.previous = images.detach()
+        self.started = torch.ones_like(self.started)
+        return self.head(self.trajectory)
+
+    def _normalise(self, step: Tensor) -> Tensor:
+        """Express each step's translation in units of that camera's running mean step length."""
+        length = step[..., :3, 3].norm(dim=-1)
+        first = self.step_length == 0
+        m = self.scale_momentum
+        mean = torch.where(first, length, m * self.step_length + (1 - m) * length)
+        self.step_length = torch.where(self.started[..., 0, 0], mean, self.step_length)
+        unit = torch.where(self.step_length > 0, self.step_length, torch.ones_like(self.step_length))
+        return torch.cat([torch.cat([step[..., :3, :3], step[..., :3, 3:] / unit[..., None, None]], -1),
+                          step[..., 3:, :]], -2)

@@ -1,0 +1,160 @@
+"""Calibrate a rig from its images: the engine of ``ocalib calibrate``.
+
+:func:`calibrate_sequence` opens a sequence of any supported layout, streams its synchronised frames
+through a front end (the pose network, inside :class:`~ocalib.calibnet.net.OnlineCalibrationNet`, or
+OpenCV monocular VO per camera) and the calibration head, and returns a
+:class:`~ocalib.calib.pipeline.CalibrationRun` (the JSON of ``calibrate-poses``, the per-frame trace,
+warnings) with the front end's trajectories, plus errors against the ground truth when the sequence has it.
+
+Convention: the result is ``T_cam0_camk`` (``p_cam0 = R p_camk + t``) in camera 0's front-end units and
+the scale that multiplies camera k's front-end units into camera 0's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+from tqdm import tqdm
+
+from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.pipeline import CalibrationRun, RigPoses, _progress_text, _trace_rows, _warnings
+from ocalib.calib.result import Calibration
+from ocalib.calibnet.net import OnlineCalibrationNet
+from ocalib.calibnet.truth import extrinsic_errors
+from ocalib.data.layout import open_sequence
+from ocalib.data.stream import RigStream
+from ocalib.errors import InputError
+
+FRONTENDS = ("network", "opencv")
+MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
+TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
+
+
+@dataclass
+class ImageCalibration:
+    """:func:`calibrate_sequence`'s outcome: the run (JSON, trace, warnings) and the ground-truth errors."""
+
+    run: CalibrationRun
+    errors: list[dict] | None  # per camera k >= 1, see :func:`ocalib.calibnet.truth.extrinsic_errors`
+
+    def result_json(self) -> dict:
+        doc = self.run.result_json()
+        if self.errors is not None:
+            doc["ground_truth_errors"] = self.errors
+        return doc
+
+
+def calibrate_sequence(
+    path: str | Path,
+    cameras: list[str] | None = None,
+    frontend: str = "network",
+    checkpoint: str | Path | None = None,
+    device: str = "cpu",
+    motion: str = "multi",
+    solver: str = "exact",
+    forgetting: float = 1.0,
+    scale: str = "head",
+    max_frames: int | None = None,
+    intrinsics: str | None = None,
+    progress: bool | None = None,
+    on_frame=None,
+) -> ImageCalibration:
+    """Calibrate cameras 1..C-1 of the sequence at ``path`` against camera 0 (the first of ``cameras``).
+
+    frontend: ``network`` (the pose network of ``checkpoint``, default the shipped one) or ``opencv``.
+    motion, solver, forgetting: the head's (see :class:`OnlineCalibrator`); scale: see
+    :class:`OnlineCalibrationNet`. max_frames: use only the first frames. on_frame(t, estimate): called
+    after every frame (e.g. TensorBoard). progress: a tqdm bar with the current estimate (None: on a terminal).
+    """
+    if frontend not in FRONTENDS:
+        raise InputError(f"unknown front end {frontend!r}: {', '.join(FRONTENDS)}")
+    sequence = open_sequence(path, cameras, intrinsics)
+    if len(sequence.cameras) < 2:
+        raise InputError(f"{path}: calibration needs at least two cameras, the sequence has "
+                         f"{', '.join(sequence.names)}")
+    frames = len(sequence) if max_frames is None else min(len(sequence), max_frames)
+    if frames < MIN_FRAMES:
+        raise InputError(f"{path}: {frames} frames is too short to calibrate (at least {MIN_FRAMES})")
+    if frontend == "network":
+        from ocalib.models import load_model
+
+        model = load_model(checkpoint).to(device)
+        stream = RigStream(sequence, size=(model.height, model.width))
+        net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver,
+                                   forgetting=forgetting, scale=scale).to(device)
+        step = _network_step(net, device)
+    else:
+        stream = RigStream(sequence, size=sequence.cameras[0].size)
+        head = OnlineCalibrator(len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting)
+        step = _opencv_step(head, sequence)
+
+    final, trace, trajectory, times = _stream(stream, frames, step, progress, on_frame)
+    C = len(sequence.cameras)
+    rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
+                   lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
+    settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
+                "motion": motion, "solver": solver, "forgetting": forgetting, "scale": scale,
+                "frames": frames, "max_dt": None, "sequence": str(path)}
+    run = CalibrationRun(rig, final, trace, settings, [])
+    run.warnings = _warnings(run)
+    errors = None
+    if stream.extrinsics is not None:
+        truth = None
+        if all(cam.poses is not None for cam in sequence.cameras):
+            truth = np.stack([cam.poses[:frames] for cam in sequence.cameras], 1)
+        errors = extrinsic_errors(final, stream.extrinsics.numpy(), trajectory, truth)
+    return ImageCalibration(run, errors)
+
+
+def _network_step(net: OnlineCalibrationNet, device: str):
+    def step(frame: dict) -> tuple[Calibration, torch.Tensor]:
+        out = net(frame["image"].to(device, non_blocking=True))
+        return out, net.trajectory[0]
+
+    return step
+
+
+def _opencv_step(head: OnlineCalibrator, sequence):
+    from ocalib.frontend import OpenCVOdometry
+
+    odometry = [OpenCVOdometry(cam.K.astype(np.float64)) for cam in sequence.cameras]
+
+    def step(frame: dict) -> tuple[Calibration, torch.Tensor]:
+        images = (frame["image"].permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
+        for vo, image in zip(odometry, images):
+            vo.step(image)
+        poses = torch.from_numpy(np.stack([vo.pose for vo in odometry]))
+        return head(poses), poses
+
+    return step
+
+
+def _stream(stream: RigStream, frames: int, step, progress, on_frame):
+    """Run ``step`` on frames 0..frames-1 -> (last estimate, trace dict, trajectories (T, C, 4, 4), times)."""
+    names = [f.name for f in fields(Calibration)]
+    loader = DataLoader(torch.utils.data.Subset(stream, range(frames)), batch_size=None, num_workers=1,
+                        prefetch_factor=4)
+    chunks, pending, trajectory, times = [], [], [], []
+    with torch.inference_mode(), tqdm(total=frames, unit="frame", disable=None if progress is None else not progress,
+                                      desc="calibrating") as bar:
+        for t, frame in enumerate(loader):
+            out, poses = step(frame)
+            pending.append(out)
+            trajectory.append(poses)
+            times.append(frame["time"])
+            if on_frame is not None:
+                on_frame(t, out)
+            if len(pending) == TRACE_EVERY or t == frames - 1:
+                chunk = Calibration(**{n: torch.cat([getattr(o, n) for o in pending]) for n in names})
+                chunks.append({k: v.cpu() for k, v in _trace_rows(chunk).items()})
+                bar.update(len(pending))
+                last, pending = pending[-1], []
+                bar.set_postfix_str(_progress_text(last), refresh=False)
+    trace = {k: torch.cat([c[k] for c in chunks]).double().numpy() for k in chunks[0]}
+    trace = {"frame": np.arange(frames), "time": np.asarray(times, dtype=np.float64)} | trace
+    last = Calibration(**{n: getattr(last, n).cpu() for n in names})
+    return last, trace, torch.stack(trajectory).cpu().double().numpy(), np.asarray(times, dtype=np.float64)

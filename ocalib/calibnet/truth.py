@@ -1,0 +1,83 @@
+"""Errors of a rig calibration against ground truth, in the terms of the paper's simulation.
+
+Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``), metres in the ground truth; the estimate's
+translation is in camera 0's front-end units, so it is brought to metres by the scale that aligns
+camera 0's estimated trajectory to its ground truth (a Sim(3) fit of the positions).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ocalib.calib.result import Calibration
+
+
+def trajectory_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """The factor that brings the positions of ``estimate`` (T, 4, 4) to metres: the scale of the Sim(3)
+    (Umeyama) fit of its positions to those of ``truth`` (T, 4, 4); NaN when the truth does not move."""
+    from ocalib.eval.alignment import umeyama
+
+    valid = np.isfinite(estimate).all((1, 2)) & np.isfinite(truth).all((1, 2))
+    moves = lambda p: np.ptp(p[valid, :3, 3], 0).max() > 0  # noqa: E731
+    if valid.sum() < 3 or not moves(truth) or not moves(estimate):
+        return math.nan
+    scale, _, _ = umeyama(estimate[valid, :3, 3], truth[valid, :3, 3])
+    return scale
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two vectors in degrees (NaN when either is zero)."""
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na == 0 or nb == 0:
+        return math.nan
+    return math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(a @ b)))
+
+
+def extrinsic_errors(estimate: Calibration, extrinsics: np.ndarray, trajectory: np.ndarray,
+                     truth: np.ndarray | None) -> list[dict]:
+    """Per camera k >= 1 of rig 0: the errors of ``estimate`` against the true ``extrinsics`` (C, 4, 4).
+
+    ``trajectory`` (T, C, 4, 4): the front end's camera-to-first-frame poses; ``truth`` (T, C, 4, 4) the
+    ground-truth poses (any world frame) or None. On planar motion the translation is compared in the
+    plane normal to the estimated rotation axis (the component along it is unobservable).
+
+    Keys: ``rotation_error_deg``, ``translation_direction_error_deg``, and with ``truth``:
+    ``metric_scale`` (front-end units of camera 0 -> metres), ``translation_error`` (metres, after that
+    scale), ``translation_error_rel_baseline`` (over the true baseline, same components) and
+    ``scale_true`` (the scale that maps camera k's front-end units into camera 0's).
+    """
+    C = extrinsics.shape[0]
+    ref = np.linalg.inv(extrinsics[0])
+    rel = ref @ extrinsics  # re-referenced to camera 0
+    scales = None
+    if truth is not None:
+        rebased = np.linalg.inv(truth[:1]) @ truth  # each camera's truth relative to its first frame
+        scales = [trajectory_scale(trajectory[:, c], rebased[:, c]) for c in range(C)]
+    out = []
+    for k in range(1, C):
+        R, t = estimate.rotation[0, k - 1].double().numpy(), estimate.translation[0, k - 1].double().numpy()
+        R_gt, t_gt = rel[k, :3, :3], rel[k, :3, 3]
+        cos = np.clip((np.trace(R.T @ R_gt) - 1) / 2, -1.0, 1.0)
+        planar = bool(estimate.planar_motion[0, k - 1])
+        if planar:
+            axis = estimate.planar_axis[0, k - 1].double().numpy()
+            project = np.eye(3) - np.outer(axis, axis)
+            t, t_gt = project @ t, project @ t_gt
+        e = {
+            "camera": k,
+            "rotation_error_deg": math.degrees(math.acos(cos)),
+            "translation_direction_error_deg": angle_deg(t, t_gt),
+            "compared_in_plane": planar,
+        }
+        if scales is not None:
+            a = scales[0]
+            e["metric_scale"] = a
+            e["translation_error"] = float(np.linalg.norm(a * t - t_gt))
+            baseline = float(np.linalg.norm(t_gt))
+            e["translation_error_rel_baseline"] = e["translation_error"] / baseline if baseline > 0 else math.nan
+            e["scale_true"] = scales[k] / a if a and math.isfinite(a) else math.nan
+            e["scale"] = float(estimate.scale[0, k - 1])
+        out.append(e)
+    return out

@@ -1,0 +1,120 @@
+"""``ocalib calibrate --sequence DIR``: rig extrinsics from the images of a sequence, frame by frame.
+
+Convention: as ``calibrate-poses`` -- the pose of camera k in camera 0's frame (``p_cam0 = R p_camk + t``,
+in camera 0's front-end units) and the scale that multiplies camera k's front-end units into camera 0's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        name,
+        help="calibrate a rig from its image sequence (pose network or OpenCV front end)",
+        description="Calibrate cameras 1..K of a sequence (rig layout, KITTI raw or odometry, SfMLearner, image "
+        "folders) against camera 0 from the images alone, on-line: each frame the front end's ego-motion "
+        "updates the calibration head. Prints the estimate (and its errors when the sequence has ground truth); "
+        "writes the JSON of calibrate-poses, a per-frame trace, a plot and TensorBoard scalars.",
+    )
+    p.add_argument("--sequence", required=True, metavar="DIR", help="the sequence folder")
+    p.add_argument("--cameras", nargs="+", metavar="NAME", help="cameras to use, the reference first (default: all)")
+    p.add_argument("--checkpoint", metavar="CKPT",
+                   help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)")
+    p.add_argument("--frontend", choices=("network", "opencv"), default="network",
+                   help="ego-motion front end: the pose network (default) or OpenCV monocular VO")
+    p.add_argument("--out", metavar="JSON", help="write the result JSON here")
+    p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
+    p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
+    p.add_argument("--tensorboard", metavar="DIR", help="write per-frame TensorBoard scalars here")
+    p.add_argument("--trajectories", metavar="DIR", help="write each camera's front-end trajectory (KITTI) here")
+    p.add_argument("--device", default="cpu", help="torch device of the network and the head (cpu, cuda)")
+    p.add_argument("--motion", choices=("first", "consecutive", "multi"), default="multi",
+                   help="motion pairs of the head (default: gaps of 1, 2, 4 and 8 frames)")
+    p.add_argument("--solver", choices=("exact", "rls"), default="exact", help="the head's translation solver")
+    p.add_argument("--forgetting", type=float, default=1.0, metavar="L", help="forgetting factor in (0, 1]")
+    p.add_argument("--scale", choices=("head", "normalise"), default="head",
+                   help="network scale: trust it per camera and solve the ratio (head, default), or normalise "
+                   "each camera's steps by their running mean length")
+    p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
+    p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
+    return p
+
+
+def run(args) -> int:
+    from ocalib.calibnet.run import calibrate_sequence
+    from ocalib.cli.calibrate_poses import summary
+
+    writer = None
+    if args.tensorboard:
+        from torch.utils.tensorboard import SummaryWriter
+
+        writer = SummaryWriter(args.tensorboard)
+    try:
+        result = calibrate_sequence(
+            args.sequence, args.cameras, args.frontend, args.checkpoint, args.device, args.motion, args.solver,
+            args.forgetting, args.scale, args.max_frames, args.intrinsics, progress=None,
+            on_frame=(lambda t, e: log_frame(writer, t, e)) if writer else None,
+        )  # fmt: skip
+    finally:
+        if writer:
+            writer.close()
+    doc = result.result_json()
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(doc, f, indent=2)
+    if args.trace:
+        import numpy as np
+
+        header, rows = result.run.trace_table()
+        np.savetxt(args.trace, rows, fmt="%.10g", delimiter=",", header=",".join(header), comments="")
+    if args.plot:
+        from ocalib.viz.calibration import plot_trace
+
+        plot_trace(result.run.trace, result.run.rig.files[1:], args.plot)
+    if args.trajectories:
+        from pathlib import Path
+
+        from ocalib.io.poses import write_kitti
+
+        Path(args.trajectories).mkdir(parents=True, exist_ok=True)
+        for c, name in enumerate(result.run.rig.files):
+            write_kitti(Path(args.trajectories) / f"{name}.txt", result.run.rig.poses[:, c])
+    print(summary(doc))
+    if result.errors:
+        print(errors_table(result.errors, result.run.rig.files))
+    for w in doc["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0
+
+
+def errors_table(errors: list[dict], cameras: list[str]) -> str:
+    """The ground-truth errors, one line per camera."""
+    lines = ["errors against the ground truth:"]
+    for e in errors:
+        text = (f"  {cameras[e['camera']]}: rotation {e['rotation_error_deg']:.3f} deg, translation direction "
+                f"{e['translation_direction_error_deg']:.2f} deg" + (" (in the plane)" if e["compared_in_plane"] else ""))
+        if "translation_error_rel_baseline" in e:
+            text += (f", translation {e['translation_error']:.3f} m = {e['translation_error_rel_baseline']:.1%} of the "
+                     f"baseline (camera 0 scaled to metres x{e['metric_scale']:.3g}), scale {e['scale']:.3f} "
+                     f"(true {e['scale_true']:.3f})")
+        lines.append(text)
+    return "\n".join(lines)
+
+
+def log_frame(writer, t: int, estimate) -> None:
+    """TensorBoard scalars of one frame's estimate, camera k of rig 0."""
+    import math
+
+    for k in range(estimate.scale.shape[1]):
+        q = estimate.quaternion[0, k].tolist()
+        tag = f"camera{k + 1}"
+        writer.add_scalar(f"{tag}/rotation_angle_deg", math.degrees(2 * math.atan2(math.hypot(*q[1:]), abs(q[0]))), t)
+        for axis, v in zip("xyz", estimate.translation[0, k].tolist()):
+            writer.add_scalar(f"{tag}/translation_{axis}", v, t)
+        writer.add_scalar(f"{tag}/scale", float(estimate.scale[0, k]), t)
+        for i, v in enumerate(estimate.rotation_singular_values[0, k].tolist()):
+            writer.add_scalar(f"{tag}/rotation_sv{i}", v, t)
