@@ -1,0 +1,138 @@
+"""Ego-motion error metrics: SfMLearner's 5-frame snippet ATE, ATE and RPE after Sim(3) alignment,
+frame-to-frame rotation and translation-direction errors, and the per-frame scale ratio.
+
+Convention: poses are camera-to-world (N, 4, 4) float64 numpy arrays, predicted and ground truth for the same
+N frames, each in its own world frame and units (predictions are up to scale). The frame-to-frame motion is
+``T_{t-1,t} = P_{t-1}^-1 P_t``, the pose of frame t in frame t-1's camera frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ocalib.errors import InputError
+from ocalib.eval.alignment import align_trajectory
+
+
+def invert(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid poses (..., 4, 4) through R^T."""
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -(Rt @ T[..., :3, 3:])[..., 0]
+    out[..., 3, 3] = 1
+    return out
+
+
+def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
+    """Rotation angles in degrees, [0, 180], of rotation matrices (..., 3, 3) (atan2 form, accurate near 0)."""
+    skew = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    cos = (np.trace(R, axis1=-2, axis2=-1) - 1) / 2
+    return np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1) / 2, cos))
+
+
+def frame_motions(poses: np.ndarray, delta: int = 1) -> np.ndarray:
+    """Motions ``P_t^-1 P_{t+delta}`` (N - delta, 4, 4) of a trajectory (N, 4, 4)."""
+    return invert(poses[:-delta]) @ poses[delta:]
+
+
+def snippet_ate(pred: np.ndarray, gt: np.ndarray, length: int = 5) -> np.ndarray:
+    """SfMLearner's snippet ATE of every window of ``length`` consecutive frames -> (N - length + 1,).
+
+    As SfMLearner's ``kitti_eval`` (``compute_ate``): both snippets re-referenced to their first frame,
+    positions only, the prediction scaled by the least-squares factor ``sum(g . p) / sum(p . p)``, and the
+    error ``||s p - g||_F / length`` (the Frobenius norm over the snippet divided by its length, *not* an RMSE).
+    Here the snippet's predicted poses are the chained frame-to-frame predictions.
+    """
+    if len(pred) < length:
+        raise InputError(f"snippet ATE needs at least {length} frames, got {len(pred)}")
+    out = []
+    for i in range(len(pred) - length + 1):
+        p = (invert(pred[i]) @ pred[i : i + length])[:, :3, 3]
+        g = (invert(gt[i]) @ gt[i : i + length])[:, :3, 3]
+        norm = (p * p).sum()
+        scale = (g * p).sum() / norm if norm > 0 else 0.0
+        out.append(np.linalg.norm(scale * p - g) / length)
+    return np.asarray(out)
+
+
+def rpe(pred: np.ndarray, gt: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Relative pose errors over ``delta`` frames of aligned predicted poses -> translation (M,), rotation deg (M,).
+
+    ``E_i = (G_i^-1 G_{i+delta})^-1 (P_i^-1 P_{i+delta})`` (Sturm et al., TUM RGB-D); its translation norm
+    (ground-truth units once ``pred`` is Sim(3)-aligned) and rotation angle.
+    """
+    E = invert(frame_motions(gt, delta)) @ frame_motions(pred, delta)
+    return np.linalg.norm(E[:, :3, 3], axis=1), rotation_angle_deg(E[:, :3, :3])
+
+
+def frame_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3,
+                 min_fraction: float = 0.1) -> dict:
+    """Per-frame (N - 1) errors of the frame-to-frame motions.
+
+    ``rotation_deg``: angle of ``R_gt^T R_pred``. ``direction_deg``: angle between predicted and true
+    translation (90 where the prediction has none). ``scale_ratio``: ``|t_pred| / |t_gt|``.
+    ``moving``: frames whose true translation exceeds ``max(min_translation, min_fraction * median)``;
+    direction and ratio are NaN elsewhere (a direction or ratio of a tiny motion is noise).
+    """
+    mp, mg = frame_motions(pred), frame_motions(gt)
+    rot = rotation_angle_deg(np.swapaxes(mg[:, :3, :3], 1, 2) @ mp[:, :3, :3])
+    tp, tg = mp[:, :3, 3], mg[:, :3, 3]
+    np_, ng = np.linalg.norm(tp, axis=1), np.linalg.norm(tg, axis=1)
+    moving = ng > max(min_translation, min_fraction * float(np.median(ng)))
+    cos = np.where(np_ > 0, (tp * tg).sum(1) / np.maximum(np_ * ng, 1e-300), 0.0)
+    direction = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+    return {
+        "rotation_deg": rot,
+        "direction_deg": np.where(moving, direction, np.nan),
+        "scale_ratio": np.where(moving, np_ / np.maximum(ng, 1e-300), np.nan),
+        "moving": moving,
+    }
+
+
+def pose_metrics(pred: np.ndarray, gt: np.ndarray, rpe_delta: int = 1, snippet: int = 5,
+                 min_translation: float = 1e-3, min_fraction: float = 0.1) -> tuple[dict, dict]:
+    """All pose metrics of a predicted trajectory against ground truth, both (N, 4, 4) camera-to-world.
+
+    Returns (summary, details): summary holds scalars for the JSON; details the aligned predicted poses
+    (``aligned``, (N, 4, 4)), the per-frame arrays of :func:`frame_errors`, the snippet ATEs and the RPE
+    arrays, for plots. Raises InputError when the ground truth has no motion (nothing to measure against).
+    """
+    pred = np.asarray(pred, dtype=np.float64)
+    gt = np.asarray(gt, dtype=np.float64)
+    if pred.shape != gt.shape or pred.ndim != 3 or pred.shape[1:] != (4, 4) or len(pred) < 2:
+        raise InputError(f"pose metrics need two (N >= 2, 4, 4) trajectories of equal length, got {pred.shape} and {gt.shape}")
+    frames = frame_errors(pred, gt, min_translation, min_fraction)
+    moving = frames["moving"]
+    if not moving.any():
+        raise InputError(f"the ground-truth trajectory of {len(gt)} frames does not move (every frame-to-frame "
+                         f"translation <= {min_translation:g}): pose errors are undefined")
+    aligned, sim3 = align_trajectory(pred, gt)
+    ate = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
+    rpe_t, rpe_r = rpe(aligned, gt, rpe_delta) if len(gt) > rpe_delta else (np.array([np.nan]),) * 2
+    snip = snippet_ate(pred, gt, snippet) if len(gt) >= snippet else np.array([np.nan])
+    ratio = frames["scale_ratio"][moving]
+    direction = frames["direction_deg"][moving]
+    rot = frames["rotation_deg"]
+    steps = np.linalg.norm(frame_motions(gt)[:, :3, 3], axis=1)
+    summary = {
+        "frames": len(gt),
+        "moving_frames": int(moving.sum()),
+        "path_length": float(steps.sum()),
+        f"sfmlearner_{snippet}frame_snippet_ate": float(np.mean(snip)),
+        f"sfmlearner_{snippet}frame_snippet_ate_std": float(np.std(snip)),
+        "ate_rmse": float(np.sqrt(np.mean(ate**2))),
+        "ate_sim3_scale": float(sim3["scale"]),
+        "rpe_delta": rpe_delta,
+        "rpe_trans_rmse": float(np.sqrt(np.mean(rpe_t**2))),
+        "rpe_rot_rmse_deg": float(np.sqrt(np.mean(rpe_r**2))),
+        "rotation_error_deg_median": float(np.median(rot)),
+        "rotation_error_deg_mean": float(np.mean(rot)),
+        "direction_error_deg_median": float(np.median(direction)),
+        "direction_error_deg_mean": float(np.mean(direction)),
+        "scale_ratio_median": float(np.median(ratio)),
+        "scale_ratio_cv": float(np.std(ratio) / np.mean(ratio)) if np.mean(ratio) > 0 else float("inf"),
+    }
+    details = {"aligned": aligned, "sim3": sim3, "ate": ate, "rpe_trans": rpe_t, "rpe_rot_deg": rpe_r,
+               "snippet_ate": snip, **frames}
+    return summary, details
