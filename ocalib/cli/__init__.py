@@ -20,6 +20,8 @@ COMMANDS = {
     "calibrate-poses": "calibrate_poses",
     "calibrate": "calibrate",
     "demo": "demo",
+    "predict": "predict",
+    "evaluate": "evaluate",
 }
 
 
