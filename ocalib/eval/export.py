@@ -25,12 +25,13 @@ def save_predictions(model, sequence: Sequence, out, device="cpu", batch_size: i
     """Predict every camera of ``sequence`` and write the folder ``out``; returns camera name -> poses (N, 4, 4)."""
     out = Path(out)
     names = sequence.names
+    frames = predict_frames(model, sequence, device, batch_size, depth, workers, progress)  # checks the input
     for cam in sequence.cameras:
         folder = out / cam.name
         (folder / "depth" if depth else folder).mkdir(parents=True, exist_ok=True)
         np.savetxt(folder / "K.txt", model_view(cam, model.height, model.width).K, fmt="%.9g")
     motions = []
-    for frame in predict_frames(model, sequence, device, batch_size, depth, workers, progress):
+    for frame in frames:
         motions.append(frame.motion)
         if depth:
             for name, d in zip(names, frame.depth):

@@ -129,12 +129,15 @@ def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu"
     """
     if batch_size < 1:
         raise InputError(f"batch size must be >= 1, got {batch_size}")
-    check_motion(sequence)
     views = [model_view(cam, model.height, model.width) for cam in sequence.cameras]
-    model = model.to(device).eval()
+    check_motion(sequence)
     loader = DataLoader(FrameImages(sequence, views), batch_size=batch_size, num_workers=workers)
+    return _generate(model.to(device).eval(), loader, len(sequence), device, depth, progress)
+
+
+def _generate(model, loader, frames: int, device, depth: bool, progress) -> Iterator[FramePrediction]:
     previous, t = None, 0
-    with tqdm(total=len(sequence), unit="frame", desc="predicting", disable=None if progress is None else not progress) as bar:
+    with tqdm(total=frames, unit="frame", desc="predicting", disable=None if progress is None else not progress) as bar:
         for images in loader:  # (b, C, 3, H, W)
             motion, depth_maps = _predict_batch(model, images.to(device), previous, depth)
             previous = images[-1].to(device)
