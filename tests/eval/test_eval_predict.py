@@ -201,3 +201,21 @@ def test_model_view_crops_to_the_model_aspect():
     np.testing.assert_allclose((view.K @ X / X[2])[:2], expected, rtol=1e-12)
     with pytest.raises(InputError, match="too small"):
         model_view(Camera("c", [], K, (480, 640)), 4 * 200, 4 * 650)
+
+
+def test_an_image_of_another_size_is_named(seq, ckpt, tmp_path, capsys):
+    broken = tmp_path / "broken"
+    shutil.copytree(seq, broken)
+    bad = broken / "rear" / "images" / "000004.png"
+    cv2.imwrite(str(bad), np.zeros((H // 2, W // 2, 3), np.uint8))
+    err = run_error(["predict", "--sequence", str(broken), "--out", str(tmp_path / "o"), "--checkpoint", str(ckpt),
+                     "--workers", "0", "--no-depth"], capsys)
+    assert "000004.png" in err and f"expected {H}x{W}" in err
+
+
+def test_predict_frames_on_device(seq, ckpt, device):
+    model, sequence = load_model(ckpt), open_sequence(seq)
+    ref = list(predict_frames(model, sequence, batch_size=4))
+    out = list(predict_frames(model, sequence, device=device, batch_size=4))
+    np.testing.assert_allclose(np.stack([f.motion for f in out]), np.stack([f.motion for f in ref]), atol=1e-4)
+    np.testing.assert_allclose(np.stack([f.depth for f in out]), np.stack([f.depth for f in ref]), rtol=1e-3)
