@@ -1,0 +1,94 @@
+"""``ocalib calibrate`` end to end on sequences the tests render or write, and its clear errors."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from ocalib.cli import main
+from ocalib.models import EgoMotionModel, save_model
+from ocalib.synth import preset, render_sequence
+
+torch.set_num_threads(1)  # tiny tensors: threads only add hand-over cost on a busy 2-core machine
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A 12-frame handheld rig at 32x96 and an untrained model at that size."""
+    root = tmp_path_factory.mktemp("calibrate")
+    seq = render_sequence(preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003),
+                          root / "seq", progress=False)
+    torch.manual_seed(0)
+    model = save_model(EgoMotionModel("small", height=32, width=96), root / "model.pt")
+    return root, seq, model
+
+
+def test_calibrate_writes_json_trace_plot_and_errors(tiny, tmp_path, capsys):
+    root, seq, model = tiny
+    out = tmp_path / "r.json"
+    rc = main(["calibrate", "--sequence", str(seq), "--checkpoint", str(model), "--out", str(out),
+               "--trace", str(tmp_path / "t.csv"), "--plot", str(tmp_path / "p.png"),
+               "--tensorboard", str(tmp_path / "tb"), "--trajectories", str(tmp_path / "traj")])
+    assert rc == 0
+    doc = json.loads(out.read_text())
+    assert doc["reference"] == "cam0" and [e["camera"] for e in doc["extrinsics"]] == ["cam1"]
+    e = doc["extrinsics"][0]
+    R = np.array(e["rotation"])
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    assert e["frames_used"] + e["frames_rejected"] <= 12
+    assert set(doc["ground_truth_errors"][0]) >= {"rotation_error_deg", "translation_direction_error_deg",
+                                                  "translation_error_rel_baseline", "scale_true"}
+    rows = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
+    assert rows.shape[0] == 12 and (tmp_path / "p.png").stat().st_size > 0
+    assert any((tmp_path / "tb").iterdir())
+    assert (tmp_path / "traj" / "cam1.txt").read_text().count("\n") == 12
+    assert "errors against the ground truth" in capsys.readouterr().out
+
+
+def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
+    """truth.extrinsic_errors on the true extrinsics as the estimate and the true trajectories: zero errors,
+    metric scale 1 (an independent check of the error conventions)."""
+    from ocalib.calib.online import OnlineCalibrator
+    from ocalib.calibnet.truth import extrinsic_errors
+    from ocalib.data import open_sequence
+
+    _, seq, _ = tiny
+    sequence = open_sequence(seq)
+    truth = np.stack([c.poses for c in sequence.cameras], 1)
+    T = np.stack([c.T_cam0_cam for c in sequence.cameras])
+    head = OnlineCalibrator(2)
+    front_end = np.linalg.inv(truth[:1]) @ truth
+    front_end[..., :3, 3] *= 2.5  # a front end in units of 1/2.5 m
+    for p in torch.from_numpy(front_end):
+        est = head(p)
+    (err,) = extrinsic_errors(est, T, front_end, truth)
+    assert err["rotation_error_deg"] < 0.05 and err["translation_direction_error_deg"] < 0.5
+    assert err["metric_scale"] == pytest.approx(1 / 2.5, rel=1e-6)
+    assert err["translation_error_rel_baseline"] < 0.01 and err["scale_true"] == pytest.approx(1.0, rel=1e-6)
+
+
+@pytest.mark.parametrize("case, message", [
+    ("unknown camera", "no camera 'cam7'"),
+    ("too short", "too short to calibrate"),
+    ("unequal counts", "frame is missing"),
+    ("wrong checkpoint", "not an ocalib ego-motion model"),
+])
+def test_clear_errors(tiny, tmp_path, capsys, case, message):
+    root, seq, model = tiny
+    args = ["calibrate", "--sequence", str(seq), "--checkpoint", str(model)]
+    if case == "unknown camera":
+        args += ["--cameras", "cam0", "cam7"]
+    elif case == "too short":
+        args += ["--max-frames", "5"]
+    elif case == "unequal counts":
+        broken = tmp_path / "seq"
+        shutil.copytree(seq, broken)
+        next(iter(sorted((broken / "cam1" / "images").iterdir()))).unlink()
+        args[2] = str(broken)
+    else:
+        torch.save({"weights": torch.zeros(3)}, tmp_path / "other.pt")
+        args[4] = str(tmp_path / "other.pt")
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
