@@ -94,4 +94,7 @@ def summary(doc: dict) -> str:
             lines.append(f"  frame-to-frame: rotation error median {fmt(p['rotation_error_deg_median'])} deg, "
                          f"translation direction median {fmt(p['direction_error_deg_median'])} deg, "
                          f"scale ratio CV {fmt(p['scale_ratio_cv'])}")
+            lines.append(f"  image-blind baselines: no rotation {fmt(p['baseline_zero_rotation_deg_median'])} deg, "
+                         f"fixed direction {fmt(p['baseline_constant_direction_deg_median'])} deg, "
+                         f"fixed step length CV {fmt(p['baseline_constant_step_scale_cv'])}")
     return "\n".join(lines)

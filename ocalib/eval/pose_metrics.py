@@ -114,7 +114,9 @@ def pose_metrics(pred: np.ndarray, gt: np.ndarray, rpe_delta: int = 1, snippet: 
     ratio = frames["scale_ratio"][moving]
     direction = frames["direction_deg"][moving]
     rot = frames["rotation_deg"]
-    steps = np.linalg.norm(frame_motions(gt)[:, :3, 3], axis=1)
+    truth = frame_motions(gt)
+    steps = np.linalg.norm(truth[:, :3, 3], axis=1)
+    baseline = trivial_baselines(truth, moving)
     summary = {
         "frames": len(gt),
         "moving_frames": int(moving.sum()),
@@ -132,7 +134,31 @@ def pose_metrics(pred: np.ndarray, gt: np.ndarray, rpe_delta: int = 1, snippet: 
         "direction_error_deg_mean": float(np.mean(direction)),
         "scale_ratio_median": float(np.median(ratio)),
         "scale_ratio_cv": float(np.std(ratio) / np.mean(ratio)) if np.mean(ratio) > 0 else float("inf"),
+        **baseline,
     }
     details = {"aligned": aligned, "sim3": sim3, "ate": ate, "rpe_trans": rpe_t, "rpe_rot_deg": rpe_r,
                "snippet_ate": snip, **frames}
     return summary, details
+
+
+def trivial_baselines(truth: np.ndarray, moving: np.ndarray) -> dict:
+    """The frame-to-frame metrics of predictors that ignore the images, for scale: given the true motions
+    (N - 1, 4, 4) and the ``moving`` mask of :func:`frame_errors`.
+
+    ``baseline_zero_rotation_deg_median/mean``: rotation error of a predictor that never rotates (the true
+    angles). ``baseline_constant_direction_deg_median``: direction error of the best fixed direction (the
+    normalised mean of the true unit directions). ``baseline_constant_step_scale_cv``: scale-ratio CV of
+    steps of constant length (the CV of 1 / |t_gt|).
+    """
+    angles = rotation_angle_deg(truth[:, :3, :3])
+    t = truth[moving, :3, 3]
+    units = t / np.linalg.norm(t, axis=1, keepdims=True)
+    mean = units.mean(0)
+    cos = units @ (mean / max(np.linalg.norm(mean), 1e-300))
+    inv = 1 / np.linalg.norm(t, axis=1)
+    return {
+        "baseline_zero_rotation_deg_median": float(np.median(angles)),
+        "baseline_zero_rotation_deg_mean": float(np.mean(angles)),
+        "baseline_constant_direction_deg_median": float(np.median(np.degrees(np.arccos(np.clip(cos, -1, 1))))),
+        "baseline_constant_step_scale_cv": float(inv.std() / inv.mean()),
+    }

@@ -8,7 +8,7 @@ import pytest
 from ocalib.errors import InputError
 from ocalib.eval.alignment import align_poses, align_trajectory, umeyama
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
-from ocalib.eval.pose_metrics import frame_errors, pose_metrics, rotation_angle_deg, rpe, snippet_ate
+from ocalib.eval.pose_metrics import frame_errors, frame_motions, pose_metrics, rotation_angle_deg, rpe, snippet_ate
 
 
 def rot(axis, angle):
@@ -207,3 +207,19 @@ def test_pose_metrics_rejects_static_ground_truth():
 def test_rotation_angle_small_and_large():
     assert rotation_angle_deg(rot([1, 1, 1], 1e-7))[()] == pytest.approx(np.degrees(1e-7), rel=1e-6)
     assert rotation_angle_deg(rot([0, 1, 0], np.radians(179.0)))[()] == pytest.approx(179.0)
+
+
+def test_baselines_are_the_metrics_of_image_blind_predictors():
+    gt = trajectory(40, seed=7)
+    summary, _ = pose_metrics(gt, gt)
+    truth = frame_motions(gt)
+    units = truth[:, :3, 3] / np.linalg.norm(truth[:, :3, 3], axis=1, keepdims=True)
+    direction = units.mean(0) / np.linalg.norm(units.mean(0))
+    blind = _chain(np.stack([pose(np.eye(3), 0.5 * direction) for _ in truth]))  # no rotation, fixed step
+    e = frame_errors(blind, gt)
+    assert summary["baseline_zero_rotation_deg_median"] == pytest.approx(np.median(e["rotation_deg"]))
+    assert summary["baseline_zero_rotation_deg_mean"] == pytest.approx(np.mean(e["rotation_deg"]))
+    assert summary["baseline_constant_direction_deg_median"] == pytest.approx(np.median(e["direction_deg"]))
+    blind_summary, _ = pose_metrics(blind, gt)
+    assert summary["baseline_constant_step_scale_cv"] == pytest.approx(blind_summary["scale_ratio_cv"])
+    assert summary["baseline_zero_rotation_deg_median"] > 1  # the test trajectory turns 0.6-4.6 deg a frame
