@@ -28,6 +28,7 @@ from ocalib.calibnet.truth import extrinsic_errors
 from ocalib.data.layout import open_sequence
 from ocalib.data.stream import RigStream
 from ocalib.errors import InputError
+from ocalib.eval.predict import FrameImages, check_motion, model_view
 
 FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
@@ -79,21 +80,24 @@ def calibrate_sequence(
     frames = len(sequence) if max_frames is None else min(len(sequence), max_frames)
     if frames < MIN_FRAMES:
         raise InputError(f"{path}: {frames} frames is too short to calibrate (at least {MIN_FRAMES})")
+    check_motion(sequence)
     if frontend == "network":
         from ocalib.models import load_model
 
         model = load_model(checkpoint).to(device)
-        stream = RigStream(sequence, size=(model.height, model.width))
+        frames_in = FrameImages(sequence, [model_view(c, model.height, model.width) for c in sequence.cameras])
         net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver,
                                    forgetting=forgetting, scale=scale).to(device)
         step = _network_step(net, device)
     else:
-        stream = RigStream(sequence, size=sequence.cameras[0].size)
+        frames_in = RigStream(sequence, size=sequence.cameras[0].size)
         head = OnlineCalibrator(len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting)
-        step = _opencv_step(head, sequence)
+        step = _opencv_step(head)
 
-    final, trace, trajectory, times = _stream(stream, frames, step, progress, on_frame)
+    final, trace, trajectory = _stream(frames_in, frames, step, progress, on_frame)
     C = len(sequence.cameras)
+    times = sequence.times[:frames] if sequence.times is not None else np.arange(frames, dtype=np.float64)
+    trace["time"] = times
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
     settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
@@ -102,28 +106,31 @@ def calibrate_sequence(
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = _warnings(run)
     errors = None
-    if stream.extrinsics is not None:
+    extrinsics = [cam.T_cam0_cam for cam in sequence.cameras]
+    if all(T is not None for T in extrinsics):
         truth = None
         if all(cam.poses is not None for cam in sequence.cameras):
             truth = np.stack([cam.poses[:frames] for cam in sequence.cameras], 1)
-        errors = extrinsic_errors(final, stream.extrinsics.numpy(), trajectory, truth)
+        errors = extrinsic_errors(final, np.stack(extrinsics), trajectory, truth)
     return ImageCalibration(run, errors)
 
 
 def _network_step(net: OnlineCalibrationNet, device: str):
-    def step(frame: dict) -> tuple[Calibration, torch.Tensor]:
-        out = net(frame["image"].to(device, non_blocking=True))
+    def step(images: torch.Tensor) -> tuple[Calibration, torch.Tensor]:
+        out = net(images.to(device, non_blocking=True))
         return out, net.trajectory[0]
 
     return step
 
 
-def _opencv_step(head: OnlineCalibrator, sequence):
+def _opencv_step(head: OnlineCalibrator):
     from ocalib.frontend import OpenCVOdometry
 
-    odometry = [OpenCVOdometry(cam.K.astype(np.float64)) for cam in sequence.cameras]
+    odometry = []
 
     def step(frame: dict) -> tuple[Calibration, torch.Tensor]:
+        if not odometry:
+            odometry.extend(OpenCVOdometry(K.double().numpy()) for K in frame["K"])
         images = (frame["image"].permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
         for vo, image in zip(odometry, images):
             vo.step(image)
@@ -133,19 +140,18 @@ def _opencv_step(head: OnlineCalibrator, sequence):
     return step
 
 
-def _stream(stream: RigStream, frames: int, step, progress, on_frame):
-    """Run ``step`` on frames 0..frames-1 -> (last estimate, trace dict, trajectories (T, C, 4, 4), times)."""
+def _stream(dataset, frames: int, step, progress, on_frame):
+    """Run ``step`` on items 0..frames-1 of ``dataset`` -> (last estimate, trace dict, trajectories (T, C, 4, 4))."""
     names = [f.name for f in fields(Calibration)]
-    loader = DataLoader(torch.utils.data.Subset(stream, range(frames)), batch_size=None, num_workers=1,
+    loader = DataLoader(torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1,
                         prefetch_factor=4)
-    chunks, pending, trajectory, times = [], [], [], []
+    chunks, pending, trajectory = [], [], []
     with torch.inference_mode(), tqdm(total=frames, unit="frame", disable=None if progress is None else not progress,
                                       desc="calibrating") as bar:
         for t, frame in enumerate(loader):
             out, poses = step(frame)
             pending.append(out)
             trajectory.append(poses)
-            times.append(frame["time"])
             if on_frame is not None:
                 on_frame(t, out)
             if len(pending) == TRACE_EVERY or t == frames - 1:
@@ -155,6 +161,6 @@ def _stream(stream: RigStream, frames: int, step, progress, on_frame):
                 last, pending = pending[-1], []
                 bar.set_postfix_str(_progress_text(last), refresh=False)
     trace = {k: torch.cat([c[k] for c in chunks]).double().numpy() for k in chunks[0]}
-    trace = {"frame": np.arange(frames), "time": np.asarray(times, dtype=np.float64)} | trace
+    trace = {"frame": np.arange(frames), "time": None} | trace
     last = Calibration(**{n: getattr(last, n).cpu() for n in names})
-    return last, trace, torch.stack(trajectory).cpu().double().numpy(), np.asarray(times, dtype=np.float64)
+    return last, trace, torch.stack(trajectory).cpu().double().numpy()
