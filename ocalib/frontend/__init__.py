@@ -1,0 +1,9 @@
+"""Ego-motion front ends that turn each camera's images into its trajectory for the calibration.
+
+:class:`OpenCVOdometry` is the classical monocular VO (KLT tracks, essential matrix, scale propagated
+along the tracks); :func:`run_opencv_vo` runs it over a whole sequence.
+"""
+
+from ocalib.frontend.opencv_vo import OpenCVOdometry, VOStatus, run_opencv_vo
+
+__all__ = ["OpenCVOdometry", "VOStatus", "run_opencv_vo"]
