@@ -1,0 +1,65 @@
+"""The training application end to end on tiny renders: the CLI fits, checkpoints, resumes and exports; an
+overfit run's loss falls."""
+
+from pathlib import Path
+
+import lightning.pytorch as pl
+import pytest
+import torch
+from conftest import tiny_args
+
+from ocalib.cli import main as ocalib_main
+from ocalib.errors import InputError
+from ocalib.models import load_model
+from train.cli import main
+from train.module import EgoMotionModule
+from train.synthetic import SyntheticDataModule
+
+
+def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
+    out = tmp_path / "runs"
+    cli = main(["fit", *tiny_args(tiny_synth, out, "--trainer.max_steps=2", "--trainer.val_check_interval=2")])
+    assert cli.trainer.global_step == 2
+    version = Path(cli.trainer.log_dir)
+    last = version / "checkpoints" / "last.ckpt"
+    assert last.is_file() and (version / "model.pt").is_file()
+    assert {"val/abs_rel", "val/rotation_error_deg", "val/direction_error_deg"} <= set(cli.trainer.callback_metrics)
+    assert list(version.glob("events.out.tfevents.*"))
+
+    # resume through `ocalib train`: the step count continues from the checkpoint
+    assert ocalib_main(["train", "fit", *tiny_args(tiny_synth, out, "--trainer.max_steps=4",
+                                                   "--trainer.limit_val_batches=0", f"--ckpt_path={last}")]) == 0
+    resumed = sorted(out.glob("tiny/version_*/checkpoints/last.ckpt"))[-1]
+    assert torch.load(resumed, weights_only=True)["global_step"] == 4
+
+    # the Lightning checkpoint and the slim file load to the same model
+    ckpt_model, slim = load_model(resumed), load_model(resumed.parent.parent / "model.pt")
+    assert (ckpt_model.height, ckpt_model.width) == (32, 96)
+    image = torch.rand(1, 3, 32, 96)
+    with torch.no_grad():
+        torch.testing.assert_close(ckpt_model.depth(image), slim.depth(image), rtol=0, atol=0)
+        torch.testing.assert_close(ckpt_model.pose(image, image), slim.pose(image, image), rtol=0, atol=0)
+
+
+def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path):
+    pl.seed_everything(0)
+    dm = SyntheticDataModule(presets=["handheld"], seeds=[0], val_seeds=[], frames=6, root=str(tiny_synth),
+                             height=32, width=96, batch_size=2, augmentation=None)
+    module = EgoMotionModule(height=32, width=96, lr=2e-3, warmup_steps=1, min_lr_ratio=1.0)
+    losses = []
+
+    class Record(pl.Callback):
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+            losses.append(float(outputs["loss"]))
+
+    trainer = pl.Trainer(accelerator="cpu", max_steps=25, overfit_batches=1, logger=False, enable_checkpointing=False,
+                         enable_progress_bar=False, enable_model_summary=False, callbacks=[Record()],
+                         default_root_dir=tmp_path)
+    trainer.fit(module, datamodule=dm)
+    assert len(losses) == 25
+    assert sum(losses[-5:]) / 5 < 0.8 * sum(losses[:5]) / 5, losses
+
+
+def test_held_out_seeds_are_refused(tmp_path):
+    with pytest.raises(InputError, match="1000: seeds >= 1000 are reserved"):
+        SyntheticDataModule(seeds=[0, 1000], root=str(tmp_path))

@@ -1,0 +1,183 @@
+"""The LightningModule: self-supervised depth and ego-motion from snippets (monodepth2 + SC-SfMLearner losses).
+
+Convention: batches as :mod:`ocalib.data.snippets` (``image`` (B, S, 3, H, W) target first, ``K`` (B, 3, 3),
+``poses`` (B, S, 4, 4) = pose of frame s in the target's frame, ``depth`` (B, S, 1, H, W) metres, when known).
+The pose net predicts ``T_target_source``; the warp uses its inverse.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import lightning.pytorch as pl
+import numpy as np
+import torch
+from torch import Tensor
+
+from ocalib.eval.depth_metrics import depth_errors
+from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.pose import invert_pose
+from ocalib.losses import LossOutput, SelfSupervisedLoss
+from ocalib.models import EgoMotionModel, disp_to_depth
+from train.visuals import colorize, trajectory_figure
+
+
+def pair_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3) -> tuple[np.ndarray, ...]:
+    """Per pair (N, 4, 4) float64: rotation error deg, translation direction error deg and norm ratio |t_pred|/|t_gt|
+    (NaN where the true translation is below ``min_translation``)."""
+    rot = rotation_angle_deg(np.swapaxes(gt[:, :3, :3], 1, 2) @ pred[:, :3, :3])
+    tp, tg = pred[:, :3, 3], gt[:, :3, 3]
+    np_, ng = np.linalg.norm(tp, axis=1), np.linalg.norm(tg, axis=1)
+    moving = ng > min_translation
+    cos = (tp * tg).sum(1) / np.maximum(np_ * ng, 1e-12)
+    direction = np.where(moving, np.degrees(np.arccos(np.clip(cos, -1, 1))), np.nan)
+    return rot, direction, np.where(moving, np_ / np.maximum(ng, 1e-12), np.nan)
+
+
+class EgoMotionModule(pl.LightningModule):
+    """Trains an :class:`~ocalib.models.EgoMotionModel` (``size``, ``height``, ``width``).
+
+    Loss: ``automask``, ``smoothness``, ``geometry`` (0 disables SC-SfMLearner's consistency loss and mask)
+    as :class:`~ocalib.losses.SelfSupervisedLoss`, over the first ``scales`` disparity scales. Adam with
+    ``lr``, ``weight_decay``, linear warm-up over ``warmup_steps`` then cosine decay to ``min_lr_ratio x lr``
+    at the last step. Images go to TensorBoard every ``image_interval`` steps; ``trajectory_frames``: length
+    of the validation trajectory plotted.
+    """
+
+    def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
+                 weight_decay: float = 0.0, warmup_steps: int = 200, min_lr_ratio: float = 0.05,
+                 automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.1, scales: int = 4,
+                 image_interval: int = 250, trajectory_frames: int = 200):
+        super().__init__()
+        self.save_hyperparameters()
+        self.model = EgoMotionModel(size, height, width)
+        self.loss = SelfSupervisedLoss(automask, smoothness, geometry)
+        self.nonfinite_steps = 0
+        self._val = defaultdict(list)
+
+    def step(self, batch: dict) -> tuple[LossOutput, Tensor, Tensor]:
+        """Loss, target disparity at full resolution (B, 1, H, W) and ``T_target_source`` (B, S-1, 4, 4)."""
+        images, K = batch["image"], batch["K"]
+        B, S = images.shape[:2]
+        use_geometry = self.loss.geometry > 0
+        disps = self.model.disparities(images.flatten(0, 1) if use_geometry else images[:, 0])
+        source_depths = None
+        if use_geometry:
+            source_depths = disp_to_depth(disps[0].unflatten(0, (B, S))[:, 1:])
+            disps = [d.unflatten(0, (B, S))[:, 0] for d in disps]
+        targets = images[:, :1].expand(-1, S - 1, -1, -1, -1).flatten(0, 1)
+        T = self.model.pose(targets, images[:, 1:].flatten(0, 1)).unflatten(0, (B, S - 1))
+        out = self.loss(images, K, disps[: self.hparams.scales], invert_pose(T), source_depths)
+        return out, disps[0], T
+
+    def training_step(self, batch: dict, batch_idx: int) -> Tensor | None:
+        buffers = [b.clone() for b in self.model.buffers()]  # batch-norm statistics, restored after a NaN batch
+        out, disp, _ = self.step(batch)
+        B = len(batch["image"])
+        if not torch.isfinite(out.total):  # NaN guard: skip the step, count it, never crash
+            with torch.no_grad():
+                for b, saved in zip(self.model.buffers(), buffers):
+                    b.copy_(saved)
+            self.nonfinite_steps += 1
+            self.log("train/nonfinite_steps", float(self.nonfinite_steps), batch_size=B)
+            return None
+        self.log("train/loss", out.total, prog_bar=True, batch_size=B)
+        for name, value in out.terms.items():
+            self.log(f"train/{name}", value, batch_size=B)
+        if self.global_step % self.hparams.image_interval == 0:
+            self._log_images("train", batch, out, disp)
+        return out.total
+
+    def on_before_optimizer_step(self, optimizer) -> None:
+        """NaN guard for gradients: a step with a non-finite gradient updates nothing."""
+        params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
+        if params and not all(torch.isfinite(p.grad).all() for p in params):
+            for p in params:
+                p.grad = None
+            self.nonfinite_steps += 1
+            self.log("train/nonfinite_steps", float(self.nonfinite_steps))
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        out, disp, T = self.step(batch)
+        B = len(batch["image"])
+        self.log("val/loss", out.total, batch_size=B, prog_bar=True)
+        for name, value in out.terms.items():
+            self.log(f"val/{name}", value, batch_size=B)
+        if batch_idx == 0:
+            self._log_images("val", batch, out, disp)
+        if "depth" in batch:
+            pred = disp_to_depth(disp).detach().cpu().double().numpy()[:, 0]
+            gt = batch["depth"][:, 0, 0].cpu().double().numpy()
+            self._val["abs_rel"] += [e["abs_rel"] for e in map(depth_errors, pred, gt) if e is not None]
+        if "poses" in batch:
+            pred = T.detach().cpu().double().numpy()
+            gt = batch["poses"][:, 1:].cpu().double().numpy()
+            rot, direction, ratio = pair_errors(pred.reshape(-1, 4, 4), gt.reshape(-1, 4, 4))
+            self._val["rotation"] += rot.tolist()
+            self._val["direction"] += direction.tolist()
+            S1 = pred.shape[1]
+            for b in range(B):
+                key = (batch["sequence"][b], batch["camera"][b])
+                self._val[("ratio",) + key] += ratio[b * S1 : (b + 1) * S1].tolist()
+                self._trajectory_step(key, pred[b], gt[b])
+
+    def _trajectory_step(self, key, pred: np.ndarray, gt: np.ndarray) -> None:
+        """Collect the motions to the next frame (offset +1) of the first validation camera."""
+        offsets = list(getattr(getattr(self.trainer, "datamodule", None), "hparams", {}).get("offsets", (-1, 1)))
+        if 1 not in offsets or self._val.setdefault("trajectory_key", key) != key:
+            return
+        if len(self._val["trajectory_pred"]) < self.hparams.trajectory_frames:
+            self._val["trajectory_pred"].append(pred[offsets.index(1)])
+            self._val["trajectory_gt"].append(gt[offsets.index(1)])
+
+    def on_validation_epoch_end(self) -> None:
+        v, self._val = self._val, defaultdict(list)
+        metrics = {}
+        if v["abs_rel"]:
+            metrics["val/abs_rel"] = float(np.mean(v["abs_rel"]))
+        if v["rotation"]:
+            metrics["val/rotation_error_deg"] = float(np.median(v["rotation"]))
+            metrics["val/direction_error_deg"] = float(np.nanmedian(v["direction"]))
+            cvs = [np.nanstd(r) / np.nanmean(r) for k, r in v.items() if k[0] == "ratio" and np.isfinite(r).sum() > 1]
+            if cvs:
+                metrics["val/scale_ratio_cv"] = float(np.mean(cvs))
+        if metrics:
+            self.log_dict(metrics, prog_bar=False)
+        if len(v["trajectory_pred"]) > 1:
+            key = v["trajectory_key"]
+            fig = trajectory_figure(_chain(v["trajectory_pred"]), _chain(v["trajectory_gt"]), f"{key[0]} / {key[1]}")
+            experiment = getattr(self.logger, "experiment", None)
+            if hasattr(experiment, "add_figure"):
+                experiment.add_figure("val/trajectory", fig, self.global_step)
+
+    def _log_images(self, stage: str, batch: dict, out: LossOutput, disp: Tensor, n: int = 4) -> None:
+        experiment = getattr(self.logger, "experiment", None)
+        if not hasattr(experiment, "add_images"):
+            return
+        pictures = {"target": batch["image"][:n, 0], "disparity": colorize(disp[:n]),
+                    **{k: v[:n] for k, v in out.images.items()}}
+        for name, picture in pictures.items():
+            experiment.add_images(f"{stage}/{name}", picture.detach().float().cpu().clamp(0, 1), self.global_step)
+
+    def configure_optimizers(self):
+        h = self.hparams
+        optimizer = torch.optim.Adam(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+
+        def factor(step: int) -> float:
+            if step < h.warmup_steps:
+                return (step + 1) / h.warmup_steps
+            progress = min(1.0, (step - h.warmup_steps) / max(1, total - h.warmup_steps))
+            return h.min_lr_ratio + (1 - h.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress))
+
+        schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+
+
+def _chain(motions: list[np.ndarray]) -> np.ndarray:
+    """Frame-to-frame motions ``T_{t,t+1}`` -> camera-to-first-frame poses (N + 1, 4, 4)."""
+    poses = [np.eye(4)]
+    for m in motions:
+        poses.append(poses[-1] @ m)
+    return np.stack(poses)
