@@ -22,6 +22,7 @@ COMMANDS = {
     "demo": "demo",
     "predict": "predict",
     "evaluate": "evaluate",
+    "train": "train",
 }
 
 
