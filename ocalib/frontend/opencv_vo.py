@@ -25,6 +25,7 @@ import numpy as np
 from ocalib.errors import InputError
 from ocalib.frontend.refine import refine_motion
 from ocalib.frontend.tracker import KLTTracker
+from ocalib.frontend.window import bundle_adjust, window_problem
 from ocalib.frontend.twoview import (
     bearings,
     essential_motion,
@@ -71,8 +72,9 @@ class OpenCVOdometry:
     """
 
     def __init__(self, K, ransac_threshold: float = 1.0, prob: float = 0.999, method: str = "usac",
-                 min_tracks: int = 20, min_inliers: int = 15, min_parallax: float = 0.3, scale_window: int = 10,
-                 min_scale_points: int = 8, min_triangulation_deg: float = 0.5, **tracker):  # fmt: skip
+                 min_tracks: int = 20, min_inliers: int = 15, min_parallax: float = 0.3, scale_window: int = 15,
+                 min_scale_points: int = 8, min_triangulation_deg: float = 0.5, window: bool = True, window_fixed: int = 6,
+                 **tracker):  # fmt: skip
         K = np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"intrinsics K must be a finite (3, 3) matrix with fx, fy > 0, got shape {K.shape}")
@@ -86,6 +88,7 @@ class OpenCVOdometry:
         self.ransac_threshold, self.prob, self.method = ransac_threshold, prob, METHODS[method]
         self.min_tracks, self.min_inliers, self.min_parallax = min_tracks, min_inliers, min_parallax
         self.min_scale_points, self.min_angle = min_scale_points, np.radians(min_triangulation_deg)
+        self.window, self.window_fixed = window, window_fixed
         self.pose = np.eye(4)
         self.status = VOStatus(frame=-1, reason="no frame yet")
         self._poses: dict[int, np.ndarray] = {}  # frame -> camera-to-first pose, for the landmark window
@@ -103,19 +106,44 @@ class OpenCVOdometry:
         elif grey.shape != self._shape:
             raise InputError(f"frame {n}: image size {grey.shape} differs from the first frame's {self._shape}")
         ids, pa, pb = self.tracker.track(grey)
-        T = np.eye(4)
         if n == 0:
             self.status = VOStatus(frame=0)
+            self._poses[0] = np.eye(4)
         else:
             R, t, self.status = self._motion(n, ids, pa.astype(np.float64), pb.astype(np.float64))
-            T[:3, :3], T[:3, 3] = R.T, -R.T @ t  # (R, t) is T_cur_prev
-        self.pose = self.pose @ T
-        self._poses[n] = self.pose
+            step = np.eye(4)
+            step[:3, :3], step[:3, 3] = R.T, -R.T @ t  # (R, t) is T_cur_prev
+            self._poses[n] = self._poses[n - 1] @ step
         self._poses.pop(n - self._history.maxlen, None)
         self.tracker.replenish()
         self._history.append((n, self.tracker.ids.copy(), self.tracker.points.astype(np.float64)))
+        if self.window and self.status.scale_points:
+            self._adjust()
+        T = np.linalg.inv(self._poses[n - 1]) @ self._poses[n] if n else np.eye(4)
+        self.pose = self.pose @ T
         self._frame += 1
         return T
+
+    def _adjust(self) -> None:
+        """Bundle-adjust the window (its ``window_fixed`` oldest frames held) and drop the tracks it rejects."""
+        history = list(self._history)
+        if len(history) < 4:
+            return
+        poses = np.stack([self._poses[h[0]] for h in history])
+        ids, frame, landmark, px, anchor, bearing, rho = window_problem(history, poses, self.K)
+        if len(ids) < self.min_scale_points:
+            return
+        c = self.ransac_threshold * self._shape[1] / 640.0
+        fixed = min(self.window_fixed, len(history) - 1)
+        poses, _, err = bundle_adjust(poses, fixed, frame, landmark, px, anchor, bearing, rho, self.K, c)
+        if not np.isfinite(poses).all():
+            return
+        for h, P in zip(history, poses):
+            self._poses[h[0]] = P
+        self._speed = float(np.linalg.norm(poses[-1, :3, 3] - poses[-2, :3, 3]))
+        bad = ids[np.unique(landmark[(frame == len(history) - 1) & (err > 3 * c)])]
+        if len(bad):
+            self.tracker.keep(~np.isin(self.tracker.ids, bad))
 
     def _motion(self, n: int, ids, pa, pb) -> tuple[np.ndarray, np.ndarray, VOStatus]:
         """``(R, t, status)`` of frame n with ``p_cur = R p_prev + t``, from the tracks (ids, pa -> pb)."""
@@ -137,6 +165,9 @@ class OpenCVOdometry:
         if len(idx) < self.min_scale_points:
             idx, X = idx[:0], X[:0]
         R, t, _, r = min((refine_motion(*c, ba, bb, X, pb[idx], self.K, px) for c in candidates), key=lambda x: x[2])
+        if not (np.isfinite(R).all() and np.isfinite(t).all() and np.isfinite(r).all()):
+            status.reason = "no finite motion"
+            return rotation_from_bearings(ba[inl], bb[inl]), np.zeros(3), status
         good = np.abs(r[: len(ids)]) < 3 * px  # tracks consistent with the motion
         status.inliers = int(good.sum())
         status.parallax_px = float(np.median(parallax_px(ba[good], bb[good], R, self.K))) if good.any() else 0.0

@@ -1,4 +1,4 @@
-"""Two-view geometry on bearing vectors for the classical front end (numpy, float64).
+"""Two-view geometry (and PnP) on bearing vectors for the classical front end (numpy, float64).
 
 Convention: a bearing ``b = K^-1 (u, v, 1)`` (not normalised, z = 1) in its camera's frame (x right, y down,
 z forward). A relative motion ``(R, t)`` maps points of camera a into camera b: ``p_b = R p_a + t``
@@ -27,12 +27,15 @@ def essential_motion(pa: np.ndarray, pb: np.ndarray, K: np.ndarray, threshold: f
     ``threshold`` in pixels; ``inliers`` are the RANSAC inliers. The cheirality vote counts points out to
     ``FAR`` baselines (OpenCV's default of 50 would drop most points of a slowly moving camera).
     """
-    E, mask = cv2.findEssentialMat(pa, pb, K, method=method, prob=prob, threshold=threshold)
-    if E is None or mask is None or E.shape[0] < 3:
+    try:
+        E, mask = cv2.findEssentialMat(pa, pb, K, method=method, prob=prob, threshold=threshold)
+        if E is None or mask is None or E.shape[0] < 3:
+            return None
+        inliers = mask[:, 0] > 0
+        n, R, t, _, _ = cv2.recoverPose(E[:3], pa, pb, K, distanceThresh=FAR, mask=mask.copy())  # several: the first
+    except cv2.error:  # degenerate input trips OpenCV's assertions
         return None
-    inliers = mask[:, 0] > 0
-    n, R, t, _, _ = cv2.recoverPose(E[:3], pa, pb, K, distanceThresh=FAR, mask=mask.copy())  # several solutions: the first
-    if n < 5:
+    if n < 5 or not np.isfinite(t).all():
         return None
     return R, t[:, 0] / np.linalg.norm(t), inliers
 
@@ -103,11 +106,16 @@ def pnp_motion(points: np.ndarray, pixels: np.ndarray, K: np.ndarray, threshold:
     minimal samples) refined by Levenberg-Marquardt on the inliers. ``(R, t, inliers (N,) bool)`` with
     ``p_b = R p_a + t``, or None."""
     X, u = np.ascontiguousarray(points, np.float64), np.ascontiguousarray(pixels, np.float64)
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(X, u, K, None, iterationsCount=200, reprojectionError=threshold,
-                                             confidence=prob, flags=cv2.SOLVEPNP_SQPNP)  # fmt: skip
-    if not ok or inl is None or len(inl) < 6:
+    try:
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(X, u, K, None, iterationsCount=200, reprojectionError=threshold,
+                                                 confidence=prob, flags=cv2.SOLVEPNP_SQPNP)  # fmt: skip
+        if not ok or inl is None or len(inl) < 6:
+            return None
+        inliers = np.zeros(len(X), bool)
+        inliers[inl[:, 0]] = True
+        rvec, tvec = cv2.solvePnPRefineLM(X[inliers], u[inliers], K, None, rvec, tvec)
+    except cv2.error:  # e.g. SQPnP's assertion on (nearly) collinear or coincident points
         return None
-    inliers = np.zeros(len(X), bool)
-    inliers[inl[:, 0]] = True
-    rvec, tvec = cv2.solvePnPRefineLM(X[inliers], u[inliers], K, None, rvec, tvec)
+    if not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
+        return None
     return cv2.Rodrigues(rvec)[0], tvec[:, 0], inliers
