@@ -1,12 +1,22 @@
 """Classical monocular visual odometry with OpenCV: the ``--frontend opencv`` of ``ocalib calibrate``.
 
-Per frame: KLT tracks (:class:`~ocalib.frontend.tracker.KLTTracker`), an essential matrix with RANSAC and
-``recoverPose`` for the rotation and the translation direction, a parallax test for rotation-only or
-static frames, and the length of the translation from the tracks' earlier observations: each track is
-triangulated between the oldest of the last ``scale_window`` frames that saw it and the previous frame
-(poses already in the trajectory's unit), and the scale that makes the current frame see those points
-where it does is their robust median. The first moving pair sets the unit; it is then propagated, never
-re-normalised.
+Per frame:
+
+1. KLT tracks (:class:`~ocalib.frontend.tracker.KLTTracker`: Shi-Tomasi corners, pyramidal Lucas-Kanade from
+   a constant-velocity prediction, forward-backward check, replenished corners).
+2. Candidate motions: an essential matrix (RANSAC, ``recoverPose``) whose translation gets the median length
+   voted by the landmarks, and a PnP pose on the landmarks. Landmarks are the tracks triangulated between the
+   oldest of the last ``scale_window`` frames that saw them and the previous frame, with poses already in the
+   trajectory's unit: this is how the scale propagates.
+3. Both candidates refined on every track's Sampson error and every landmark's reprojection error (Cauchy
+   loss, :mod:`~ocalib.frontend.refine`); the cheaper one wins (PnP resolves the rotation/translation
+   ambiguity of a planar scene, e.g. a wall, that two views cannot).
+4. Degeneracy: too few tracks or inliers, or a median rotation-compensated flow below ``min_parallax`` px,
+   flags the frame; without landmarks the motion is then rotation-only (t = 0).
+5. A sliding-window bundle adjustment (:mod:`~ocalib.frontend.window`) over the last ``scale_window`` frames,
+   the oldest ``window_fixed`` held: the returned step is the adjusted motion from the previous frame.
+
+The first moving pair sets the unit (|t| = 1); it is then propagated, never re-normalised.
 
 Convention: ``step`` returns ``T_prev_cur`` (4, 4) float64, the pose of the current frame in the previous
 frame's camera frame (``p_prev = R p_cur + t``); ``pose`` is camera-to-first-frame (``p_first = R p_cur + t``).
@@ -16,8 +26,8 @@ Camera frame x right, y down, z forward; K (3, 3) pixels with integer pixel cent
 from __future__ import annotations
 
 from collections import deque
-from pathlib import Path
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -42,9 +52,10 @@ TRACKER_OPTIONS = ("max_features", "quality", "min_distance", "win_size", "level
 
 @dataclass
 class VOStatus:
-    """What one frame's step saw. ``degenerate``: no reliable translation (the step is rotation-only or the
-    identity, see ``reason``); ``scale_points``: landmarks that fixed the translation's length (0 when it was
-    set otherwise: the first moving pair, or the previous step's length when too few tracks were old enough)."""
+    """What one frame's step saw. ``degenerate``: no reliable translation direction (see ``reason``); the step
+    is then rotation-only (t = 0), or, when landmarks measured it, a small translation. ``scale_points``:
+    landmarks that fixed the translation's length (0 when it was set otherwise: the first moving pair sets
+    the unit, or the previous step's length is kept when too few tracks were old enough)."""
 
     frame: int
     tracked: int = 0  # tracks followed from the previous frame (forward-backward consistent)
@@ -66,15 +77,18 @@ class OpenCVOdometry:
     ``ransac_threshold`` (px at 640 px image width, scaled with the width; also the robust loss scale and,
     x2, the PnP threshold), ``prob`` and ``method`` (usac | ransac | magsac | lmeds) of the essential matrix;
     a step is degenerate below ``min_tracks`` tracks, ``min_inliers`` inliers or ``min_parallax`` px of median
-    rotation-compensated flow; ``scale_window`` frames of track history for the landmarks,
-    ``min_scale_points`` landmarks to measure the length of t, ``min_triangulation_deg`` of ray angle for a
-    track to become a landmark.
+    rotation-compensated flow; ``scale_window`` frames of track history for the landmarks and the bundle
+    adjustment, ``min_scale_points`` landmarks to measure the length of t, ``min_triangulation_deg`` of ray
+    angle for a track to become a landmark; ``window`` turns the bundle adjustment on, ``window_fixed`` of its
+    oldest frames are held (they carry the scale).
+
+    Attributes: ``pose`` (4, 4) camera-to-first-frame after the last step; ``status`` (:class:`VOStatus`).
     """
 
     def __init__(self, K, ransac_threshold: float = 1.0, prob: float = 0.999, method: str = "usac",
                  min_tracks: int = 20, min_inliers: int = 15, min_parallax: float = 0.3, scale_window: int = 15,
-                 min_scale_points: int = 8, min_triangulation_deg: float = 0.5, window: bool = True, window_fixed: int = 6,
-                 **tracker):  # fmt: skip
+                 min_scale_points: int = 8, min_triangulation_deg: float = 0.5, window: bool = True,
+                 window_fixed: int = 6, **tracker):  # fmt: skip
         K = np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"intrinsics K must be a finite (3, 3) matrix with fx, fy > 0, got shape {K.shape}")
@@ -83,6 +97,8 @@ class OpenCVOdometry:
         unknown = set(tracker) - set(TRACKER_OPTIONS)
         if unknown:
             raise InputError(f"unknown VO option(s) {', '.join(sorted(unknown))}")
+        if scale_window < 2 or window_fixed < 2:
+            raise InputError(f"scale_window and window_fixed must be >= 2, got {scale_window}, {window_fixed}")
         self.K = K
         self.tracker = KLTTracker(**tracker)
         self.ransac_threshold, self.prob, self.method = ransac_threshold, prob, METHODS[method]

@@ -134,7 +134,8 @@ def window_problem(history, poses, K, min_views: int = 3):
     bearing = np.stack([(anchor_px[:, 0] - K[0, 2]) / K[0, 0], (anchor_px[:, 1] - K[1, 2]) / K[1, 1],
                         np.ones(len(anchor))], 1)  # fmt: skip
     latest, latest_px = index[last], px[last]
-    b_k = np.stack([(latest_px[:, 0] - K[0, 2]) / K[0, 0], (latest_px[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(latest))], 1)
+    b_k = np.stack([(latest_px[:, 0] - K[0, 2]) / K[0, 0], (latest_px[:, 1] - K[1, 2]) / K[1, 1],
+                    np.ones(len(latest))], 1)  # fmt: skip
     rho = _init_rho(poses[anchor], bearing, poses[latest], b_k)
     return ids[first], index[~first], landmark[~first], px[~first], anchor, bearing, rho
 
