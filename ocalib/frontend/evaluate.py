@@ -18,7 +18,9 @@ def relative_motions(poses: np.ndarray, gap: int = 1) -> np.ndarray:
 def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
     """Angle (...,) in degrees of rotations R (..., 3, 3)."""
     cos = (np.trace(R, axis1=-2, axis2=-1) - 1) / 2
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    sin = 0.5 * np.linalg.norm(np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
+                                         R[..., 1, 0] - R[..., 0, 1]], -1), axis=-1)  # fmt: skip
+    return np.degrees(np.arctan2(sin, cos))  # precise near 0, unlike arccos
 
 
 def motion_errors(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray | None = None, gap: int = 1) -> dict:

@@ -167,10 +167,13 @@ class OpenCVOdometry:
         ba, bb = bearings(pa, self.K), bearings(pb, self.K)
         px = self.ransac_threshold * self._shape[1] / 640.0
         found = essential_motion(pa, pb, self.K, px, self.prob, self.method) if len(ids) >= self.min_tracks else None
-        if found is None or found[2].sum() < self.min_inliers:
+        if found is None or found[2].sum() < self.min_inliers:  # no two-view geometry: rotation only
+            R = rotation_from_bearings(ba, bb) if len(ids) >= 3 else np.eye(3)
             status.inliers = 0 if found is None else int(found[2].sum())
-            status.reason = "too few tracks" if len(ids) < self.min_tracks else "too few inliers"
-            return (rotation_from_bearings(ba, bb) if len(ids) >= 3 else np.eye(3)), np.zeros(3), status
+            status.parallax_px = float(np.median(parallax_px(ba, bb, R, self.K))) if len(ids) else 0.0
+            status.reason = ("too few tracks" if len(ids) < self.min_tracks else
+                             "low parallax" if status.parallax_px < self.min_parallax else "too few inliers")
+            return R, np.zeros(3), status
         R, t, inl = found
         idx, X = self._landmarks(ids) if self._speed is not None else (np.zeros(0, int), np.zeros((0, 3)))
         candidates = [(R, t * self._initial_length(X, bb[idx], R, t))]
