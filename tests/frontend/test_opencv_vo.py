@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import render_poses
+from frontend_scenes import render_poses
 
 from ocalib.errors import InputError
 from ocalib.frontend import OpenCVOdometry, run_opencv_vo
