@@ -1,7 +1,10 @@
 """Batch reference solver (Esquivel et al. 2007): the same hand-eye equations, all frames at once.
 
 Used by the tests as the reference of the on-line solvers and by ``--solver batch``. No gating and no
-robust weights: every valid motion pair counts once.
+robust weights: every valid motion pair counts once. The closed form is the SVD of all stacked rotation
+blocks, then least squares on all stacked translation rows; the refinement minimises the weighted sum of
+both residuals over all rows at once with Levenberg-Marquardt (forward-mode autograd Jacobians), independently of the
+moment-based refinement of :mod:`ocalib.calib.refine` that the on-line solver runs.
 
 Convention: as :mod:`ocalib.calib.online` -- poses (T, C, 4, 4) camera-to-world, camera 0 the reference.
 """
@@ -11,11 +14,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import rotation_block, translation_features, translation_rows
+from ocalib.calib.handeye import pair_features, rotation_block, translation_rows
 from ocalib.calib.online import MOTIONS
-from ocalib.calib.rotation import batch_rotation
+from ocalib.calib.rotation import batch_rotation, planar_motion, rotation_observable
 from ocalib.geometry.pose import invert_pose
-from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+from ocalib.geometry.quaternion import quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 
 def motion_pairs(num_frames: int, motion: str | tuple[int, ...]) -> tuple[Tensor, Tensor]:
@@ -39,16 +42,22 @@ def pair_motions(poses: Tensor, start: Tensor, end: Tensor) -> Tensor:
     return invert_pose(poses[start]) @ poses[end]
 
 
-def batch_calibrate(poses: Tensor, motion: str | tuple[int, ...] = "multi") -> dict[str, Tensor]:
+def batch_calibrate(
+    poses: Tensor, motion: str | tuple[int, ...] = "multi", symmetric: bool = True, refine: bool = True
+) -> dict[str, Tensor]:
     """Batch hand-eye calibration of cameras 1..C-1 against camera 0.
 
     Args:
         poses: (T, C, 4, 4) camera-to-world poses, float64, all valid.
         motion: the motion pairing (see :data:`ocalib.calib.online.MOTIONS`).
+        symmetric: translation rows of each pair in both directions (see :mod:`ocalib.calib.handeye`).
+        refine: refine rotation, translation and scale jointly (where rotation is observable and the motion
+            not planar); else the closed form.
 
     Returns:
         ``quaternion`` (K, 4), ``rotation`` (K, 3, 3), ``translation`` (K, 3), ``scale`` (K,),
-        ``singular_values`` (K, 4), and the stacked ``blocks`` (K, M, 4, 4) and ``features`` (K, M, 15).
+        ``singular_values`` (K, 4), ``refined`` (K,) bool, and the stacked ``blocks`` (K, M, 4, 4) and
+        ``features`` (K, M D, 15) (D = 2 if symmetric).
     """
     start, end = motion_pairs(poses.shape[0], motion)
     m = pair_motions(poses, start, end)  # (M, C, 4, 4)
@@ -57,16 +66,68 @@ def batch_calibrate(poses: Tensor, motion: str | tuple[int, ...] = "multi") -> d
     A = rotation_block(q0, q1).transpose(0, 1)  # (K, M, 4, 4)
     quat, S, _ = batch_rotation(A)
     dR = quaternion_to_rotation_matrix(quat)
-    R0, t0, t1 = m[:, :1, :3, :3].expand_as(m[:, 1:, :3, :3]), m[:, :1, :3, 3].expand_as(m[:, 1:, :3, 3]), m[:, 1:, :3, 3]
-    B, b = translation_rows(R0, t0, t1, dR.unsqueeze(0))
-    B, b = B.transpose(0, 1).flatten(1, 2), b.transpose(0, 1).flatten(1, 2)  # (K, 3M, 4), (K, 3M)
+    z = pair_features(m[:, :1].expand_as(m[:, 1:]), m[:, 1:], symmetric).transpose(0, 1).flatten(1, 2)  # (K, MD, 15)
+    R0, t0, t1 = z[..., :9].unflatten(-1, (3, 3)), z[..., 12:], z[..., 9:12]
+    R0 = torch.eye(3, dtype=R0.dtype) - R0
+    B, b = translation_rows(R0, t0, t1, dR.unsqueeze(1))
+    B, b = B.flatten(1, 2), b.flatten(1, 2)  # (K, 3MD, 4), (K, 3MD)
     x = (torch.linalg.pinv(B) @ b.unsqueeze(-1)).squeeze(-1)
+    refined = torch.zeros(len(quat), dtype=torch.bool)
+    if refine:
+        refined = rotation_observable(S) & ~planar_motion(S) & (len(start) >= 3)
+        for k in torch.nonzero(refined).flatten().tolist():
+            quat[k], x[k] = _refine(A[k], R0[k], t0[k], t1[k], quat[k], x[k], len(start))
+        dR = quaternion_to_rotation_matrix(quat)
     return {
         "quaternion": quat,
         "rotation": dR,
         "translation": x[:, :3],
         "scale": x[:, 3],
         "singular_values": S,
+        "refined": refined,
         "blocks": A,
-        "features": translation_features(R0, t0, t1).transpose(0, 1),
+        "features": z,
     }
+
+
+def _refine(A, R0, t0, t1, quat, x, pairs: int, iterations: int = 100) -> tuple[Tensor, Tensor]:
+    """Levenberg-Marquardt on all rows: rotation rows ``A q`` (M, 4, 4) and translation rows
+    ``(I - R0) dT + s dR t1 - t0`` (N, ...), weighted by the closed form's residual variances
+    (``2 M - 3`` and ``3 M - 4`` degrees of freedom for M motion pairs). -> (quat (4,), x (4,))."""
+    eye = torch.eye(3, dtype=quat.dtype)
+
+    def rows(theta, q0, x):  # theta: rotation vector applied on the right of q0
+        half = theta.norm() / 2
+        dq = torch.cat([torch.cos(half).reshape(1), torch.sinc(half / torch.pi) * theta / 2])
+        q = quaternion_multiply(q0, dq)
+        dR = quaternion_to_rotation_matrix(q)
+        rot = (A @ q).flatten()
+        trans = ((eye - R0) @ x[:3] + x[3] * (dR @ t1.unsqueeze(-1)).squeeze(-1) - t0).flatten()
+        return rot, trans
+
+    zero = torch.zeros(3, dtype=quat.dtype)
+    rot, trans = rows(zero, quat, x)
+    wr, wt = (2 * pairs - 3) / rot.square().sum(), (3 * pairs - 4) / trans.square().sum()
+
+    def residual(p):
+        rot, trans = rows(p[:3], quat, p[3:])
+        return torch.cat([wr.sqrt() * rot, wt.sqrt() * trans])
+
+    p = torch.cat([zero, x])
+    cost, mu = residual(p).square().sum(), 1e-6
+    for _ in range(iterations):
+        r = residual(p)
+        J = torch.func.jacfwd(residual)(p)
+        H, g = J.T @ J, J.T @ r
+        step = -torch.linalg.solve(H + mu * torch.diag(H.diagonal()), g)
+        new = residual(p + step).square().sum()
+        if new <= cost:
+            p, cost, mu = p + step, new, mu / 10
+            if step.abs().max() < 1e-13 * (1 + p.abs().max()):
+                break
+        else:
+            mu *= 10
+    half = p[:3].norm() / 2
+    q = quaternion_multiply(quat, torch.cat([torch.cos(half).reshape(1), torch.sinc(half / torch.pi) * p[:3] / 2]))
+    q = torch.where(q[0] < 0, -q, q)
+    return q / q.norm(), p[3:]

@@ -12,8 +12,14 @@ Convention: the unknown ``X = (dR, dT, s)`` is the pose of camera k in camera 0'
 
 The translation rows depend on ``dR``. To re-solve them with the latest ``dR`` at every frame in O(1)
 they are kept as the second moment of a 15-vector ``z = (vec(I - R0), t1, t0)`` (see
-:func:`translation_features`), from which :func:`normal_equations` assembles the normal equations
-for any rotation model.
+:func:`translation_features`). The residual is linear in ``y = (dT, vec(s dR))``, so the moment gives
+the residual for any ``(dR, dT, s)`` as a quadratic in ``y`` (:func:`translation_quadratic`), from
+which :func:`normal_equations` assembles the normal equations for any rotation model.
+
+Each motion pair can give its translation rows in both directions (:func:`pair_features`): the pair
+from frame a to b and its reverse, whose residual lives in frame b. Their rotation rows are the same
+(``|A' q| = |A q|``), their translation rows are not: the forward rows carry the rotation noise of
+frame a's pose times the motion's length, the reverse rows frame b's.
 """
 
 from __future__ import annotations
@@ -44,44 +50,71 @@ def translation_features(R0: Tensor, t0: Tensor, t1: Tensor) -> Tensor:
     return torch.cat([(eye - R0).flatten(-2), t1, t0], -1)
 
 
+def pair_features(motion0: Tensor, motionk: Tensor, symmetric: bool = True) -> Tensor:
+    """Translation features (..., D, 15) of motion pairs (camera 0's and camera k's motions, (..., 4, 4)):
+    D = 1 (the pair as given) or, ``symmetric``, D = 2 (the pair and its reverse)."""
+    R0, t0, t1 = motion0[..., :3, :3], motion0[..., :3, 3], motionk[..., :3, 3]
+    z = translation_features(R0, t0, t1)
+    if not symmetric:
+        return z.unsqueeze(-2)
+    R0t, R1t = R0.mT, motionk[..., :3, :3].mT
+    back = translation_features(R0t, -(R0t @ t0.unsqueeze(-1)).squeeze(-1), -(R1t @ t1.unsqueeze(-1)).squeeze(-1))
+    return torch.stack([z, back], -2)
+
+
+def translation_quadratic(Z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The weighted translation residual as a quadratic in ``y = (dT, vec(s dR))`` (row-major ``dR``):
+    ``sum w |(I - R0) dT + s dR t1 - t0|^2 = y^T P y - 2 p.y + c``.
+
+    Z: (..., 15, 15) moment. Returns P (..., 12, 12), p (..., 12), c (...).
+    """
+    flat = torch.cat([Z.flatten(-2), Z.new_zeros(*Z.shape[:-2], 1)], -1)
+    out = flat[..., _quadratic_index(Z.device)].sum(-1)
+    return out[..., :144].unflatten(-1, (12, 12)), out[..., 144:156], out[..., 156]
+
+
+@lru_cache(maxsize=None)
+def _quadratic_index(device: torch.device) -> Tensor:
+    """(157, 3) indices into ``[Z.flatten(), 0]`` whose sums are the entries of P (144), p (12), c (1)."""
+    pad = FEATURES * FEATURES
+    terms: dict[tuple, list[int]] = {}
+    # Equation r: coefficients z[3r + j] on dT_j, z[9 + j] on m_{3r + j}, target z[12 + r]. y index of m_i: 3 + i.
+    for r in range(3):
+        coef = {j: 3 * r + j for j in range(3)} | {3 + 3 * r + j: 9 + j for j in range(3)}
+        for a, za in coef.items():
+            for b, zb in coef.items():
+                terms.setdefault(("P", a, b), []).append(za * FEATURES + zb)
+            terms.setdefault(("p", a), []).append(za * FEATURES + 12 + r)
+        terms.setdefault(("c",), []).append((12 + r) * FEATURES + 12 + r)
+    keys = [("P", a, b) for a in range(12) for b in range(12)] + [("p", a) for a in range(12)] + [("c",)]
+    rows = [terms.get(k, []) + [pad] * (3 - len(terms.get(k, []))) for k in keys]
+    with torch.inference_mode(False):  # cached constants are made outside inference mode (autograd may use them)
+        return torch.tensor(rows, device=device)
+
+
 def translation_rows(R0: Tensor, t0: Tensor, t1: Tensor, dR: Tensor) -> tuple[Tensor, Tensor]:
     """The explicit rows ``B = [I - R0, dR t1]`` (..., 3, 4) and ``b = t0`` (..., 3)."""
     eye = torch.eye(3, dtype=R0.dtype, device=R0.device)
     return torch.cat([eye - R0, (dR @ t1.unsqueeze(-1))], -1), t0
 
 
-def normal_equations(Z: Tensor, maps: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Normal equations of ``(I - R0) dT + sum_k c_k L_k t1 = t0`` from the moment ``Z = sum w z z^T``.
+def normal_equations(quadratic: tuple[Tensor, Tensor, Tensor], maps: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Normal equations of ``(I - R0) dT + sum_k c_k L_k t1 = t0`` for the unknown ``x = (dT, c)``.
 
     Args:
-        Z: (..., 15, 15) second moment of :func:`translation_features`.
+        quadratic: ``(P, p, c)`` of :func:`translation_quadratic`.
         maps: (..., m, 3, 3) the linear maps ``L_k`` applied to ``t1``. The general model has one map, ``dR`` (unknowns
             ``dT, s``); the planar model has three (see :mod:`ocalib.calib.planar`).
 
     Returns:
         H (..., 3+m, 3+m), g (..., 3+m), and ``sum w |t0|^2`` (...), so that the weighted residual is
-        ``|t0|^2 - 2 x.g + x^T H x`` for the unknown ``x = (dT, c)``.
+        ``|t0|^2 - 2 x.g + x^T H x``.
     """
+    P, p, c = quadratic
+    # y = (dT, vec(sum_k c_k L_k)) = J x with J = [[I, 0], [0, vec(L_1) .. vec(L_m)]].
     m = maps.shape[-3]
-    # z' = D z = (vec(I - R0), L_1 t1, ..., L_m t1, t0), and the moment of z' is D Z D^T.
-    D = Z.new_zeros(*maps.shape[:-3], 12 + 3 * m, FEATURES)
-    D[..., :9, :9] = torch.eye(9, dtype=Z.dtype, device=Z.device)
-    D[..., 9 : 9 + 3 * m, 9:12] = maps.flatten(-3, -2)
-    D[..., 9 + 3 * m :, 12:] = torch.eye(3, dtype=Z.dtype, device=Z.device)
-    Zd = D @ Z @ D.mT
-    # Equation r of a pair reads z'[idx[r]] = (row r of I - R0, (L_k t1)_r for each k | (t0)_r).
-    idx = _row_index(m, Z.device)
-    K = Zd[..., idx[:, :, None], idx[:, None, :]].sum(-3)
-    n = 3 + m
-    return K[..., :n, :n], K[..., :n, n], K[..., n, n]
-
-
-@lru_cache(maxsize=None)
-def _row_index(m: int, device: torch.device) -> Tensor:
-    """(3, 4 + m) indices into z' of equation r's unknown coefficients and target (made outside
-    inference mode, like every cached constant, so that autograd can use it later)."""
-    with torch.inference_mode(False):
-        return torch.tensor(
-            [[3 * r, 3 * r + 1, 3 * r + 2] + [9 + 3 * k + r for k in range(m)] + [9 + 3 * m + r] for r in range(3)],
-            device=device,
-        )
+    eye = torch.eye(3, dtype=P.dtype, device=P.device).expand(*maps.shape[:-3], 3, 3)
+    top = torch.cat([eye, P.new_zeros(*maps.shape[:-3], 3, m)], -1)
+    bottom = torch.cat([P.new_zeros(*maps.shape[:-3], 9, 3), maps.flatten(-2).mT], -1)
+    J = torch.cat([top, bottom], -2)
+    return J.mT @ P @ J, (J.mT @ p.unsqueeze(-1)).squeeze(-1), c

@@ -12,19 +12,13 @@ import math
 import torch
 from torch import Tensor, nn
 
-from ocalib.calib.handeye import FEATURES, rotation_block, translation_features, translation_rows
-from ocalib.calib.planar import planar_rotation
+from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
 from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import (
-    incremental_svd_update,
-    planar_motion,
-    rotation_observable,
-    rotation_solution,
-    singular_values,
-)
-from ocalib.calib.translation import rls_update, solve_translation
+from ocalib.calib.rotation import incremental_svd_update, rotation_observable, rotation_solution, singular_values
+from ocalib.calib.solve import estimate
+from ocalib.calib.translation import rls_update
 from ocalib.geometry.pose import invert_pose, orthonormality_error
-from ocalib.geometry.quaternion import quaternion_angle, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
 
 MOTIONS = {
     "first": (0,),  # every pose against frame 0: the paper
@@ -39,8 +33,9 @@ class OnlineCalibrator(nn.Module):
 
     Each frame, the motions of every camera over a set of frame gaps (``motion``) give hand-eye rows;
     rotation is updated by incremental SVD (:mod:`ocalib.calib.rotation`), translation and scale by
-    the exact moment solver or the paper's RLS (:mod:`ocalib.calib.translation`). All state is kept
-    in buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
+    the exact moment solver or the paper's RLS (:mod:`ocalib.calib.translation`); the exact solver then
+    refines rotation, translation and scale jointly (:mod:`ocalib.calib.refine`). All state is kept in
+    buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
 
     Args:
         num_cameras: C, cameras per rig, camera 0 the reference.
@@ -48,6 +43,10 @@ class OnlineCalibrator(nn.Module):
         motion: ``first``, ``consecutive`` or ``multi`` (see :data:`MOTIONS`), or a tuple of gaps
             (0 stands for the pair with frame 0).
         solver: ``exact`` (moment solver, equals batch least squares) or ``rls`` (the paper's).
+        refine: with the exact solver, refine the closed form jointly every frame (equals the batch joint
+            least squares of :func:`~ocalib.calib.batch.batch_calibrate`); False: the closed form (rotation
+            first, then translation and scale), which equals the batch closed form.
+        symmetric: translation rows of every motion pair in both directions (see :mod:`ocalib.calib.handeye`).
         forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
         rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
         min_rotation_deg: motions rotating less than this give no rotation rows.
@@ -64,6 +63,8 @@ class OnlineCalibrator(nn.Module):
         batch_size: int = 1,
         motion: str | tuple[int, ...] = "multi",
         solver: str = "exact",
+        refine: bool = True,
+        symmetric: bool = True,
         forgetting: float = 1.0,
         rls_c0: float = 1e4,
         rls_delay: int = 0,
@@ -86,6 +87,7 @@ class OnlineCalibrator(nn.Module):
         if not gaps or min(gaps) < 0:
             raise ValueError(f"motion gaps must be non-negative frame counts, got {gaps}")
         self.num_cameras, self.batch_size, self.gaps, self.solver = num_cameras, batch_size, gaps, solver
+        self.refine, self.symmetric = refine and solver == "exact", symmetric
         self.forgetting, self.rls_c0, self.rls_delay = forgetting, rls_c0, rls_delay
         self.min_rotation = math.radians(min_rotation_deg)
         self.screw_gate, self.screw_gate_sigma = math.radians(screw_gate_deg), screw_gate_sigma
@@ -143,12 +145,12 @@ class OnlineCalibrator(nn.Module):
         slots = (frame - st["gap_tensor"]) % self.history_size
         prev = [st["history"].index_select(2, slots)]
         prev_valid = [st["history_valid"].index_select(2, slots)]
-        if 0 in self.gaps:
+        if 0 in self.gaps:  # the pair with the first valid frame, from the frame after it
+            prev.append(st["first"].unsqueeze(2))
+            prev_valid.append(st["first_valid"][:, None, None].expand(-1, self.num_cameras, 1))
             start = valid.all(-1) & ~st["first_valid"]
             st["first"] = torch.where(start[:, None, None, None], poses, st["first"])
             st["first_valid"] = st["first_valid"] | start
-            prev.append(st["first"].unsqueeze(2))
-            prev_valid.append(st["first_valid"][:, None, None].expand(-1, self.num_cameras, 1))
         prev, prev_valid = torch.cat(prev, 2), torch.cat(prev_valid, 2)
         motion = invert_pose(prev) @ poses.unsqueeze(2)
         pair_valid = prev_valid & valid.unsqueeze(-1)
@@ -168,42 +170,28 @@ class OnlineCalibrator(nn.Module):
         W = (w_rot.sqrt()[..., None, None] * A).flatten(-3, -2)
         lam = self.forgetting
         S2, V = st["S2"], st["V"] = incremental_svd_update(st["S2"], st["V"], W, lam)
-        S = singular_values(S2)
         st["rotation_rows"] = lam * st["rotation_rows"] + w_rot.sum(-1)
 
         # Translation moment.
         w_tr = ok.to(poses.dtype)
-        t1 = motion[:, 1:, :, :3, 3]
-        R0, t0 = motion[:, :1, :, :3, :3].expand_as(motion[:, 1:, :, :3, :3]), motion[:, :1, :, :3, 3].expand_as(t1)
-        z = translation_features(R0, t0, t1)  # (B, K, P, 15)
-        Z = st["Z"] = lam * st["Z"] + (z * w_tr.unsqueeze(-1)).mT @ z
+        z = pair_features(motion[:, :1].expand_as(motion[:, 1:]), motion[:, 1:], self.symmetric)  # (B, K, P, D, 15)
+        zw = (z * w_tr[..., None, None]).flatten(-3, -2)
+        Z = st["Z"] = lam * st["Z"] + zw.mT @ z.flatten(-3, -2)
         st["translation_rows"] = lam * st["translation_rows"] + w_tr.sum(-1)
 
-        # Rotation estimate (through the translation constraint when the motion is planar). On the
-        # CPU the planar solve is skipped when no rig needs it; on other devices it always runs, so
-        # that a frame never waits for the host.
-        quat = rotation_solution(V)
-        dR = quaternion_to_rotation_matrix(quat)
-        planar = planar_motion(S)
-        axis = torch.zeros_like(quat[..., 1:])
-        if planar.device.type != "cpu" or planar.any():
-            dR_planar, axis = planar_rotation(Z, V)
-            dR = torch.where(planar[..., None, None], dR_planar, dR)
-            quat = torch.where(planar[..., None], rotation_matrix_to_quaternion(dR), quat)
-
-        x = solve_translation(Z, dR)
+        est = estimate(S2, V, Z, st["rotation_rows"], st["translation_rows"], self.refine)
+        x = torch.cat([est["translation"], est["scale"].unsqueeze(-1)], -1)
         if self.solver == "rls":
-            B, b = translation_rows(R0, t0, t1, dR[:, :, None])
+            t1 = motion[:, 1:, :, :3, 3]
+            R0, t0 = motion[:, :1, :, :3, :3].expand_as(motion[:, 1:, :, :3, :3]), motion[:, :1, :, :3, 3].expand_as(t1)
+            B, b = translation_rows(R0, t0, t1, est["rotation"][:, :, None])
             sw = w_tr.sqrt()[..., None]
             x, C = rls_update(st["rls_x"], st["rls_C"], (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2), lam)
             go = frame >= self.rls_delay
             x = st["rls_x"] = torch.where(go, x, st["rls_x"])
             st["rls_C"] = torch.where(go, C, st["rls_C"])
-
-        # Planar motion: the translation along the rotation axis (a car's height) is unobservable. The
-        # solver's rank cut-off keeps whatever the noise made of it; report the minimum-norm value, 0.
-        dT = x[..., :3]
-        dT = torch.where(planar[..., None], dT - axis * (axis * dT).sum(-1, keepdim=True), dT)
+            axis = est["axis"]
+            x = torch.cat([x[..., :3] - axis * (axis * x[..., :3]).sum(-1, keepdim=True), x[..., 3:]], -1)
 
         used = ok.any(-1)
         st["frames_used"] = st["frames_used"] + used
@@ -217,14 +205,14 @@ class OnlineCalibrator(nn.Module):
         st["frame"] = frame + 1
 
         return Calibration(
-            rotation=dR,
-            quaternion=quat,
-            translation=dT,
+            rotation=est["rotation"],
+            quaternion=est["quaternion"],
+            translation=x[..., :3],
             scale=x[..., 3],
-            rotation_singular_values=S,
-            rotation_observable=rotation_observable(S),
-            planar_motion=planar,
-            planar_axis=axis,
+            rotation_singular_values=est["singular_values"],
+            rotation_observable=est["observable"],
+            planar_motion=est["planar"],
+            planar_axis=est["axis"],
             frames_used=st["frames_used"],
             frames_rejected=st["frames_rejected"],
             rotation_basis=V,

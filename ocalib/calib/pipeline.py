@@ -352,7 +352,7 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
     out = batch_calibrate(poses[torch.from_numpy(valid)], motion)
     _, S, V = batch_rotation(out["blocks"])
     features = out["features"]
-    rows = torch.full(S.shape[:1], float(features.shape[1]), dtype=S.dtype)
+    rows = torch.full(S.shape[:1], float(out["blocks"].shape[1]), dtype=S.dtype)  # motion pairs
     planar = planar_motion(S)
     used = torch.full(S.shape[:1], int(valid.sum()))
     return Calibration(

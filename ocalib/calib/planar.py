@@ -41,18 +41,19 @@ def planar_axis(V: Tensor) -> Tensor:
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-300)
 
 
-def planar_rotation(Z: Tensor, V: Tensor) -> tuple[Tensor, Tensor]:
+def planar_rotation(quadratic: tuple[Tensor, Tensor, Tensor], V: Tensor) -> tuple[Tensor, Tensor]:
     """Rotation ``dR`` (..., 3, 3) for planar motion, and the axis ``n`` (..., 3).
 
     Args:
-        Z: (..., 15, 15) translation moment. V: (..., 4, 4) right singular vectors of the rotation system.
+        quadratic: the translation moment's ``(P, p, c)`` (:func:`~ocalib.calib.handeye.translation_quadratic`).
+        V: (..., 4, 4) right singular vectors of the rotation system.
     """
     n = planar_axis(V)
     R4 = quaternion_to_rotation_matrix(V[..., :, 3])
     nnT = n.unsqueeze(-1) * n.unsqueeze(-2)
-    eye = torch.eye(3, dtype=Z.dtype, device=Z.device)
+    eye = torch.eye(3, dtype=V.dtype, device=V.device)
     maps = torch.stack([nnT @ R4, (eye - nnT) @ R4, skew(n) @ R4], -3)  # (..., 3, 3, 3)
-    H, g, _ = normal_equations(Z, maps)
+    H, g, _ = normal_equations(quadratic, maps)
     c, _ = pinv_solve(H, g)
     theta = torch.atan2(c[..., 5], c[..., 4])
     dR = maps[..., 0, :, :] + torch.cos(theta)[..., None, None] * maps[..., 1, :, :]

@@ -2,9 +2,9 @@
 
 Two on-line solvers:
 
-* :func:`solve_translation` -- exact: from the O(1) moment ``Z`` (see :mod:`ocalib.calib.handeye`)
-  it re-solves the normal equations with the current ``dR`` every frame, so it equals batch least
-  squares at every frame, and early wrong rotations leave no trace.
+* :func:`solve_translation` -- exact: from the O(1) moment ``Z`` (see :mod:`ocalib.calib.handeye`,
+  passed as its quadratic form ``(P, p, c)``) it re-solves the normal equations with the current ``dR``
+  every frame, so it equals batch least squares at every frame, and early wrong rotations leave no trace.
 * :func:`rls_update` -- the paper's recursive least squares with forgetting factor, with the typos of
   the paper corrected (``C <- C / lam - G Gamma^-1 G^T``, minus).
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import normal_equations
+from ocalib.calib.handeye import normal_equations, translation_quadratic
 from ocalib.calib.linalg import guarded_eigh
 
 RANK_TOLERANCE = 1e-9  # eigenvalues below this times the largest are treated as zero
@@ -36,10 +36,10 @@ def pinv_solve(H: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
     return (H_pinv @ g.unsqueeze(-1)).squeeze(-1), H_pinv
 
 
-def solve_translation(Z: Tensor, dR: Tensor) -> Tensor:
-    """Exact least-squares ``x = (dT, s)`` (..., 4) with the current rotation ``dR`` (..., 3, 3),
-    from the weighted moment ``Z`` (..., 15, 15) of the translation features."""
-    H, g, _ = normal_equations(Z, dR.unsqueeze(-3))
+def solve_translation(quadratic: tuple[Tensor, Tensor, Tensor], dR: Tensor) -> Tensor:
+    """Exact least-squares ``x = (dT, s)`` (..., 4) with the current rotation ``dR`` (..., 3, 3), from the
+    moment's quadratic form (:func:`~ocalib.calib.handeye.translation_quadratic`)."""
+    H, g, _ = normal_equations(quadratic, dR.unsqueeze(-3))
     return pinv_solve(H, g)[0]
 
 
@@ -53,7 +53,7 @@ def translation_uncertainty(Z: Tensor, dR: Tensor, x: Tensor, rows: Tensor) -> d
     (..., 3) with ``directions`` (..., 3, 3): eigenvalues (ascending) and eigenvectors (columns, camera
     0's frame) of the information on ``dT`` with ``s`` free (Schur complement of the scale entry).
     """
-    H, g, tt = normal_equations(Z, dR.unsqueeze(-3))
+    H, g, tt = normal_equations(translation_quadratic(Z), dR.unsqueeze(-3))
     _, H_pinv = pinv_solve(H, g)
     rss = (tt - 2 * (x * g).sum(-1) + (x.unsqueeze(-2) @ H @ x.unsqueeze(-1)).squeeze((-1, -2))).clamp_min(0)
     sigma2 = rss / (3 * rows - 4).clamp_min(1)

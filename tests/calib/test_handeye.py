@@ -1,6 +1,6 @@
 import torch
 
-from ocalib.calib.handeye import normal_equations, rotation_block, translation_features, translation_rows
+from ocalib.calib.handeye import normal_equations, rotation_block, translation_features, translation_quadratic, translation_rows
 from ocalib.geometry import invert_pose, rotation_matrix_to_quaternion
 
 from calib_helpers import lds_rig
@@ -28,7 +28,7 @@ def test_normal_equations_equal_explicit_rows(generator):
     z = translation_features(R0, t0, t1)
     Z = (z * w[:, None]).T @ z
     dR = X[0, :3, :3]
-    H, g, tt = normal_equations(Z, dR[None])
+    H, g, tt = normal_equations(translation_quadratic(Z), dR[None])
     B, b = translation_rows(R0, t0, t1, dR)
     Bw, bw = B * w.sqrt()[:, None, None], b * w.sqrt()[:, None]
     Bf, bf = Bw.reshape(-1, 4), bw.reshape(-1)

@@ -16,21 +16,43 @@ def rotation_error_deg(R, R_true):
 
 
 @pytest.mark.parametrize("motion", ["first", "consecutive", "multi"])
-def test_streaming_equals_batch_every_frame(generator, motion):
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_closed_form_equals_batch_every_frame(generator, motion, symmetric):
     poses, _, _ = lds_rig(generator, frames=64, noise=0.01)
-    cal = OnlineCalibrator(2, motion=motion, **no_gating())
+    cal = OnlineCalibrator(2, motion=motion, refine=False, symmetric=symmetric, **no_gating())
     compared = 0
     for t in range(len(poses)):
         out = cal(poses[t])
         if t < 4 or out.planar_motion.any():  # the planar route is not part of the batch reference
             continue
-        ref = batch_calibrate(poses[: t + 1], motion)
+        ref = batch_calibrate(poses[: t + 1], motion, symmetric=symmetric, refine=False)
         torch.testing.assert_close(out.quaternion[0], ref["quaternion"], atol=1e-8, rtol=0)
         torch.testing.assert_close(out.translation[0], ref["translation"], atol=1e-8, rtol=0)
         torch.testing.assert_close(out.scale[0], ref["scale"], atol=1e-8, rtol=0)
         torch.testing.assert_close(out.rotation_singular_values[0], ref["singular_values"], atol=1e-8, rtol=0)
         compared += 1
     assert compared > 30
+
+
+@pytest.mark.parametrize("motion", ["first", "multi"])
+def test_refined_equals_batch_joint_least_squares(generator, motion):
+    """The O(1) refinement equals Levenberg-Marquardt on all stacked rows (an independent implementation)."""
+    poses, _, _ = lds_rig(generator, frames=48, noise=0.01)
+    cal = OnlineCalibrator(2, motion=motion, **no_gating())
+    refined = 0
+    for t in range(len(poses)):
+        out = cal(poses[t])
+        if t < 4 or t % 3 or out.planar_motion.any():
+            continue
+        ref = batch_calibrate(poses[: t + 1], motion)
+        torch.testing.assert_close(out.quaternion[0], ref["quaternion"], atol=1e-8, rtol=0)
+        torch.testing.assert_close(out.translation[0], ref["translation"], atol=1e-8, rtol=0)
+        torch.testing.assert_close(out.scale[0], ref["scale"], atol=1e-8, rtol=0)
+        refined += int(ref["refined"].all())
+    assert refined >= 8
+    # ... and it moved away from the closed form (by more than the tolerance).
+    closed = batch_calibrate(poses, motion, refine=False)
+    assert (out.quaternion[0] - closed["quaternion"]).abs().max() > 1e-5
 
 
 @pytest.mark.parametrize("cameras", [2, 3])

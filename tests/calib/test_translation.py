@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from ocalib.calib.handeye import translation_features, translation_rows
+from ocalib.calib.handeye import translation_features, translation_quadratic, translation_rows
 from ocalib.calib.translation import rls_update, solve_translation
 from ocalib.geometry import invert_pose
 
@@ -22,7 +22,7 @@ def test_exact_solver_equals_batch_least_squares_every_frame(generator):
     Z = torch.zeros(15, 15, dtype=torch.float64)
     for t in range(len(z)):
         Z = Z + z[t, :, None] * z[t, None, :]
-        x = solve_translation(Z, dR)
+        x = solve_translation(translation_quadratic(Z), dR)
         if t >= 2:
             ref = torch.linalg.lstsq(B[: t + 1].reshape(-1, 4), b[: t + 1].reshape(-1, 1)).solution[:, 0]
             torch.testing.assert_close(x, ref, atol=1e-8, rtol=0)

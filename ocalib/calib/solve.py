@@ -1,0 +1,85 @@
+"""The estimate from the kept statistics, shared by the streaming head (:mod:`ocalib.calib.online`) and the
+whole-sequence path (:mod:`ocalib.calib.sequence`).
+
+From the rotation system (``S2, V``: squared singular values and right singular vectors) and the translation
+moment ``Z``: the closed-form rotation (the null vector; on planar motion the translation route of
+:mod:`ocalib.calib.planar`), the exact least-squares translation and scale with that rotation, then the
+joint refinement of :mod:`ocalib.calib.refine` where rotation is observable and the motion is not planar.
+
+Convention: ``T_cam0_camk`` (``p_cam0 = dR p_camk + dT``), ``s`` multiplies camera-k units into camera-0
+units, quaternions (w, x, y, z) with w >= 0. Any leading batch shape (rigs, cameras, frames).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ocalib.calib.handeye import translation_quadratic
+from ocalib.calib.planar import planar_rotation
+from ocalib.calib.refine import joint_refine
+from ocalib.calib.rotation import planar_motion, rotation_observable, rotation_solution, singular_values
+from ocalib.calib.translation import solve_translation
+from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+
+
+def estimate(
+    S2: Tensor,
+    V: Tensor,
+    Z: Tensor,
+    rotation_rows: Tensor,
+    translation_rows: Tensor,
+    refine: bool = True,
+    refine_steps: int = 3,
+) -> dict[str, Tensor]:
+    """Extrinsics from the statistics.
+
+    Args:
+        S2: (..., 4) squared singular values (descending), V: (..., 4, 4) right singular vectors of the
+            weighted rotation rows. Z: (..., 15, 15) weighted translation moment.
+        rotation_rows, translation_rows: (...) weighted numbers of motion pairs behind them.
+        refine: run the joint refinement (else the closed form). refine_steps: its steps.
+
+    Returns:
+        ``quaternion`` (..., 4), ``rotation`` (..., 3, 3), ``translation`` (..., 3), ``scale`` (...),
+        ``singular_values`` (..., 4), ``observable``, ``planar`` (...) bool, ``axis`` (..., 3) (zero unless
+        planar), ``refined`` (...) bool, and the moment's ``quadratic`` (P, p, c).
+    """
+    S = singular_values(S2)
+    quat = rotation_solution(V)
+    dR = quaternion_to_rotation_matrix(quat)
+    planar, observable = planar_motion(S), rotation_observable(S)
+    quadratic = translation_quadratic(Z)
+    axis = torch.zeros_like(quat[..., 1:])
+    # On the CPU the planar solve is skipped when nothing needs it; elsewhere it always runs, so that a
+    # frame never waits for the host.
+    if planar.device.type != "cpu" or bool(planar.any()):
+        dR_planar, axis = planar_rotation(quadratic, V)
+        axis = torch.where(planar[..., None], axis, 0.0)
+        dR = torch.where(planar[..., None, None], dR_planar, dR)
+        quat = torch.where(planar[..., None], rotation_matrix_to_quaternion(dR), quat)
+
+    x = solve_translation(quadratic, dR)
+    refined = torch.zeros_like(planar)
+    if refine and refine_steps > 0:
+        M = (V * S2.unsqueeze(-2)) @ V.mT
+        active = observable & ~planar & (translation_rows >= 3)
+        quat, x, refined = joint_refine(M, quadratic, quat, x, rotation_rows, translation_rows, active, refine_steps)
+        dR = torch.where(refined[..., None, None], quaternion_to_rotation_matrix(quat), dR)
+
+    # Planar motion: the translation along the rotation axis (a car's height) is unobservable. The solver's
+    # rank cut-off keeps whatever the noise made of it; report the minimum-norm value, 0.
+    dT = x[..., :3]
+    dT = dT - axis * (axis * dT).sum(-1, keepdim=True)
+    return {
+        "quaternion": quat,
+        "rotation": dR,
+        "translation": dT,
+        "scale": x[..., 3],
+        "singular_values": S,
+        "observable": observable,
+        "planar": planar,
+        "axis": axis,
+        "refined": refined,
+        "quadratic": quadratic,
+    }
