@@ -14,7 +14,8 @@ from torch import Tensor, nn
 
 from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
 from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import incremental_svd_update, rotation_observable, rotation_solution, singular_values
+from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
+from ocalib.calib.rotation import incremental_svd_update
 from ocalib.calib.solve import estimate
 from ocalib.calib.translation import rls_update
 from ocalib.geometry.pose import invert_pose, orthonormality_error
@@ -160,13 +161,14 @@ class OnlineCalibrator(nn.Module):
 
         # Screw congruence: a rigid rig's cameras rotate by the same angle.
         screw = (angle[:, :1] - angle[:, 1:]).abs()
-        ok = pair_valid & (screw <= self._screw_threshold(st).unsqueeze(-1))
-        self._update_screw_scale(st, screw, pair_valid)
+        thr = screw_threshold(st["screw_scale"], st["screw_count"], self.screw_gate, self.screw_gate_sigma)
+        ok = pair_valid & (screw <= thr.unsqueeze(-1))
+        st["screw_scale"], st["screw_count"] = update_screw_scale(st["screw_scale"], st["screw_count"], screw, pair_valid)
 
         # Rotation: incremental SVD of the weighted blocks.
         A = rotation_block(q[:, :1].expand_as(q[:, 1:]), q[:, 1:])  # (B, K, P, 4, 4)
         moving = (angle[:, :1] + angle[:, 1:]) / 2 >= self.min_rotation
-        w_rot = (ok & moving).to(poses.dtype) * self._robust_weight(st, A)
+        w_rot = (ok & moving).to(poses.dtype) * robust_weight(st["S2"], st["V"], A, self.robust)
         W = (w_rot.sqrt()[..., None, None] * A).flatten(-3, -2)
         lam = self.forgetting
         S2, V = st["S2"], st["V"] = incremental_svd_update(st["S2"], st["V"], W, lam)
@@ -220,26 +222,3 @@ class OnlineCalibrator(nn.Module):
             translation_moment=Z,
             translation_rows=st["translation_rows"],
         )
-
-    def _screw_threshold(self, st: dict[str, Tensor]) -> Tensor:
-        robust_std = 1.25 * st["screw_scale"]  # mean absolute deviation -> std, for Gaussian noise
-        thr = torch.clamp_min(self.screw_gate_sigma * robust_std, self.screw_gate)
-        return torch.where(st["screw_count"] >= 10, thr, math.inf)
-
-    def _update_screw_scale(self, st: dict[str, Tensor], screw: Tensor, valid: Tensor) -> None:
-        """Running mean absolute screw residual, each sample clipped at 5 robust std (outliers barely count)."""
-        scale, count = st["screw_scale"], st["screw_count"]
-        clip = torch.where(count >= 10, 5 * 1.25 * scale, math.inf).unsqueeze(-1)
-        x = torch.minimum(screw.detach(), clip) * valid
-        n = valid.sum(-1).to(screw.dtype)
-        count = (count + n).clamp_max(1000.0)
-        st["screw_scale"] = scale + (x.sum(-1) - n * scale) / count.clamp_min(1)
-        st["screw_count"] = count
-
-    def _robust_weight(self, st: dict[str, Tensor], A: Tensor) -> Tensor:
-        """VINS-Mono's down-weighting: residual angle d of the current estimate, weight robust/d above robust."""
-        q = rotation_solution(st["V"]).detach()
-        r = (A.detach() @ q[:, :, None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)
-        d = 4 * torch.asin((r / 2).clamp(max=1.0))
-        established = rotation_observable(singular_values(st["S2"])).unsqueeze(-1)
-        return torch.where(established & (d > self.robust), self.robust / d.clamp_min(1e-12), 1.0).detach()

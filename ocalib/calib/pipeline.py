@@ -26,6 +26,7 @@ from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.planar import planar_axis
 from ocalib.calib.result import Calibration
+from ocalib.calib.sequence import calibrate_sequence
 from ocalib.calib.rotation import (
     ROTATION_OBSERVABLE_MIN_SV,
     ROTATION_OBSERVABLE_RATIO,
@@ -39,6 +40,7 @@ from ocalib.io.timing import associate, estimate_time_offset
 
 MIN_FRAMES = 3  # synchronised frames with every pose valid, below which there is nothing to calibrate
 PROGRESS_EVERY = 100  # frames between progress-bar updates (and between copies of the per-frame estimates)
+TRACE_CHUNK = 4096  # frames whose uncertainty is computed at once
 POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
 SOLVERS = ("exact", "rls", "batch")
 
@@ -244,8 +246,9 @@ def calibrate_rig(
 ) -> CalibrationRun:
     """Calibrate cameras 1..K of ``rig`` against camera 0.
 
-    solver: ``exact`` or ``rls`` stream the frames through the on-line head (an estimate per frame);
-    ``batch`` solves all frames with every pose valid at once (one estimate). progress: a tqdm bar
+    solver: ``exact`` or ``rls``: the on-line head's estimate at every frame (``exact`` through the
+    whole-sequence path of :mod:`ocalib.calib.sequence`, which equals streaming the frames; ``rls`` streams
+    them); ``batch`` solves all frames with every pose valid at once (one estimate). progress: a tqdm bar
     (None: only on a terminal).
     """
     if solver not in SOLVERS:
@@ -256,6 +259,8 @@ def calibrate_rig(
     if solver == "batch":
         final = _batch(poses, rig.valid.all(1), motion)
         trace, frames = _trace_rows(final), np.array([len(poses) - 1])
+    elif solver == "exact":
+        (final, trace), frames = _sequence(poses, motion, forgetting, progress), np.arange(len(poses))
     else:
         head = OnlineCalibrator(rig.poses.shape[1], motion=motion, solver=solver, forgetting=forgetting,
                                 pose_tolerance=POSE_TOLERANCE)  # fmt: skip
@@ -288,13 +293,30 @@ def calibrate_files(
 
 @contextlib.contextmanager
 def _single_thread():
-    """One intra-op thread: the head's tensors are tiny, and threads only add hand-over cost."""
+    """One intra-op thread: the tensors are small, and threads only add hand-over cost (measured: the
+    whole-sequence path on 20,000 frames took 0.65 s with one thread, 19 s with two on a loaded machine)."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         yield
     finally:
         torch.set_num_threads(threads)
+
+
+def _sequence(poses: torch.Tensor, motion: str, forgetting: float, progress: bool | None) -> tuple[Calibration, dict]:
+    """Every frame (T, C, 4, 4) at once (:func:`~ocalib.calib.sequence.calibrate_sequence`) -> (the last
+    estimate, the trace of every frame); the uncertainty is computed ``TRACE_CHUNK`` frames at a time."""
+    with torch.inference_mode(), _single_thread(), tqdm(
+        total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False
+    ) as bar:
+        out = calibrate_sequence(poses, motion=motion, forgetting=forgetting, pose_tolerance=POSE_TOLERANCE,
+                                 progress=bar.update)  # fmt: skip
+        names = [f.name for f in fields(Calibration)]
+        part = lambda a, b: Calibration(**{n: getattr(out, n)[a:b] for n in names})  # noqa: E731
+        chunks = [_trace_rows(part(a, a + TRACE_CHUNK)) for a in range(0, len(poses), TRACE_CHUNK)]
+        last = part(len(poses) - 1, len(poses))
+        bar.set_postfix_str(_progress_text(last), refresh=False)
+    return last, {k: torch.cat([c[k] for c in chunks]) for k in chunks[0]}
 
 
 def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) -> tuple[Calibration, dict]:
