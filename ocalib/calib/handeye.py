@@ -67,29 +67,18 @@ def translation_quadratic(Z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     ``sum w |(I - R0) dT + s dR t1 - t0|^2 = y^T P y - 2 p.y + c``.
 
     Z: (..., 15, 15) moment. Returns P (..., 12, 12), p (..., 12), c (...).
+
+    Equation r of a pair reads ``z[3r:3r+3] . dT + z[9:12] . m_r = z[12+r]`` (``m_r`` row r of ``s dR``), so
+    P = [[sum_r Z_rr, [Z_r,t1]_r], [.., I (x) Z_t1t1]] and p = (sum_r Z_r,t0r, (Z_t1,t0r)_r), blocks of Z.
     """
-    flat = torch.cat([Z.flatten(-2), Z.new_zeros(*Z.shape[:-2], 1)], -1)
-    out = flat[..., _quadratic_index(Z.device)].sum(-1)
-    return out[..., :144].unflatten(-1, (12, 12)), out[..., 144:156], out[..., 156]
-
-
-@lru_cache(maxsize=None)
-def _quadratic_index(device: torch.device) -> Tensor:
-    """(157, 3) indices into ``[Z.flatten(), 0]`` whose sums are the entries of P (144), p (12), c (1)."""
-    pad = FEATURES * FEATURES
-    terms: dict[tuple, list[int]] = {}
-    # Equation r: coefficients z[3r + j] on dT_j, z[9 + j] on m_{3r + j}, target z[12 + r]. y index of m_i: 3 + i.
-    for r in range(3):
-        coef = {j: 3 * r + j for j in range(3)} | {3 + 3 * r + j: 9 + j for j in range(3)}
-        for a, za in coef.items():
-            for b, zb in coef.items():
-                terms.setdefault(("P", a, b), []).append(za * FEATURES + zb)
-            terms.setdefault(("p", a), []).append(za * FEATURES + 12 + r)
-        terms.setdefault(("c",), []).append((12 + r) * FEATURES + 12 + r)
-    keys = [("P", a, b) for a in range(12) for b in range(12)] + [("p", a) for a in range(12)] + [("c",)]
-    rows = [terms.get(k, []) + [pad] * (3 - len(terms.get(k, []))) for k in keys]
-    with torch.inference_mode(False):  # cached constants are made outside inference mode (autograd may use them)
-        return torch.tensor(rows, device=device)
+    A = Z[..., 0:3, 0:3] + Z[..., 3:6, 3:6] + Z[..., 6:9, 6:9]
+    cross = Z[..., 0:9, 9:12].unflatten(-2, (3, 3)).transpose(-3, -2).flatten(-2)  # (..., 3, 9): [Z_0t1 Z_1t1 Z_2t1]
+    eye = torch.eye(3, dtype=Z.dtype, device=Z.device)
+    D = (eye[:, None, :, None] * Z[..., None, 9:12, None, 9:12]).flatten(-4, -3).flatten(-2)  # I (x) Z_t1t1
+    P = torch.cat([torch.cat([A, cross], -1), torch.cat([cross.mT, D], -1)], -2)
+    p_dT = torch.diagonal(Z[..., 0:9, 12:15].unflatten(-2, (3, 3)), dim1=-3, dim2=-1).sum(-1)
+    p = torch.cat([p_dT, Z[..., 9:12, 12:15].mT.flatten(-2)], -1)
+    return P, p, torch.diagonal(Z[..., 12:15, 12:15], dim1=-2, dim2=-1).sum(-1)
 
 
 def translation_rows(R0: Tensor, t0: Tensor, t1: Tensor, dR: Tensor) -> tuple[Tensor, Tensor]:

@@ -55,7 +55,7 @@ def joint_refine(
     """
     P, p, c = quadratic
     dtype, device = M.dtype, M.device
-    G, S2nd, E, J_dT = _bases(dtype, device)
+    G, newton_s, newton_1, newton_r = _bases(dtype, device)
     # Residual variances of the closed form (floors keep noise-free data finite).
     Er0, Et0 = _costs(M, P, p, c, quat, x)
     tiny = torch.finfo(dtype).eps ** 2
@@ -63,44 +63,38 @@ def joint_refine(
     wt = (3 * translation_rows - 4).clamp_min(1) / (Et0 + tiny * c).clamp_min(1e-300)
     # Inactive entries run on harmless numbers (unit weights, an identity Hessian below), so that nothing
     # non-finite reaches the gradient through the discarded branch.
-    wr, wt = torch.where(active, wr, 1.0), torch.where(active, wt, 1.0)
-    # Both residuals as one weighted quadratic in u = (y, q): u^T W u - 2 b.u + const.
-    W = torch.cat([
-        torch.cat([wt[..., None, None] * P, P.new_zeros(*P.shape[:-2], 12, 4)], -1),
-        torch.cat([M.new_zeros(*M.shape[:-2], 4, 12), wr[..., None, None] * M], -1),
-    ], -2)  # fmt: skip
-    b = torch.cat([wt[..., None] * p, p.new_zeros(*p.shape[:-1], 4)], -1)
+    wr, wt = torch.where(active, wr, 1.0)[..., None, None], torch.where(active, wt, 1.0)[..., None, None]
+    eye7 = torch.eye(7, dtype=dtype, device=device)
 
-    q, xr = quat, x
+    # Unknowns (d, s, dT), d the local rotation (q <- q * (1, d/2) / |.|). With y = (dT, m), m = vec(s dR):
+    # dm/dd_k = s vec(dR [e_k]x), dm/ds = vec(dR), dy/ddT = (I, 0). So J_y = [[0, I], [C, 0]] with
+    # C = [s dR G | vec(dR)] (9, 4), and J_y^T P J_y, J_y^T (P y - p) follow from blocks of P.
+    q, s_, dT = quat, x[..., 3:], x[..., :3]
     for step in range(steps):
         dR = quaternion_to_rotation_matrix(q)
-        s = xr[..., 3:]
-        y = torch.cat([xr[..., :3], s * dR.flatten(-2)], -1)
-        # Jacobian (..., 16, 7) of u = (dT, vec(s dR), q) in (d, dT, s), d the local rotation:
-        # d vec(s dR) / d d_k = s vec(dR [e_k]x), dq / dd = L(q)[:, 1:] / 2.
-        batch = y.shape[:-1]
-        Jq = 0.5 * left_product_matrix(q)[..., :, 1:]  # (..., 4, 3)
-        dRG = (dR.unsqueeze(-3) @ G).flatten(-2).mT  # (..., 9, 3)
-        J_rot = torch.cat([y.new_zeros(*batch, 3, 3), s.unsqueeze(-1) * dRG, Jq], -2)
-        J_scale = torch.cat([y.new_zeros(*batch, 3), dR.flatten(-2), y.new_zeros(*batch, 4)], -1).unsqueeze(-1)
-        J = torch.cat([J_rot, J_dT.expand(*batch, 16, 3), J_scale], -1)
-        u = torch.cat([y, q], -1)
-        r = (W @ u.unsqueeze(-1)).squeeze(-1) - b  # half the cost's gradient in u
-        H = J.mT @ W @ J
-        g = (J.mT @ r.unsqueeze(-1)).squeeze(-1)
-        if step > 0:  # Newton: second derivatives of u, contracted with r
-            D = (dR.mT @ r[..., 3:12].unflatten(-1, (3, 3))).flatten(-2)  # dR^T R, R the vec(s dR) part of r
-            Er_w = (r[..., 12:] * q).sum(-1, keepdim=True)  # wr q^T M q
-            H = H + (s * D @ S2nd + D @ E[0] - 0.25 * Er_w * E[1]).unflatten(-1, (7, 7))
-        eye = torch.eye(7, dtype=dtype, device=device)
-        H = torch.where(active[..., None, None], H + 1e-14 * H.diagonal(dim1=-2, dim2=-1).abs().mean(-1)[..., None, None] * eye, eye)
+        m = dR.flatten(-2)
+        C = torch.cat([s_.unsqueeze(-1) * (dR.unsqueeze(-3) @ G).flatten(-2).mT, m.unsqueeze(-1)], -1)
+        y = torch.cat([dT, s_ * m], -1)
+        r = wt.squeeze(-1) * ((P @ y.unsqueeze(-1)).squeeze(-1) - p)  # half the gradient of the weighted E_t in y
+        K = torch.cat([P[..., :, 3:] @ C, P[..., :, :3]], -1)  # P J_y (12, 7)
+        H = wt * torch.cat([C.mT @ K[..., 3:, :], K[..., :3, :]], -2)
+        g = torch.cat([(C.mT @ r[..., 3:].unsqueeze(-1)).squeeze(-1), r[..., :3]], -1)
+        Jq = 0.5 * left_product_matrix(q)[..., :, 1:]  # dq/dd (4, 3)
+        Mq = wr.squeeze(-1) * (M @ q.unsqueeze(-1)).squeeze(-1)
+        H = H + torch.nn.functional.pad(wr * Jq.mT @ M @ Jq, (0, 4, 0, 4))
+        g = g + torch.nn.functional.pad((Jq.mT @ Mq.unsqueeze(-1)).squeeze(-1), (0, 4))
+        if step > 0:  # Newton: the second derivatives of m and q, contracted with the gradient
+            D = (dR.mT @ r[..., 3:].unflatten(-1, (3, 3))).flatten(-2)  # dR^T R, R = gradient in s dR
+            H = H + (s_ * D @ newton_s + D @ newton_1 - 0.25 * (Mq * q).sum(-1, keepdim=True) * newton_r).unflatten(-1, (7, 7))
+        H = torch.where(active[..., None, None], H + 1e-14 * H.diagonal(dim1=-2, dim2=-1).abs().mean(-1)[..., None, None] * eye7, eye7)
         d, _ = torch.linalg.solve_ex(H, -torch.where(active[..., None], g, 0.0))
         q = q + (Jq @ d[..., :3].unsqueeze(-1)).squeeze(-1)
         q = q / q.norm(dim=-1, keepdim=True)
-        xr = xr + d[..., 3:]
+        s_, dT = s_ + d[..., 3:4], dT + d[..., 4:]
 
-    q = canonical_quaternion(q)
+    q, xr = canonical_quaternion(q), torch.cat([dT, s_], -1)
     Er, Et = _costs(M, P, p, c, q, xr)
+    wr, wt = wr[..., 0, 0], wt[..., 0, 0]
     ok = active & (wr * Er + wt * Et <= wr * Er0 + wt * Et0) & q.isfinite().all(-1) & xr.isfinite().all(-1)
     return torch.where(ok[..., None], q, quat), torch.where(ok[..., None], xr, x), ok
 
@@ -115,24 +109,22 @@ def _costs(M: Tensor, P: Tensor, p: Tensor, c: Tensor, q: Tensor, x: Tensor) -> 
 
 
 @lru_cache(maxsize=None)
-def _bases(dtype: torch.dtype, device: torch.device) -> tuple:
-    """Constants: ``G`` (3, 3, 3) the generators ``[e_k]x``; the Newton terms as maps from ``vec(D)`` (9) to
-    the flattened 7x7 Hessian: ``S2nd`` (9, 49) for ``<D, (G_k G_l + G_l G_k) / 2>`` in the rotation block
-    (times s), and ``E = (E0, E1)``: E0 (9, 49) for ``<D, G_k>`` in the rotation-scale entries, E1 (49,) the
-    identity of the rotation block (the second derivative of ``q * (1, d/2) / |.|``: ``-q / 4``); ``J_dT``
-    (16, 3) the Jacobian of u in dT. Made outside inference mode (autograd may use them later)."""
+def _bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Constants, for the unknowns ordered (d, s, dT): ``G`` (3, 3, 3) the generators ``[e_k]x``; the Newton
+    terms as maps from ``vec(D)`` (9) to the flattened 7x7 Hessian: ``newton_s`` (9, 49), times s, for
+    ``<D, (G_k G_l + G_l G_k) / 2>`` in the (d, d) block (the second derivative of ``dR R(d)``), ``newton_1``
+    (9, 49) for ``<D, G_k>`` in the (d, s) entries, and ``newton_r`` (49,) the identity of the (d, d) block
+    (the second derivative of ``q * (1, d/2) / |.|`` is ``-q / 4``). Made outside inference mode."""
     with torch.inference_mode(False):
         eye = torch.eye(3, dtype=torch.float64)
         G = torch.stack([torch.linalg.cross(eye[k].expand(3, 3), eye, dim=-1).mT for k in range(3)])
-        S2nd = torch.zeros(9, 7, 7, dtype=torch.float64)
-        E0 = torch.zeros(9, 7, 7, dtype=torch.float64)
-        E1 = torch.zeros(7, 7, dtype=torch.float64)
+        newton_s = torch.zeros(9, 7, 7, dtype=torch.float64)
+        newton_1 = torch.zeros(9, 7, 7, dtype=torch.float64)
+        newton_r = torch.zeros(7, 7, dtype=torch.float64)
         for k in range(3):
             for l in range(3):
-                S2nd[:, k, l] = (0.5 * (G[k] @ G[l] + G[l] @ G[k])).flatten()
-            E0[:, k, 6] = E0[:, 6, k] = G[k].flatten()
-            E1[k, k] = 1.0
-        J_dT = torch.zeros(16, 3, dtype=torch.float64)
-        J_dT[:3] = eye
-        f = dict(dtype=dtype, device=device)
-        return G.to(**f), S2nd.flatten(1).to(**f), (E0.flatten(1).to(**f), E1.flatten().to(**f)), J_dT.to(**f)
+                newton_s[:, k, l] = (0.5 * (G[k] @ G[l] + G[l] @ G[k])).flatten()
+            newton_1[:, k, 3] = newton_1[:, 3, k] = G[k].flatten()
+            newton_r[k, k] = 1.0
+        out = G, newton_s.flatten(1), newton_1.flatten(1), newton_r.flatten()
+        return tuple(t.to(dtype=dtype, device=device) for t in out)

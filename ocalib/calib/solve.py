@@ -51,13 +51,17 @@ def estimate(
     planar, observable = planar_motion(S), rotation_observable(S)
     quadratic = translation_quadratic(Z)
     axis = torch.zeros_like(quat[..., 1:])
-    # On the CPU the planar solve is skipped when nothing needs it; elsewhere it always runs, so that a
-    # frame never waits for the host.
-    if planar.device.type != "cpu" or bool(planar.any()):
+    # On the CPU the planar solve runs on the planar entries only (none: skipped); elsewhere on all of them,
+    # so that a frame never waits for the host.
+    if planar.device.type != "cpu":
         dR_planar, axis = planar_rotation(quadratic, V)
         axis = torch.where(planar[..., None], axis, 0.0)
         dR = torch.where(planar[..., None, None], dR_planar, dR)
         quat = torch.where(planar[..., None], rotation_matrix_to_quaternion(dR), quat)
+    elif bool(planar.any()):
+        dR_planar, axis_planar = planar_rotation(tuple(x[planar] for x in quadratic), V[planar])
+        dR, axis = dR.index_put((planar,), dR_planar), axis.index_put((planar,), axis_planar)
+        quat = quat.index_put((planar,), rotation_matrix_to_quaternion(dR_planar))
 
     x = solve_translation(quadratic, dR)
     refined = torch.zeros_like(planar)
