@@ -9,6 +9,8 @@ from functools import cached_property
 import torch
 from torch import Tensor
 
+from ocalib.calib.handeye import translation_quadratic
+from ocalib.calib.planar import planar_rotation_std
 from ocalib.calib.rotation import rotation_std
 from ocalib.calib.translation import translation_uncertainty, unobservable_directions
 
@@ -42,8 +44,17 @@ class Calibration:
 
     @cached_property
     def rotation_std(self) -> Tensor:
-        """(B, K, 3) 1-sigma rotation error in radians about camera k's axes."""
-        return rotation_std(self.rotation_singular_values, self.rotation_basis, self.rotation_rows)
+        """(B, K, 3) 1-sigma rotation error in radians about camera k's axes (planar motion: from the planar
+        route, see :func:`~ocalib.calib.planar.planar_rotation_std`); inf where the residual says nothing."""
+        std = rotation_std(self.rotation_singular_values, self.rotation_basis, self.rotation_rows)
+        planar = self.planar_motion
+        if bool(planar.any()):  # the rotation system is degenerate there: the planar route's own uncertainty
+            quadratic = translation_quadratic(self.translation_moment[planar])
+            std_planar = planar_rotation_std(quadratic, self.rotation_singular_values[planar],
+                                             self.rotation_basis[planar], self.quaternion[planar],
+                                             self.rotation_rows[planar], self.translation_rows[planar])  # fmt: skip
+            std = std.index_put((planar,), std_planar)
+        return std
 
     @cached_property
     def _translation(self) -> dict[str, Tensor]:
@@ -78,8 +89,9 @@ class Calibration:
 
     @property
     def scale_std(self) -> Tensor:
-        """(B, K) 1-sigma of the scale."""
-        return self._translation["covariance"][..., 3, 3].sqrt()
+        """(B, K) 1-sigma of the scale; inf where it is unobservable or the system exactly determined."""
+        std = self._translation["covariance"][..., 3, 3].sqrt()
+        return torch.where(self._translation["scale_unobservable"], torch.inf, std)
 
     def camera_json(self, b: int, k: int) -> dict:
         """The JSON object of camera k+1 of rig b (see ``ocalib calibrate-poses``)."""

@@ -90,10 +90,11 @@ def rotation_std(S: Tensor, V: Tensor, rows: Tensor) -> Tensor:
     """1-sigma rotation error (..., 3) in radians, about camera k's axes, from first-order perturbation.
 
     ``cov(dq) = sigma^2 sum_{i<4} v_i v_i^T / S_i^2`` with ``sigma^2 = S_3^2 / (2 n - 3)``: each block
-    has rank 2, so ``rows`` (...) blocks give ``2 n`` equations for 3 degrees of freedom. The rotation
-    vector error is ``2 vec(conj(dq) * d dq)``.
+    has rank 2, so ``rows`` (...) blocks give ``2 n`` equations for 3 degrees of freedom (infinite with
+    ``2 n <= 3``: the residual says nothing then). The rotation vector error is ``2 vec(conj(dq) * d dq)``.
     """
-    sigma2 = S[..., 3] ** 2 / (2 * rows - 3).clamp_min(1)
+    dof = 2 * rows - 3
+    sigma2 = torch.where(dof > 0, S[..., 3] ** 2 / dof.clamp_min(1), torch.inf)  # no residual to tell: unknown
     Vt = V[..., :, :3] / S[..., None, :3].clamp_min(1e-300)
     q = rotation_solution(V)
     conj = q * q.new_tensor([1.0, -1.0, -1.0, -1.0])

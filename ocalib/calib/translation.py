@@ -49,18 +49,25 @@ def translation_uncertainty(Z: Tensor, dR: Tensor, x: Tensor, rows: Tensor) -> d
     Args:
         Z: (..., 15, 15) moment. dR: (..., 3, 3). rows: (...) weighted number of motion pairs in ``Z``.
 
-    Returns ``covariance`` (..., 4, 4) (``sigma^2 H^+``, sigma from the residual), and ``information``
-    (..., 3) with ``directions`` (..., 3, 3): eigenvalues (ascending) and eigenvectors (columns, camera
-    0's frame) of the information on ``dT`` with ``s`` free (Schur complement of the scale entry).
+    Returns ``covariance`` (..., 4, 4) (``sigma^2 H^+``, sigma from the residual; infinite with ``3 n <= 4``
+    equations, where the residual says nothing), ``information`` (..., 3) with ``directions`` (..., 3, 3):
+    eigenvalues (ascending) and eigenvectors (columns, camera 0's frame) of the information on ``dT`` with
+    ``s`` free (Schur complement of the scale entry), and ``scale_unobservable`` (...) bool.
     """
     H, g, tt = normal_equations(translation_quadratic(Z), dR.unsqueeze(-3))
     _, H_pinv = pinv_solve(H, g)
     rss = (tt - 2 * (x * g).sum(-1) + (x.unsqueeze(-2) @ H @ x.unsqueeze(-1)).squeeze((-1, -2))).clamp_min(0)
-    sigma2 = rss / (3 * rows - 4).clamp_min(1)
+    dof = 3 * rows - 4
+    sigma2 = torch.where(dof > 0, rss / dof.clamp_min(1), torch.inf)  # exactly determined: no residual to tell
     h_ss = H[..., 3, 3].clamp_min(1e-300)
     info = H[..., :3, :3] - H[..., :3, 3:] @ H[..., 3:, :3] / h_ss[..., None, None]
     information, directions = guarded_eigh(info)
-    return {"covariance": sigma2[..., None, None] * H_pinv, "information": information, "directions": directions}
+    # Information on s with dT free (Schur complement of the dT block); none: the scale is unobservable.
+    h_TT_pinv = pinv_solve(H[..., :3, :3], H[..., :3, 3])[0]
+    scale_information = H[..., 3, 3] - (H[..., 3, :3] * h_TT_pinv).sum(-1)
+    cov = torch.where(sigma2[..., None, None].isinf(), torch.inf, sigma2[..., None, None] * H_pinv)
+    return {"covariance": cov, "information": information, "directions": directions,
+            "scale_unobservable": scale_information <= UNOBSERVABLE_RELATIVE * h_ss}  # fmt: skip
 
 
 def unobservable_directions(information: Tensor) -> Tensor:
