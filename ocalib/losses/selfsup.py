@@ -33,17 +33,22 @@ class LossOutput:
     images: dict[str, Tensor] = field(default_factory=dict)
 
 
-def min_reprojection(reprojection: Tensor, identity: Tensor | None) -> tuple[Tensor, Tensor]:
+def min_reprojection(reprojection: Tensor, identity: Tensor, automask: bool = True) -> tuple[Tensor, Tensor]:
     """Per-pixel minimum over sources (B, S', H, W) -> (error, used) (B, 1, H, W).
 
-    With ``identity`` (the unwarped sources' errors, auto-masking), pixels where an unwarped source matches
-    better are not used (static scene or a camera moving with it); without, pixels invalid in every source.
+    ``identity``: the errors of the unwarped sources (no gradient). With ``automask`` (monodepth2) they compete
+    in the minimum: where an unwarped source matches better (a static scene, or an object moving with the
+    camera) the pixel is not ``used`` and contributes that constant error. Without, they only stand in for
+    pixels that project outside every source. Either way every pixel counts in the mean, so the networks
+    cannot lower the loss by pushing hard pixels out of it.
     """
-    if identity is not None:
+    identity = identity.detach()
+    if automask:
         error, index = torch.cat([reprojection, identity], 1).min(1, keepdim=True)
         return error, (index < reprojection.shape[1]).to(error.dtype)
     error = reprojection.min(1, keepdim=True).values
-    return error, (error < INVALID).to(error.dtype)
+    used = error < INVALID
+    return torch.where(used, error, identity.min(1, keepdim=True).values), used.to(error.dtype)
 
 
 def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
@@ -62,10 +67,10 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
     """
     B, S, _, H, W = images.shape
     target, sources = images[:, 0], images[:, 1:]
-    identity = None
-    if automask:
+    with torch.no_grad():
         identity = torch.cat([photometric_error(sources[:, j], target, ssim) for j in range(S - 1)], 1)
-        identity = identity + 1e-5 * torch.randn_like(identity)  # break ties (monodepth2)
+        if automask:
+            identity += 1e-5 * torch.randn_like(identity)  # break ties (monodepth2)
     use_geometry = geometry > 0
     if use_geometry and source_depths is None:
         raise ValueError("the geometry-consistency loss needs source_depths")
@@ -87,9 +92,9 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
             errors.append(error + INVALID * (1 - warp.mask))
             if s == 0 and j == 0:
                 images_out.update(warped=warp.image.detach(), valid=warp.mask.detach())
-        error, used = min_reprojection(torch.cat(errors, 1), identity)
+        error, used = min_reprojection(torch.cat(errors, 1), identity, automask)
         small = F.interpolate(target, disp.shape[-2:], mode="area") if disp.shape[-2:] != (H, W) else target
-        sums["photometric"] = sums["photometric"] + masked_mean(error, used)
+        sums["photometric"] = sums["photometric"] + error.mean()
         sums["smoothness"] = sums["smoothness"] + edge_aware_smoothness(disp, small) / 2**s
         sums["geometry"] = sums["geometry"] + geo
         sums["used"] = sums["used"] + used.mean().detach()

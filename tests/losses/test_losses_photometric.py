@@ -54,10 +54,19 @@ def test_smoothness_is_zero_on_constant_and_scale_invariant():
 
 
 def test_min_reprojection_and_auto_mask():
-    reprojection = torch.tensor([[[[0.2, 0.5]], [[0.3, 1e3]]]])  # (1, 2 sources, 1, 2 pixels)
-    identity = torch.tensor([[[[0.1, 0.6]], [[0.4, 0.7]]]])
+    reprojection = torch.tensor([[[[0.2, 0.5, 1e3]], [[0.3, 1e3, 1e3]]]])  # (1, 2 sources, 1, 3 pixels)
+    identity = torch.tensor([[[[0.1, 0.6, 0.8]], [[0.4, 0.7, 0.9]]]])
     error, used = min_reprojection(reprojection, identity)
-    torch.testing.assert_close(error, torch.tensor([[[[0.1, 0.5]]]]))
-    torch.testing.assert_close(used, torch.tensor([[[[0.0, 1.0]]]]))  # pixel 0: an unwarped source matches better
-    error, used = min_reprojection(torch.tensor([[[[0.2, 1e3]], [[0.3, 1e3]]]]), None)
-    torch.testing.assert_close(used, torch.tensor([[[[1.0, 0.0]]]]))  # pixel 1 is outside every source
+    torch.testing.assert_close(error, torch.tensor([[[[0.1, 0.5, 0.8]]]]))
+    torch.testing.assert_close(used, torch.tensor([[[[0.0, 1.0, 0.0]]]]))  # pixel 0: an unwarped source matches better
+    error, used = min_reprojection(reprojection, identity, automask=False)
+    torch.testing.assert_close(error, torch.tensor([[[[0.2, 0.5, 0.8]]]]))  # pixel 2 is outside every source
+    torch.testing.assert_close(used, torch.tensor([[[[1.0, 1.0, 0.0]]]]))
+
+
+def test_min_reprojection_cannot_gain_by_dropping_pixels():
+    """Making a pixel's reprojection worse never lowers the loss (every pixel counts in the mean)."""
+    identity = torch.tensor([[[[0.3, 0.3]]]])
+    good = min_reprojection(torch.tensor([[[[0.1, 0.2]]]]), identity)[0].mean()
+    worse = min_reprojection(torch.tensor([[[[0.1, 0.9]]]]), identity)[0].mean()
+    assert worse > good
