@@ -221,4 +221,5 @@ class OnlineCalibrator(nn.Module):
             rotation_rows=st["rotation_rows"],
             translation_moment=Z,
             translation_rows=st["translation_rows"],
+            refined=est["refined"],
         )

@@ -392,6 +392,7 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
         rotation_rows=rows[None],
         translation_moment=(features.mT @ features)[None],
         translation_rows=rows[None],
+        refined=out["refined"][None],
     )
 
 

@@ -55,34 +55,17 @@ def joint_refine(
     """
     P, p, c = quadratic
     dtype, device = M.dtype, M.device
-    G, newton_s, newton_1, newton_r = _bases(dtype, device)
-    # Residual variances of the closed form (floors keep noise-free data finite).
+    _, newton_s, newton_1, newton_r = _bases(dtype, device)
     Er0, Et0 = _costs(M, P, p, c, quat, x)
-    tiny = torch.finfo(dtype).eps ** 2
-    wr = (2 * rotation_rows - 3).clamp_min(1) / (Er0 + tiny * M.diagonal(dim1=-2, dim2=-1).sum(-1)).clamp_min(1e-300)
-    wt = (3 * translation_rows - 4).clamp_min(1) / (Et0 + tiny * c).clamp_min(1e-300)
+    wr, wt = _weights(M, c, Er0, Et0, rotation_rows, translation_rows)
     # Inactive entries run on harmless numbers (unit weights, an identity Hessian below), so that nothing
     # non-finite reaches the gradient through the discarded branch.
-    wr, wt = torch.where(active, wr, 1.0)[..., None, None], torch.where(active, wt, 1.0)[..., None, None]
+    wr, wt = torch.where(active, wr, 1.0), torch.where(active, wt, 1.0)
     eye7 = torch.eye(7, dtype=dtype, device=device)
 
-    # Unknowns (d, s, dT), d the local rotation (q <- q * (1, d/2) / |.|). With y = (dT, m), m = vec(s dR):
-    # dm/dd_k = s vec(dR [e_k]x), dm/ds = vec(dR), dy/ddT = (I, 0). So J_y = [[0, I], [C, 0]] with
-    # C = [s dR G | vec(dR)] (9, 4), and J_y^T P J_y, J_y^T (P y - p) follow from blocks of P.
     q, s_, dT = quat, x[..., 3:], x[..., :3]
     for step in range(steps):
-        dR = quaternion_to_rotation_matrix(q)
-        m = dR.flatten(-2)
-        C = torch.cat([s_.unsqueeze(-1) * (dR.unsqueeze(-3) @ G).flatten(-2).mT, m.unsqueeze(-1)], -1)
-        y = torch.cat([dT, s_ * m], -1)
-        r = wt.squeeze(-1) * ((P @ y.unsqueeze(-1)).squeeze(-1) - p)  # half the gradient of the weighted E_t in y
-        K = torch.cat([P[..., :, 3:] @ C, P[..., :, :3]], -1)  # P J_y (12, 7)
-        H = wt * torch.cat([C.mT @ K[..., 3:, :], K[..., :3, :]], -2)
-        g = torch.cat([(C.mT @ r[..., 3:].unsqueeze(-1)).squeeze(-1), r[..., :3]], -1)
-        Jq = 0.5 * left_product_matrix(q)[..., :, 1:]  # dq/dd (4, 3)
-        Mq = wr.squeeze(-1) * (M @ q.unsqueeze(-1)).squeeze(-1)
-        H = H + torch.nn.functional.pad(wr * Jq.mT @ M @ Jq, (0, 4, 0, 4))
-        g = g + torch.nn.functional.pad((Jq.mT @ Mq.unsqueeze(-1)).squeeze(-1), (0, 4))
+        H, g, dR, Jq, r, Mq = _system(M, P, p, q, s_, dT, wr, wt)
         if step > 0:  # Newton: the second derivatives of m and q, contracted with the gradient
             D = (dR.mT @ r[..., 3:].unflatten(-1, (3, 3))).flatten(-2)  # dR^T R, R = gradient in s dR
             H = H + (s_ * D @ newton_s + D @ newton_1 - 0.25 * (Mq * q).sum(-1, keepdim=True) * newton_r).unflatten(-1, (7, 7))
@@ -94,9 +77,58 @@ def joint_refine(
 
     q, xr = canonical_quaternion(q), torch.cat([dT, s_], -1)
     Er, Et = _costs(M, P, p, c, q, xr)
-    wr, wt = wr[..., 0, 0], wt[..., 0, 0]
     ok = active & (wr * Er + wt * Et <= wr * Er0 + wt * Et0) & q.isfinite().all(-1) & xr.isfinite().all(-1)
     return torch.where(ok[..., None], q, quat), torch.where(ok[..., None], xr, x), ok
+
+
+def joint_covariance(
+    M: Tensor, quadratic: tuple[Tensor, Tensor, Tensor], quat: Tensor, x: Tensor, rotation_rows: Tensor,
+    translation_rows: Tensor,
+) -> Tensor:
+    """Covariance (..., 7, 7) of the refined estimate, unknowns ordered (d, s, dT) with ``d`` the rotation
+    vector error about camera k's axes: the inverse Gauss-Newton Hessian of the cost weighted by the residual
+    variances at the estimate (each weighted residual then has unit variance). Inf without degrees of freedom."""
+    P, p, c = quadratic
+    Er, Et = _costs(M, P, p, c, quat, x)
+    wr, wt = _weights(M, c, Er, Et, rotation_rows, translation_rows)
+    H = _system(M, P, p, quat, x[..., 3:], x[..., :3], wr, wt)[0]
+    cov, info = torch.linalg.inv_ex(H)
+    free = (2 * rotation_rows - 3 <= 0) | (3 * translation_rows - 4 <= 0) | (info != 0)
+    return torch.where(free[..., None, None], torch.inf, cov)
+
+
+def _weights(M, c, Er, Et, rotation_rows, translation_rows) -> tuple[Tensor, Tensor]:
+    """``1 / sr^2, 1 / st^2`` (...) from the residuals (floors keep noise-free data finite)."""
+    tiny = torch.finfo(M.dtype).eps ** 2
+    wr = (2 * rotation_rows - 3).clamp_min(1) / (Er + tiny * M.diagonal(dim1=-2, dim2=-1).sum(-1)).clamp_min(1e-300)
+    wt = (3 * translation_rows - 4).clamp_min(1) / (Et + tiny * c).clamp_min(1e-300)
+    return wr, wt
+
+
+def _system(M, P, p, q, s, dT, wr, wt) -> tuple[Tensor, ...]:
+    """Gauss-Newton system at ``(q, s, dT)``: H (..., 7, 7), g (..., 7) (half the gradient), and the pieces
+    the Newton terms and the update reuse: dR, Jq = dq/dd (..., 4, 3), r (half the gradient of the weighted
+    E_t in y, (..., 12)), wr M q (..., 4).
+
+    Unknowns (d, s, dT), d the local rotation (q <- q * (1, d/2) / |.|). With y = (dT, m), m = vec(s dR):
+    dm/dd_k = s vec(dR [e_k]x), dm/ds = vec(dR), dy/ddT = (I, 0). So J_y = [[0, I], [C, 0]] with
+    C = [s dR G | vec(dR)] (9, 4), and J_y^T P J_y, J_y^T (P y - p) follow from blocks of P.
+    """
+    G = _bases(M.dtype, M.device)[0]
+    wr, wt = wr[..., None, None], wt[..., None, None]
+    dR = quaternion_to_rotation_matrix(q)
+    m = dR.flatten(-2)
+    C = torch.cat([s.unsqueeze(-1) * (dR.unsqueeze(-3) @ G).flatten(-2).mT, m.unsqueeze(-1)], -1)
+    y = torch.cat([dT, s * m], -1)
+    r = wt.squeeze(-1) * ((P @ y.unsqueeze(-1)).squeeze(-1) - p)
+    K = torch.cat([P[..., :, 3:] @ C, P[..., :, :3]], -1)  # P J_y (12, 7)
+    H = wt * torch.cat([C.mT @ K[..., 3:, :], K[..., :3, :]], -2)
+    g = torch.cat([(C.mT @ r[..., 3:].unsqueeze(-1)).squeeze(-1), r[..., :3]], -1)
+    Jq = 0.5 * left_product_matrix(q)[..., :, 1:]
+    Mq = wr.squeeze(-1) * (M @ q.unsqueeze(-1)).squeeze(-1)
+    H = H + torch.nn.functional.pad(wr * Jq.mT @ M @ Jq, (0, 4, 0, 4))
+    g = g + torch.nn.functional.pad((Jq.mT @ Mq.unsqueeze(-1)).squeeze(-1), (0, 4))
+    return H, g, dR, Jq, r, Mq
 
 
 def _costs(M: Tensor, P: Tensor, p: Tensor, c: Tensor, q: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:

@@ -11,6 +11,7 @@ from torch import Tensor
 
 from ocalib.calib.handeye import translation_quadratic
 from ocalib.calib.planar import planar_rotation_std
+from ocalib.calib.refine import joint_covariance
 from ocalib.calib.rotation import rotation_std
 from ocalib.calib.translation import translation_uncertainty, unobservable_directions
 
@@ -24,7 +25,10 @@ class Calibration:
     units; quaternions are (w, x, y, z), w >= 0. Shapes lead with (B, K).
 
     The uncertainty (``*_std``, ``translation_*``) is computed from the solver's state when first read,
-    so a stream that does not look at it does not pay for it.
+    so a stream that does not look at it does not pay for it. Where the estimate was refined jointly
+    (``refined``), the standard deviations are those of the joint solve (:func:`~ocalib.calib.refine.joint_covariance`:
+    rotation, translation and scale together); elsewhere those of the closed forms (rotation system, then
+    translation with the rotation fixed; planar motion: the planar route).
     """
 
     rotation: Tensor  # (B, K, 3, 3)
@@ -41,6 +45,20 @@ class Calibration:
     rotation_rows: Tensor  # (B, K) weighted motion pairs in the rotation system
     translation_moment: Tensor  # (B, K, 15, 15) see ocalib.calib.handeye
     translation_rows: Tensor  # (B, K) weighted motion pairs in the translation system
+    refined: Tensor | None = None  # (B, K) bool: the joint refinement was applied (None: nowhere)
+
+    @cached_property
+    def _joint(self) -> Tensor | None:
+        """(B, K, 7) joint 1-sigma (rotation (3), scale, translation (3)) where refined, else inf; None if nowhere."""
+        if self.refined is None or not bool(self.refined.any()):
+            return None
+        r = self.refined
+        S2, V = self.rotation_singular_values[r].square(), self.rotation_basis[r]
+        x = torch.cat([self.translation[r], self.scale[r].unsqueeze(-1)], -1)
+        cov = joint_covariance((V * S2.unsqueeze(-2)) @ V.mT, translation_quadratic(self.translation_moment[r]),
+                               self.quaternion[r], x, self.rotation_rows[r], self.translation_rows[r])  # fmt: skip
+        std = torch.full((*r.shape, 7), math.inf, dtype=x.dtype, device=x.device)
+        return std.index_put((r,), torch.diagonal(cov, dim1=-2, dim2=-1).sqrt())
 
     @cached_property
     def rotation_std(self) -> Tensor:
@@ -54,6 +72,8 @@ class Calibration:
                                              self.rotation_basis[planar], self.quaternion[planar],
                                              self.rotation_rows[planar], self.translation_rows[planar])  # fmt: skip
             std = std.index_put((planar,), std_planar)
+        if self._joint is not None:
+            std = torch.where(self.refined.unsqueeze(-1), self._joint[..., :3], std)
         return std
 
     @cached_property
@@ -84,13 +104,17 @@ class Calibration:
     def translation_std(self) -> Tensor:
         """(B, K, 3) 1-sigma along camera 0's axes; inf for an axis with a share of an unobservable direction."""
         leak = (self.translation_directions**2 * self.translation_unobservable.unsqueeze(-2)).sum(-1) > 0.01
-        cov = self._translation["covariance"]
-        return torch.where(leak, math.inf, torch.diagonal(cov[..., :3, :3], dim1=-2, dim2=-1).sqrt())
+        std = torch.diagonal(self._translation["covariance"][..., :3, :3], dim1=-2, dim2=-1).sqrt()
+        if self._joint is not None:
+            std = torch.where(self.refined.unsqueeze(-1), self._joint[..., 4:], std)
+        return torch.where(leak, math.inf, std)
 
     @property
     def scale_std(self) -> Tensor:
         """(B, K) 1-sigma of the scale; inf where it is unobservable or the system exactly determined."""
         std = self._translation["covariance"][..., 3, 3].sqrt()
+        if self._joint is not None:
+            std = torch.where(self.refined, self._joint[..., 3], std)
         return torch.where(self._translation["scale_unobservable"], torch.inf, std)
 
     def camera_json(self, b: int, k: int) -> dict:

@@ -156,6 +156,7 @@ def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[d
         "rotation_rows": rotation_rows,
         "translation_moment": Z,
         "translation_rows": translation_rows,
+        "refined": est["refined"],
     }, M_all[-1]
 
 

@@ -42,3 +42,21 @@ def test_std_is_infinite_until_the_residual_tells(generator):
         out = cal(poses[t])
     assert out.scale_std.isfinite().all() and out.rotation_std.isfinite().all()
     assert one.camera_json(0, 0)["scale_std"] is None
+
+
+def test_refined_std_matches_the_errors(generator):
+    """Where refined, the std is the joint solve's: rotation, translation and scale within ~2x of the errors."""
+    rigs = [lds_rig(generator, frames=100, noise=0.01) for _ in range(30)]
+    poses, X = torch.stack([r[0] for r in rigs], 1), torch.stack([r[1][0] for r in rigs])
+    s = torch.stack([r[2] for r in rigs])
+    with torch.no_grad():
+        last = frame(calibrate_sequence(poses), -1)
+    assert last.refined.all()
+    pairs = [
+        (rotation_angle(last.rotation[:, 0].mT @ X[:, :3, :3]), last.rotation_std[:, 0].norm(dim=-1)),
+        ((last.translation[:, 0] - X[:, :3, 3]).norm(dim=-1), last.translation_std[:, 0].norm(dim=-1)),
+        (last.scale[:, 0] - s[:, 0], last.scale_std[:, 0]),
+    ]
+    for error, predicted in pairs:
+        ratio = (error.square().mean() / predicted.square().mean()).sqrt().item()
+        assert 0.5 < ratio < 2.5, ratio
