@@ -74,7 +74,8 @@ def batch_calibrate(
     x = (torch.linalg.pinv(B) @ b.unsqueeze(-1)).squeeze(-1)
     refined = torch.zeros(len(quat), dtype=torch.bool)
     if refine:
-        refined = rotation_observable(S) & ~planar_motion(S) & (len(start) >= 3)
+        pairs = torch.full(S.shape[:1], float(len(start)), dtype=S.dtype)
+        refined = rotation_observable(S, pairs) & ~planar_motion(S, pairs) & (len(start) >= 3)
         for k in torch.nonzero(refined).flatten().tolist():
             quat[k], x[k] = _refine(A[k], R0[k], t0[k], t1[k], quat[k], x[k], len(start))
         dR = quaternion_to_rotation_matrix(quat)

@@ -88,11 +88,11 @@ def affine_scan(a: Tensor, b: Tensor, s0: Tensor) -> Tensor:
     return a * s0 + b
 
 
-def robust_weight(S2: Tensor, V: Tensor, A: Tensor, robust: float) -> Tensor:
-    """Weights (..., P) of rotation blocks ``A`` (..., P, 4, 4) under the estimate of ``(S2, V)`` (..., 4),
-    (..., 4, 4): ``robust / d`` where the residual angle ``d`` exceeds ``robust`` and rotation is observable."""
+def robust_weight(S2: Tensor, V: Tensor, rows: Tensor, A: Tensor, robust: float) -> Tensor:
+    """Weights (..., P) of rotation blocks ``A`` (..., P, 4, 4) under the estimate of ``(S2, V, rows)`` (..., 4),
+    (..., 4, 4), (...): ``robust / d`` where the residual angle ``d`` exceeds ``robust`` and rotation is observable."""
     q = rotation_solution(V).detach()
     r = (A.detach() @ q[..., None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)
     d = 4 * torch.asin((r / 2).clamp(max=1.0))
-    established = rotation_observable(singular_values(S2.detach())).unsqueeze(-1)
+    established = rotation_observable(singular_values(S2.detach()), rows.detach()).unsqueeze(-1)
     return torch.where(established & (d > robust), robust / d.clamp_min(1e-12), 1.0)

@@ -168,7 +168,7 @@ class OnlineCalibrator(nn.Module):
         # Rotation: incremental SVD of the weighted blocks.
         A = rotation_block(q[:, :1].expand_as(q[:, 1:]), q[:, 1:])  # (B, K, P, 4, 4)
         moving = (angle[:, :1] + angle[:, 1:]) / 2 >= self.min_rotation
-        w_rot = (ok & moving).to(poses.dtype) * robust_weight(st["S2"], st["V"], A, self.robust)
+        w_rot = (ok & moving).to(poses.dtype) * robust_weight(st["S2"], st["V"], st["rotation_rows"], A, self.robust)
         W = (w_rot.sqrt()[..., None, None] * A).flatten(-3, -2)
         lam = self.forgetting
         S2, V = st["S2"], st["V"] = incremental_svd_update(st["S2"], st["V"], W, lam)

@@ -29,7 +29,7 @@ from ocalib.calib.result import Calibration
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.calib.rotation import (
     ROTATION_OBSERVABLE_MIN_SV,
-    ROTATION_OBSERVABLE_RATIO,
+    ROTATION_OBSERVABLE_SIGNIFICANCE,
     batch_rotation,
     planar_motion,
     rotation_observable,
@@ -375,7 +375,7 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
     _, S, V = batch_rotation(out["blocks"])
     features = out["features"]
     rows = torch.full(S.shape[:1], float(out["blocks"].shape[1]), dtype=S.dtype)  # motion pairs
-    planar = planar_motion(S)
+    planar = planar_motion(S, rows)
     used = torch.full(S.shape[:1], int(valid.sum()))
     return Calibration(
         rotation=out["rotation"][None],
@@ -383,7 +383,7 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
         translation=out["translation"][None],
         scale=out["scale"][None],
         rotation_singular_values=S[None],
-        rotation_observable=rotation_observable(S)[None],
+        rotation_observable=rotation_observable(S, rows)[None],
         planar_motion=planar[None],
         planar_axis=torch.where(planar[:, None], planar_axis(V), 0.0)[None],
         frames_used=used[None],
@@ -410,7 +410,8 @@ def _warnings(run: CalibrationRun) -> list[str]:
         if not bool(e.rotation_observable[0, k]) and not bool(e.planar_motion[0, k]):
             out.append(
                 f"{f}: rotation not observable: rotation singular values {_fmt(S)}, the third must exceed "
-                f"{ROTATION_OBSERVABLE_MIN_SV} and {ROTATION_OBSERVABLE_RATIO}x the fourth. The motion rotates too "
+                f"{ROTATION_OBSERVABLE_MIN_SV} and stand out of the fourth (the noise floor; significance "
+                f"{ROTATION_OBSERVABLE_SIGNIFICANCE:g}, see ocalib.calib.rotation). The motion rotates too "
                 "little or about too few axes (pure translation?); rotation, translation and scale are unreliable"
             )
         if bool(e.planar_motion[0, k]):

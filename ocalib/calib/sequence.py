@@ -115,19 +115,19 @@ def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[d
     # row is down-weighted; pass k is exact for the chunk's first k frames at least).
     A = rotation_block(q[:, :, :1].expand_as(q[:, :, 1:]), q[:, :, 1:])  # (L, B, K, P, 4, 4)
     rows = (ok & ((angle[:, :, :1] + angle[:, :, 1:]) / 2 >= head.min_rotation)).to(poses.dtype)
-    before = st["S2"].unsqueeze(0), st["V"].unsqueeze(0)
+    before = st["S2"].unsqueeze(0), st["V"].unsqueeze(0), st["rotation_rows"].unsqueeze(0)
     weight = robust_weight(*before, A, head.robust)
     for _ in range(L):
         w_rot = rows * weight
         M_all = _scan((w_rot[..., None, None] * A.mT @ A).sum(-3), M, lam)
+        rotation_rows = _scan(w_rot.sum(-1), st["rotation_rows"], lam)
         evals, evecs = guarded_eigh(M_all)
         S2, V = evals.flip(-1), evecs.flip(-1)
-        previous = torch.cat([before[0], S2[:-1]]), torch.cat([before[1], V[:-1]])
+        previous = [torch.cat([b, x[:-1]]) for b, x in zip(before, (S2, V, rotation_rows))]
         new = robust_weight(*previous, A, head.robust)
         if bool((new - weight).abs().max() <= WEIGHT_TOLERANCE):
             break
         weight = new
-    rotation_rows = _scan(w_rot.sum(-1), st["rotation_rows"], lam)
 
     w_tr = ok.to(poses.dtype)
     z = pair_features(motion[:, :, :1].expand_as(motion[:, :, 1:]), motion[:, :, 1:], head.symmetric)
