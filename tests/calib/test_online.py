@@ -37,7 +37,7 @@ def test_closed_form_equals_batch_every_frame(generator, motion, symmetric):
 @pytest.mark.parametrize("motion", ["first", "multi"])
 def test_refined_equals_batch_joint_least_squares(generator, motion):
     """The O(1) refinement equals Levenberg-Marquardt on all stacked rows (an independent implementation)."""
-    poses, _, _ = lds_rig(generator, frames=48, noise=0.01)
+    poses, _, _ = lds_rig(generator, frames=40, noise=0.01)
     cal = OnlineCalibrator(2, motion=motion, **no_gating())
     refined = 0
     for t in range(len(poses)):
@@ -156,7 +156,7 @@ def test_gradcheck_through_the_stream(generator):
             out = cal(p[t])
         return out.quaternion, out.translation, out.scale
 
-    assert torch.autograd.gradcheck(run, (delta,), atol=1e-6)
+    assert torch.autograd.gradcheck(run, (delta,), atol=1e-6, fast_mode=True)
 
 
 def test_gradients_stay_finite_on_planar_motion(generator):
