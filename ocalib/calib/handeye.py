@@ -24,8 +24,6 @@ frame a's pose times the motion's length, the reverse rows frame b's.
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import torch
 from torch import Tensor
 

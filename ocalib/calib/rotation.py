@@ -76,7 +76,7 @@ def rotation_observable(S: Tensor, rows: Tensor) -> Tensor:
     """Rotation is observable when the 3-D orthogonal complement of ``dq`` is excited: ``S[2] > 0.25`` and
     ``S[2]`` significantly above the noise floor ``S[3]`` given the ``rows`` motion pairs (see
     ``ROTATION_OBSERVABLE_SIGNIFICANCE``). Shapes (..., 4), (...) -> (...) bool."""
-    return _excited(S, rows, 2)
+    return excited(S, rows, 2)
 
 
 def planar_motion(S: Tensor, rows: Tensor) -> Tensor:
@@ -89,11 +89,13 @@ def planar_motion(S: Tensor, rows: Tensor) -> Tensor:
     misses exactly planar noise-free motion and near-planar motion; the null-space solution is then
     wrong by degrees, the translation route is not.
     """
-    return _excited(S, rows, 1) & ~_excited(S, rows, 2, PLANAR_SIGNIFICANCE)
+    return excited(S, rows, 1) & ~excited(S, rows, 2, PLANAR_SIGNIFICANCE)
 
 
-def _excited(S: Tensor, rows: Tensor, i: int, significance: float = ROTATION_OBSERVABLE_SIGNIFICANCE) -> Tensor:
-    """Direction ``i`` of the rotation system: above ``ROTATION_OBSERVABLE_MIN_SV`` and out of the noise floor."""
+def excited(S: Tensor, rows: Tensor, i: int, significance: float = ROTATION_OBSERVABLE_SIGNIFICANCE) -> Tensor:
+    """Whether direction ``i`` (0-2) of the rotation system is excited: its singular value above
+    ``ROTATION_OBSERVABLE_MIN_SV`` and out of the noise floor ``S[3]`` given ``rows`` motion pairs.
+    Shapes (..., 4), (...) -> (...) bool."""
     floor = S[..., 3].square()
     excess = (S[..., i].square() - floor) * (2 * rows - 3).clamp_min(1).sqrt()
     return (S[..., i] > ROTATION_OBSERVABLE_MIN_SV) & (excess > significance * floor)

@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from ocalib.calib.gating import affine_scan, robust_weight, screw_gate_sequence
-from ocalib.calib.handeye import FEATURES, pair_features, rotation_block
+from ocalib.calib.handeye import pair_features, rotation_block
 from ocalib.calib.linalg import guarded_eigh
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.result import Calibration
@@ -96,7 +96,7 @@ def _pairs(valid: Tensor, gaps: tuple[int, ...]) -> tuple[Tensor, Tensor]:
 
 def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[dict[str, Tensor], Tensor]:
     """The estimates of ``frames`` (L,); the state ``st`` (and the Gram matrix ``M``) move to their end."""
-    L, (_, B, C) = len(frames), valid.shape
+    L, B = len(frames), valid.shape[1]
     rigs = torch.arange(B, device=poses.device)
     start = poses[index[frames], rigs[None, :, None]]  # (L, B, P, C, 4, 4)
     motion = invert_pose(start.transpose(2, 3)) @ poses[frames].unsqueeze(3)  # (L, B, C, P, 4, 4)

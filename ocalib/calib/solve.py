@@ -18,7 +18,7 @@ from torch import Tensor
 from ocalib.calib.handeye import translation_quadratic
 from ocalib.calib.planar import planar_rotation
 from ocalib.calib.refine import joint_refine
-from ocalib.calib.rotation import _excited, planar_motion, rotation_observable, rotation_solution, singular_values
+from ocalib.calib.rotation import excited, planar_motion, rotation_observable, rotation_solution, singular_values
 from ocalib.calib.translation import solve_translation
 from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
@@ -67,9 +67,9 @@ def estimate(
     refined = torch.zeros_like(planar)
     if refine and refine_steps > 0:
         M = (V * S2.unsqueeze(-2)) @ V.mT
-        # Where rotation is observable, and where it is weak but not planar (two directions excited): the
-        # translation rows then carry the third direction.
-        active = (observable | _excited(S, rotation_rows, 1)) & ~planar & (translation_rows >= 3)
+        # Where at least two rotation directions are excited and the motion is not planar (rotation observable,
+        # or weak in the third direction: the translation rows then carry it).
+        active = excited(S, rotation_rows, 1) & ~planar & (translation_rows >= 3)
         quat, x, refined = joint_refine(M, quadratic, quat, x, rotation_rows, translation_rows, active, refine_steps)
         dR = torch.where(refined[..., None, None], quaternion_to_rotation_matrix(quat), dR)
 
