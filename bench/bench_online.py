@@ -1,12 +1,16 @@
 """Per-frame cost of the on-line calibration head against re-solving from scratch every frame.
 
-Measures, in one run on this machine:
-* the head's per-frame update (``OnlineCalibrator.forward``) for 1, 64 and 4096 rigs batched;
-* re-solving the batch problem (``batch_calibrate``) on all N frames so far, which is what a
+Measures, in one run on this machine (one intra-op thread: on this shared 2-core machine two threads were
+10x slower for 4096 rigs):
+* the head's per-frame update (``OnlineCalibrator.forward``, reading the estimate) for 1, 64 and 4096 rigs
+  batched, with the joint refinement (the default) and without (``refine=False``, the closed form);
+* the whole-sequence path (``calibrate_sequence``: the same estimates for a recorded sequence), per frame;
+* re-solving the batch problem (``batch_calibrate``, closed form) on all N frames so far, which is what a
   non-recursive method pays per frame, and one ``cv2.calibrateHandEye`` call on N poses (OpenCV builds
   motions from all pose pairs), both at N = 128 and 1000.
 
-Prints a table and writes ``bench/results/online.json``. Medians over repeats.
+Prints a table and writes ``bench/results/online.json``. Medians over repeats; the streaming cases run
+interleaved, ``--repeats`` times, so that a change in the machine's load hits all of them alike.
 
     python bench/bench_online.py [--quick]
 """
@@ -15,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
+import os
 import statistics
 import time
 from pathlib import Path
@@ -26,6 +30,7 @@ import torch
 
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.sequence import calibrate_sequence
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 
 OUT = Path(__file__).parent / "results" / "online.json"
@@ -38,17 +43,25 @@ def rig_sequence(frames: int, rigs: int, seed: int = 0) -> torch.Tensor:
     return torch.stack([seqs[i % len(seqs)] for i in range(rigs)], 1)
 
 
-def time_stream(rigs: int, frames: int, warmup: int = 40) -> list[float]:
-    poses = rig_sequence(frames + warmup, rigs)
-    cal = OnlineCalibrator(2, batch_size=rigs)
+def time_stream(poses: torch.Tensor, warmup: int = 20, **options) -> list[float]:
+    """Seconds per frame of the head (forward + reading the estimate) on poses (T, B, 2, 4, 4)."""
+    cal = OnlineCalibrator(2, batch_size=poses.shape[1], **options)
     times = []
     with torch.inference_mode():
-        for t in range(frames + warmup):
+        for t in range(len(poses)):
             start = time.perf_counter()
-            cal(poses[t])
+            cal(poses[t]).rotation.sum()
             if t >= warmup:
                 times.append(time.perf_counter() - start)
     return times
+
+
+def time_sequence(poses: torch.Tensor) -> float:
+    """Seconds per frame of the whole-sequence path on poses (T, B, 2, 4, 4)."""
+    with torch.inference_mode():
+        start = time.perf_counter()
+        calibrate_sequence(poses)
+        return (time.perf_counter() - start) / len(poses)
 
 
 def time_batch_resolve(n: int, repeats: int) -> list[float]:
@@ -79,31 +92,53 @@ def time_opencv(n: int, repeats: int, method: int) -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats (a smoke run)")
+    parser.add_argument("--repeats", type=int, default=3, help="interleaved repeats of the streaming cases")
     args = parser.parse_args()
-    torch.set_num_threads(2)
-    frames = 50 if args.quick else 300
+    torch.set_num_threads(1)
+    repeats = 1 if args.quick else args.repeats
+    frames = {1: 300, 64: 200, 4096: 16} if not args.quick else {1: 40, 64: 30, 4096: 4}
+    data = {rigs: rig_sequence(n + 20, rigs) for rigs, n in frames.items()}
+    sequences = {1: rig_sequence(2000 if not args.quick else 200, 1), 4096: rig_sequence(32 if not args.quick else 8, 4096)}
+    samples: dict[tuple, list[float]] = {}
+    for _ in range(repeats):
+        for rigs, poses in data.items():
+            for refine in (True, False):
+                samples.setdefault(("stream", rigs, refine), []).extend(time_stream(poses, refine=refine))
+        for rigs, poses in sequences.items():
+            samples.setdefault(("sequence", rigs, True), []).append(time_sequence(poses))
     rows = []
 
     def add(name, per, samples, note=""):
         med = statistics.median(samples)
         rows.append({"case": name, "per": per, "median_ms": med * 1e3, "n": len(samples), "note": note})
-        print(f"{name:<44} {med * 1e3:>10.3f} ms  per {per}  {note}", flush=True)
+        print(f"{name:<52} {med * 1e3:>10.3f} ms  per {per}  {note}", flush=True)
 
-    print(f"torch {torch.__version__}, opencv {cv2.__version__}, {torch.get_num_threads()} threads, {platform.processor()}")
-    for rigs in (1, 64, 4096):
-        add(f"on-line head, {rigs} rig(s)", "frame", time_stream(rigs, frames if rigs < 4096 else frames // 5))
+    print(f"torch {torch.__version__}, opencv {cv2.__version__}, {torch.get_num_threads()} thread, "
+          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cpus")  # fmt: skip
+    for (kind, rigs, refine), times in samples.items():
+        label = "refined" if refine else "closed form"
+        if kind == "stream":
+            add(f"on-line head, {rigs} rig(s), {label}", "frame", times)
+        else:
+            add(f"whole-sequence path, {rigs} rig(s)", "frame", times, f"{len(sequences[rigs])} frames at once")
     for n in (128, 1000):
         add(f"batch re-solve on N={n} frames", "frame", time_batch_resolve(n, 5 if n == 1000 else 20))
         for name, method in (("TSAI", cv2.CALIB_HAND_EYE_TSAI), ("PARK", cv2.CALIB_HAND_EYE_PARK)):
-            repeats = 1 if (n == 1000 and args.quick) else (3 if n == 1000 else 10)
-            add(f"cv2.calibrateHandEye {name}, N={n}", "frame", time_opencv(n, repeats, method), "one call on N poses")
-    online = {r["case"]: r["median_ms"] for r in rows}
-    one = online["on-line head, 1 rig(s)"]
+            reps = 1 if (n == 1000 and args.quick) else (3 if n == 1000 else 10)
+            add(f"cv2.calibrateHandEye {name}, N={n}", "frame", time_opencv(n, reps, method), "one call on N poses")
+    ms = {r["case"]: r["median_ms"] for r in rows}
+    one = ms["on-line head, 1 rig(s), refined"]
     summary = {
         "one_rig_us": one * 1e3,
-        "rigs_4096_ms": online["on-line head, 4096 rig(s)"],
-        "speedup_vs_batch_resolve_N1000": online["batch re-solve on N=1000 frames"] / one,
-        "speedup_vs_opencv_tsai_N1000": online["cv2.calibrateHandEye TSAI, N=1000"] / one,
+        "one_rig_closed_form_us": ms["on-line head, 1 rig(s), closed form"] * 1e3,
+        "rigs_4096_ms": ms["on-line head, 4096 rig(s), refined"],
+        "rigs_4096_closed_form_ms": ms["on-line head, 4096 rig(s), closed form"],
+        "sequence_1_rig_us_per_frame": ms["whole-sequence path, 1 rig(s)"] * 1e3,
+        "sequence_4096_rigs_ms_per_frame": ms["whole-sequence path, 4096 rig(s)"],
+        "speedup_vs_batch_resolve_N1000": ms["batch re-solve on N=1000 frames"] / one,
+        "speedup_vs_opencv_tsai_N1000": ms["cv2.calibrateHandEye TSAI, N=1000"] / one,
+        "targets": {"one_rig_us": 200, "rigs_4096_ms": 20},
+        "load_average": os.getloadavg(),
     }
     print(json.dumps(summary, indent=1))
     OUT.parent.mkdir(parents=True, exist_ok=True)
