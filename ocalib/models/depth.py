@@ -7,6 +7,8 @@ Depth is in network units (monodepth2: ``1 / (1/max_depth + (1/min_depth - 1/max
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -14,6 +16,8 @@ from torch import Tensor, nn
 from ocalib.models.layers import ConvELU, Encoder
 
 MEAN, STD = 0.45, 0.225  # input normalisation (monodepth2)
+INIT_DISPARITY = 0.1  # initial sigmoid output (depth ~1 with the default range; 0.5 gives ~0.2, near the minimum,
+# where the sigmoid saturated in training: measured, the near field stuck at the minimum depth)
 
 
 def disp_to_depth(disp: Tensor, min_depth: float = 0.1, max_depth: float = 100.0) -> Tensor:
@@ -38,6 +42,8 @@ class DepthNet(nn.Module):
         self.upconv0 = nn.ModuleList(ConvELU(widths[-1] if i == n - 1 else decoder[i + 1], decoder[i]) for i in range(n))
         self.upconv1 = nn.ModuleList(ConvELU(decoder[i] + (widths[i - 1] if i > 0 else 0), decoder[i]) for i in range(n))
         self.heads = nn.ModuleList(nn.Conv2d(decoder[s], 1, 3, padding=1) for s in range(scales))
+        for head in self.heads:  # start at disparity ~INIT_DISPARITY: depth ~1, mid-range in log depth
+            nn.init.constant_(head.bias, math.log(INIT_DISPARITY / (1 - INIT_DISPARITY)))
 
     def forward(self, image: Tensor) -> list[Tensor]:
         features = self.encoder((image - MEAN) / STD)

@@ -52,12 +52,12 @@ def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path):
         def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
             losses.append(float(outputs["loss"]))
 
-    trainer = pl.Trainer(accelerator="cpu", max_steps=25, overfit_batches=1, logger=False, enable_checkpointing=False,
+    trainer = pl.Trainer(accelerator="cpu", max_steps=15, overfit_batches=1, logger=False, enable_checkpointing=False,
                          enable_progress_bar=False, enable_model_summary=False, callbacks=[Record()],
                          default_root_dir=tmp_path)
     trainer.fit(module, datamodule=dm)
-    assert len(losses) == 25
-    assert sum(losses[-5:]) / 5 < 0.8 * sum(losses[:5]) / 5, losses
+    assert len(losses) == 15
+    assert sum(losses[-3:]) < 0.6 * sum(losses[:3]), losses  # measured: 0.08 -> 0.033
 
 
 def test_held_out_seeds_are_refused(tmp_path):
