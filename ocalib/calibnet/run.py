@@ -59,7 +59,6 @@ def calibrate_sequence(
     solver: str = "exact",
     forgetting: float = 1.0,
     scale: str = "head",
-    adapt: bool = False,
     max_frames: int | None = None,
     intrinsics: str | None = None,
     progress: bool | None = None,
@@ -69,14 +68,11 @@ def calibrate_sequence(
 
     frontend: ``network`` (the pose network of ``checkpoint``, default the shipped one) or ``opencv``.
     motion, solver, forgetting: the head's (see :class:`OnlineCalibrator`); scale: see
-    :class:`OnlineCalibrationNet`. adapt: adapt the pose network on-line (:mod:`ocalib.calibnet.adapt`,
-    network front end only). max_frames: use only the first frames. on_frame(t, estimate): called
+    :class:`OnlineCalibrationNet`. max_frames: use only the first frames. on_frame(t, estimate): called
     after every frame (e.g. TensorBoard). progress: a tqdm bar with the current estimate (None: on a terminal).
     """
     if frontend not in FRONTENDS:
         raise InputError(f"unknown front end {frontend!r}: {', '.join(FRONTENDS)}")
-    if adapt and frontend != "network":
-        raise InputError("--adapt adapts the pose network; it needs --frontend network")
     sequence = open_sequence(path, cameras, intrinsics)
     if len(sequence.cameras) < 2:
         raise InputError(f"{path}: calibration needs at least two cameras, the sequence has "
@@ -93,12 +89,7 @@ def calibrate_sequence(
         frames_in = FrameImages(sequence, views)
         net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver,
                                    forgetting=forgetting, scale=scale).to(device)
-        adapter = None
-        if adapt:
-            from ocalib.calibnet.adapt import PoseAdapter
-
-            adapter = PoseAdapter(model, torch.from_numpy(np.stack([v.K for v in views])).float())
-        step = _network_step(net, device, adapter)
+        step = _network_step(net, device)
     else:
         frames_in = RigStream(sequence, size=sequence.cameras[0].size)
         head = OnlineCalibrator(len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting)
@@ -110,7 +101,7 @@ def calibrate_sequence(
     trace["time"] = times
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
-    settings = {"frontend": frontend, "adapt": adapt, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
+    settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
                 "motion": motion, "solver": solver, "forgetting": forgetting, "scale": scale,
                 "frames": frames, "max_dt": None, "sequence": str(path)}
     run = CalibrationRun(rig, final, trace, settings, [])
@@ -125,15 +116,9 @@ def calibrate_sequence(
     return ImageCalibration(run, errors)
 
 
-def _network_step(net: OnlineCalibrationNet, device: str, adapter=None):
-    last = []
-
+def _network_step(net: OnlineCalibrationNet, device: str):
     def step(images: torch.Tensor) -> tuple[Calibration, torch.Tensor]:
-        images = images.to(device, non_blocking=True)
-        if adapter is not None and last:
-            adapter.step(net.previous[0], images, last[0])
-        out = net(images)
-        last[:] = [out]
+        out = net(images.to(device, non_blocking=True))
         return out, net.trajectory[0]
 
     return step

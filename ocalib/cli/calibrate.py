@@ -39,8 +39,6 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--scale", choices=("head", "normalise"), default="head",
                    help="network scale: trust it per camera and solve the ratio (head, default), or normalise "
                    "each camera's steps by their running mean length")
-    p.add_argument("--adapt", action="store_true",
-                   help="adapt the pose network on-line to this rig (photometric loss + the rig constraint)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     return p
@@ -58,7 +56,7 @@ def run(args) -> int:
     try:
         result = calibrate_sequence(
             args.sequence, args.cameras, args.frontend, args.checkpoint, args.device, args.motion, args.solver,
-            args.forgetting, args.scale, args.adapt, args.max_frames, args.intrinsics, progress=None,
+            args.forgetting, args.scale, args.max_frames, args.intrinsics, progress=None,
             on_frame=(lambda t, e: log_frame(writer, t, e)) if writer else None,
         )  # fmt: skip
     finally:
