@@ -42,17 +42,23 @@ def ensure_rendered(root, preset: str, seed: int, height: int, width: int, frame
 
 
 class SyntheticDataModule(SnippetDataModule):
-    """:class:`SnippetDataModule` over rendered presets: every preset with every ``seeds`` seed for training,
-    ``val_seeds`` for validation (``val_frames`` frames each). Rendering happens in ``prepare_data``
-    (``render_workers`` processes). Other arguments as :class:`SnippetDataModule`.
+    """:class:`SnippetDataModule` over rendered presets: ``presets`` maps a preset to its training seeds,
+    ``val_presets`` to its validation seeds (``frames`` / ``val_frames`` frames each). Give each preset its own
+    seeds: presets with the same trajectory kind and seed drive the same street (their front cameras would see
+    the same images). Rendering happens in ``prepare_data`` (``render_workers`` processes). Other arguments as
+    :class:`SnippetDataModule`. ``presets`` may also be a list of preset names sharing ``seeds`` and
+    ``val_seeds`` (the form of older configs).
     """
 
     def __init__(
         self,
-        presets: list[str] = ("handheld", "front-left", "front-rear", "stereo"),
-        seeds: list[int] = (0, 1),
-        val_seeds: list[int] = (500,),
-        frames: int = 300,
+        presets: dict[str, list[int]] | list[str] = {"handheld": [0, 1], "front-left": [2, 3],  # noqa: B006
+                                                     "front-rear": [4, 5], "stereo": [6, 7]},
+        val_presets: dict[str, list[int]] | None = {"handheld": [500], "front-left": [501],  # noqa: B006
+                                                    "front-rear": [502], "stereo": [503]},
+        seeds: list[int] | None = None,
+        val_seeds: list[int] | None = None,
+        frames: int = 150,
         val_frames: int = 60,
         root: str = "data/synth",
         render_workers: int = 2,
@@ -65,13 +71,18 @@ class SyntheticDataModule(SnippetDataModule):
         num_workers: int = 0,
         seed: int = 0,
     ):
-        for s in [*seeds, *val_seeds]:
+        if not isinstance(presets, dict):  # a list of presets sharing ``seeds`` / ``val_seeds`` (older configs)
+            if seeds is None:
+                raise InputError(f"synthetic presets {list(presets)}: a list of presets needs seeds (or map each preset to its seeds)")
+            presets, val_presets = {p: list(seeds) for p in presets}, {p: list(val_seeds or []) for p in presets}
+        self.renders = [(p, s, frames) for p, ss in presets.items() for s in ss]
+        self.val_renders = [(p, s, val_frames) for p, ss in (val_presets or {}).items() for s in ss]
+        for p, s, _ in self.renders + self.val_renders:
             if s >= HELD_OUT_SEEDS:
-                raise InputError(f"synthetic seed {s}: seeds >= {HELD_OUT_SEEDS} are reserved for held-out evaluation")
-        if set(seeds) & set(val_seeds):
-            raise InputError(f"synthetic seeds {sorted(set(seeds) & set(val_seeds))} are in both seeds and val_seeds")
-        self.renders = [(p, s, frames) for p in presets for s in seeds]
-        self.val_renders = [(p, s, val_frames) for p in presets for s in val_seeds]
+                raise InputError(f"synthetic seed {s} ({p}): seeds >= {HELD_OUT_SEEDS} are reserved for held-out evaluation")
+        both = {(p, s) for p, s, _ in self.renders} & {(p, s) for p, s, _ in self.val_renders}
+        if both:
+            raise InputError(f"synthetic sequences {sorted(both)} are in both presets and val_presets")
         folder = lambda p, s, n: str(synthetic_folder(root, p, s, height, width, n))  # noqa: E731
         folders = dict(sequences=[folder(*r) for r in self.renders],
                        val_sequences=[folder(*r) for r in self.val_renders] or None, val_fraction=0.0)

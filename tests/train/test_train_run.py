@@ -43,7 +43,7 @@ def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
 
 def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path):
     pl.seed_everything(0)
-    dm = SyntheticDataModule(presets=["handheld"], seeds=[0], val_seeds=[], frames=6, root=str(tiny_synth),
+    dm = SyntheticDataModule(presets={"handheld": [0]}, val_presets={}, frames=6, root=str(tiny_synth),
                              height=32, width=96, batch_size=2, augmentation=None)
     module = EgoMotionModule(height=32, width=96, lr=2e-3, warmup_steps=1, min_lr_ratio=1.0)
     losses = []
@@ -61,5 +61,7 @@ def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path):
 
 
 def test_held_out_seeds_are_refused(tmp_path):
-    with pytest.raises(InputError, match="1000: seeds >= 1000 are reserved"):
-        SyntheticDataModule(seeds=[0, 1000], root=str(tmp_path))
+    with pytest.raises(InputError, match="1000 \\(stereo\\): seeds >= 1000 are reserved"):
+        SyntheticDataModule(presets={"handheld": [0], "stereo": [1000]}, root=str(tmp_path))
+    with pytest.raises(InputError, match="in both"):
+        SyntheticDataModule(presets={"handheld": [0]}, val_presets={"handheld": [0]}, root=str(tmp_path))
