@@ -17,9 +17,9 @@ class ExportModel(pl.Callback):
         self.path: Path | None = None
 
     def on_fit_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        folder = Path(trainer.log_dir or trainer.default_root_dir)  # log_dir is a collective under DDP: every rank
         if not trainer.is_global_zero:
             return
-        folder = Path(trainer.log_dir or trainer.default_root_dir)
         meta = {"global_step": int(trainer.global_step), "epoch": int(trainer.current_epoch),
                 "hparams": {k: v for k, v in pl_module.hparams.items() if isinstance(v, (int, float, str, bool))}}
         self.path = save_model(pl_module.model, folder / self.filename, meta)

@@ -54,6 +54,7 @@ class EgoMotionModule(pl.LightningModule):
         self.model = EgoMotionModel(size, height, width)
         self.loss = SelfSupervisedLoss(automask, smoothness, geometry)
         self.nonfinite_steps = 0
+        self._skipped = False
         self._val = defaultdict(list)
 
     def step(self, batch: dict) -> tuple[LossOutput, Tensor, Tensor]:
@@ -80,8 +81,10 @@ class EgoMotionModule(pl.LightningModule):
                 for b, saved in zip(self.model.buffers(), buffers):
                     b.copy_(saved)
             self.nonfinite_steps += 1
+            self._skipped = True
             self.log("train/nonfinite_steps", float(self.nonfinite_steps), batch_size=B)
-            return None
+            # DDP: every process must run backward; the all-reduced NaN gradients are dropped on all of them below
+            return out.total if self.trainer.world_size > 1 else None
         self.log("train/loss", out.total, prog_bar=True, batch_size=B)
         for name, value in out.terms.items():
             self.log(f"train/{name}", value, batch_size=B)
@@ -95,8 +98,10 @@ class EgoMotionModule(pl.LightningModule):
         if params and not all(torch.isfinite(p.grad).all() for p in params):
             for p in params:
                 p.grad = None
-            self.nonfinite_steps += 1
-            self.log("train/nonfinite_steps", float(self.nonfinite_steps))
+            if not self._skipped:  # (a non-finite loss was counted already)
+                self.nonfinite_steps += 1
+                self.log("train/nonfinite_steps", float(self.nonfinite_steps))
+        self._skipped = False
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         out, disp, T = self.step(batch)

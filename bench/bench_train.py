@@ -1,0 +1,131 @@
+"""Benchmark of ego-motion training and inference: training snippets (and images) per second, pose-net and
+depth-net frames per second, at the default resolution, on CPU (and CUDA when available).
+
+    python bench/bench_train.py [--size small] [--height 64 --width 208] [--batch 4] [--steps 10] [--threads 1,2]
+
+Training: a full step (depth of every frame, pose of every source, the 4-scale loss, backward, Adam) on random
+3-frame snippets, with and without the geometry-consistency loss; a training image is a target frame.
+Inference: ``model.pose`` on (target, source) pairs and ``model.depth`` on frames, batch 16, no gradients.
+Also times the 3x3 box SSIM of :mod:`ocalib.losses.photometric` against kornia's ``ssim_loss`` (forward +
+backward). Medians over the repeats. Prints a table and writes ``bench/results/train.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import kornia
+import torch
+
+from ocalib.losses import ssim_error
+from ocalib.models import EgoMotionModel
+from train.module import EgoMotionModule
+
+
+def timed(fn, repeats: int, device: str) -> float:
+    """Median seconds of ``fn()`` over ``repeats`` runs after one warm-up."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        fn()
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def snippet_batch(batch: int, height: int, width: int, device: str) -> dict:
+    K = torch.tensor([[0.58 * width, 0, width / 2 - 0.5], [0, 1.92 * height, height / 2 - 0.5], [0, 0, 1]])
+    return {"image": torch.rand(batch, 3, 3, height, width, device=device), "K": K.expand(batch, 3, 3).to(device)}
+
+
+def bench_training(size, height, width, batch, steps, geometry, device) -> dict:
+    module = EgoMotionModule(size=size, height=height, width=width, geometry=geometry).to(device)
+    optimizer = torch.optim.Adam(module.parameters(), lr=1e-4)
+    data = snippet_batch(batch, height, width, device)
+
+    def step():
+        out, _, _ = module.step(data)
+        optimizer.zero_grad()
+        out.total.backward()
+        optimizer.step()
+
+    seconds = timed(step, steps, device)
+    return {"case": f"train step (geometry {geometry})", "batch": batch, "ms": seconds * 1e3,
+            "snippets_per_s": batch / seconds, "images_per_s": batch / seconds}
+
+
+def bench_inference(size, height, width, repeats, device) -> list[dict]:
+    model = EgoMotionModel(size, height, width).to(device).eval()
+    frames = torch.rand(16, 3, height, width, device=device)
+    rows = []
+    with torch.inference_mode():
+        s = timed(lambda: model.pose(frames, frames.roll(1, 0)), repeats, device)
+        rows.append({"case": "pose net (pairs)", "batch": 16, "ms": s * 1e3, "frames_per_s": 16 / s})
+        s = timed(lambda: model.depth(frames), repeats, device)
+        rows.append({"case": "depth net", "batch": 16, "ms": s * 1e3, "frames_per_s": 16 / s})
+    return rows
+
+
+def bench_ssim(height, width, repeats, device) -> list[dict]:
+    x0, y = torch.rand(2, 8, 3, height, width, device=device)
+    rows = []
+    for name, fn in [("ssim box 3x3 (ocalib)", lambda x: ssim_error(x, y)),
+                     ("ssim kornia ssim_loss window 3", lambda x: kornia.losses.ssim_loss(x, y, 3, reduction="none"))]:
+        x = x0.clone().requires_grad_()
+        s = timed(lambda: fn(x).sum().backward(), repeats, device)
+        rows.append({"case": name, "batch": 8, "ms": s * 1e3})
+    return rows
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--size", default="small")
+    p.add_argument("--height", type=int, default=64)
+    p.add_argument("--width", type=int, default=208)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--steps", type=int, default=10)
+    p.add_argument("--threads", default="1,2", help="torch intra-op thread counts to try")
+    p.add_argument("--out", default="bench/results/train.json")
+    args = p.parse_args(argv)
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    rows = []
+    for threads in [int(t) for t in args.threads.split(",")]:
+        torch.set_num_threads(threads)
+        for device in devices:
+            torch.manual_seed(0)
+            part = []
+            for geometry in (0.1, 0.0):
+                part.append(bench_training(args.size, args.height, args.width, args.batch, args.steps, geometry, device))
+            part += bench_inference(args.size, args.height, args.width, args.steps, device)
+            part += bench_ssim(args.height, args.width, args.steps, device)
+            rows += [{**r, "device": device, "threads": threads} for r in part]
+    print(f"{args.size} model, {args.height}x{args.width} (median of {args.steps})")
+    print(f"{'case':<34} {'device':>6} {'threads':>7} {'batch':>5} {'ms':>8} {'per second':>15}")
+    for r in rows:
+        rate = r.get("snippets_per_s") or r.get("frames_per_s")
+        unit = "snippets" if "snippets_per_s" in r else "frames" if rate else ""
+        text = f"{rate:.1f} {unit}" if rate else ""
+        print(f"{r['case']:<34} {r['device']:>6} {r['threads']:>7} {r['batch']:>5} {r['ms']:>8.1f} {text:>15}")
+    result = {"benchmark": "ego-motion training", "size": args.size, "height": args.height, "width": args.width,
+              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "torch": torch.__version__,
+                          "cuda": torch.cuda.get_device_name() if torch.cuda.is_available() else None,
+                          "load_average_at_end": os.getloadavg()},
+              "results": [{k: round(v, 2) if isinstance(v, float) else v for k, v in r.items()} for r in rows]}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
