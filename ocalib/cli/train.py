@@ -16,7 +16,13 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
+    import sys
+
     from train.cli import main
 
-    main(args.args)
+    argv, sys.argv = sys.argv, ["ocalib train", *args.args]  # the LightningCLI reads sys.argv (warns when given both)
+    try:
+        main()
+    finally:
+        sys.argv = argv
     return 0
