@@ -66,8 +66,7 @@ def run_pipeline(files: list[str], out_dir: Path) -> tuple[dict, dict]:
     t2 = time.perf_counter()
     doc = run.result_json()
     (out_dir / "result.json").write_text(json.dumps(doc))
-    header, rows = run.trace_table()
-    np.savetxt(out_dir / "trace.csv", rows, fmt="%.10g", delimiter=",", header=",".join(header), comments="")
+    run.write_trace(out_dir / "trace.csv")
     t3 = time.perf_counter()
     return {"read": t1 - t0, "stream": t2 - t1, "write": t3 - t2, "total": t3 - t0}, doc
 

@@ -236,6 +236,11 @@ class CalibrationRun:
             columns += list(values.reshape(F * K, -1).T)
         return header, np.stack(columns, 1)
 
+    def write_trace(self, path: str | Path) -> None:
+        """Write :meth:`trace_table` as CSV with a header line."""
+        header, rows = self.trace_table()
+        np.savetxt(path, rows, fmt="%.10g", delimiter=",", header=",".join(header), comments="")
+
 
 def calibrate_rig(
     rig: RigPoses,
@@ -258,7 +263,7 @@ def calibrate_rig(
     poses = torch.from_numpy(rig.poses)
     if solver == "batch":
         final = _batch(poses, rig.valid.all(1), motion)
-        trace, frames = _trace_rows(final), np.array([len(poses) - 1])
+        trace, frames = trace_rows(final), np.array([len(poses) - 1])
     elif solver == "exact":
         (final, trace), frames = _sequence(poses, motion, forgetting, progress), np.arange(len(poses))
     else:
@@ -269,7 +274,7 @@ def calibrate_rig(
     trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
     settings = {"motion": motion, "solver": solver, "forgetting": forgetting, "frames": len(poses), "max_dt": rig.max_dt}
     run = CalibrationRun(rig, final, trace, settings, [])
-    run.warnings = _warnings(run)
+    run.warnings = run_warnings(run)
     return run
 
 
@@ -313,9 +318,9 @@ def _sequence(poses: torch.Tensor, motion: str, forgetting: float, progress: boo
                                  progress=bar.update)  # fmt: skip
         names = [f.name for f in fields(Calibration)]
         part = lambda a, b: Calibration(**{n: getattr(out, n)[a:b] for n in names})  # noqa: E731
-        chunks = [_trace_rows(part(a, a + TRACE_CHUNK)) for a in range(0, len(poses), TRACE_CHUNK)]
+        chunks = [trace_rows(part(a, a + TRACE_CHUNK)) for a in range(0, len(poses), TRACE_CHUNK)]
         last = part(len(poses) - 1, len(poses))
-        bar.set_postfix_str(_progress_text(last), refresh=False)
+        bar.set_postfix_str(progress_text(last), refresh=False)
     return last, {k: torch.cat([c[k] for c in chunks]) for k in chunks[0]}
 
 
@@ -325,7 +330,6 @@ def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) 
     The head's outputs are gathered ``PROGRESS_EVERY`` frames at a time into one Calibration with the
     frames on its batch axis, whose uncertainty is then computed at once (it is lazy in the head).
     """
-    names = [f.name for f in fields(Calibration)]
     chunks, pending = [], []
     with torch.inference_mode(), _single_thread(), tqdm(
         total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False
@@ -333,15 +337,21 @@ def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) 
         for t, pose in enumerate(poses):
             pending.append(head(pose))
             if len(pending) == PROGRESS_EVERY or t == len(poses) - 1:
-                chunk = Calibration(**{n: torch.cat([getattr(o, n) for o in pending]) for n in names})
-                chunks.append(_trace_rows(chunk))
+                chunks.append(trace_rows(stack_estimates(pending)))
                 bar.update(len(pending))
                 last, pending = pending[-1], []
-                bar.set_postfix_str(_progress_text(last), refresh=False)
+                bar.set_postfix_str(progress_text(last), refresh=False)
     return last, {k: torch.cat([c[k] for c in chunks]) for k in chunks[0]}
 
 
-def _trace_rows(e: Calibration) -> dict[str, torch.Tensor]:
+def stack_estimates(estimates: list[Calibration]) -> Calibration:
+    """Per-frame estimates (each (B, K, ...)) -> one Calibration with the frames concatenated on the batch axis."""
+    names = [f.name for f in fields(Calibration)]
+    return Calibration(**{n: None if getattr(estimates[0], n) is None else torch.cat([getattr(e, n) for e in estimates])
+                          for n in names})
+
+
+def trace_rows(e: Calibration) -> dict[str, torch.Tensor]:
     """The trace columns of estimates ``e`` (frames on the batch axis): name -> (F, K, n), degrees."""
     return {
         "quaternion": e.quaternion,
@@ -359,7 +369,7 @@ def _trace_rows(e: Calibration) -> dict[str, torch.Tensor]:
     }
 
 
-def _progress_text(out: Calibration) -> str:
+def progress_text(out: Calibration) -> str:
     """Camera 1's current estimate: rotation angle (deg), translation and scale."""
     q, t, s = out.quaternion[0, 0].tolist(), out.translation[0, 0].tolist(), float(out.scale[0, 0])
     angle = math.degrees(2 * math.atan2(math.hypot(*q[1:]), abs(q[0])))
@@ -396,7 +406,7 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
     )
 
 
-def _warnings(run: CalibrationRun) -> list[str]:
+def run_warnings(run: CalibrationRun) -> list[str]:
     """Readable warnings about the input and the final estimate."""
     rig, e = run.rig, run.final
     out = [

@@ -21,7 +21,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.pipeline import CalibrationRun, RigPoses, _progress_text, _trace_rows, _warnings
+from ocalib.calib.pipeline import CalibrationRun, RigPoses, progress_text, run_warnings, stack_estimates, trace_rows
 from ocalib.calib.result import Calibration
 from ocalib.calibnet.net import OnlineCalibrationNet
 from ocalib.calibnet.truth import extrinsic_errors
@@ -98,14 +98,14 @@ def calibrate_sequence(
     final, trace, trajectory = _stream(frames_in, frames, step, progress, on_frame)
     C = len(sequence.cameras)
     times = sequence.times[:frames] if sequence.times is not None else np.arange(frames, dtype=np.float64)
-    trace["time"] = times
+    trace = {"frame": np.arange(frames), "time": times} | trace
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
     settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
                 "motion": motion, "solver": solver, "forgetting": forgetting, "scale": scale,
                 "frames": frames, "max_dt": None, "sequence": str(path)}
     run = CalibrationRun(rig, final, trace, settings, [])
-    run.warnings = _warnings(run)
+    run.warnings = run_warnings(run)
     errors = None
     extrinsics = [cam.T_cam0_cam for cam in sequence.cameras]
     if all(T is not None for T in extrinsics):
@@ -142,8 +142,7 @@ def _opencv_step(head: OnlineCalibrator):
 
 
 def _stream(dataset, frames: int, step, progress, on_frame):
-    """Run ``step`` on items 0..frames-1 of ``dataset`` -> (last estimate, trace dict, trajectories (T, C, 4, 4))."""
-    names = [f.name for f in fields(Calibration)]
+    """Run ``step`` on items 0..frames-1 of ``dataset`` -> (last estimate, trace columns, trajectories (T, C, 4, 4))."""
     loader = DataLoader(torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1,
                         prefetch_factor=4)
     chunks, pending, trajectory = [], [], []
@@ -156,12 +155,11 @@ def _stream(dataset, frames: int, step, progress, on_frame):
             if on_frame is not None:
                 on_frame(t, out)
             if len(pending) == TRACE_EVERY or t == frames - 1:
-                chunk = Calibration(**{n: torch.cat([getattr(o, n) for o in pending]) for n in names})
-                chunks.append({k: v.cpu() for k, v in _trace_rows(chunk).items()})
+                chunks.append({k: v.cpu() for k, v in trace_rows(stack_estimates(pending)).items()})
                 bar.update(len(pending))
                 last, pending = pending[-1], []
-                bar.set_postfix_str(_progress_text(last), refresh=False)
+                bar.set_postfix_str(progress_text(last), refresh=False)
     trace = {k: torch.cat([c[k] for c in chunks]).double().numpy() for k in chunks[0]}
-    trace = {"frame": np.arange(frames), "time": None} | trace
-    last = Calibration(**{n: getattr(last, n).cpu() for n in names})
+    values = {f.name: getattr(last, f.name) for f in fields(Calibration)}
+    last = Calibration(**{k: None if v is None else v.cpu() for k, v in values.items()})
     return last, trace, torch.stack(trajectory).cpu().double().numpy()

@@ -67,10 +67,7 @@ def run(args) -> int:
         with open(args.out, "w") as f:
             json.dump(doc, f, indent=2)
     if args.trace:
-        import numpy as np
-
-        header, rows = result.run.trace_table()
-        np.savetxt(args.trace, rows, fmt="%.10g", delimiter=",", header=",".join(header), comments="")
+        result.run.write_trace(args.trace)
     if args.plot:
         from ocalib.viz.calibration import plot_trace
 

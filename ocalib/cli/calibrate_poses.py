@@ -58,10 +58,7 @@ def run(args) -> int:
         with open(args.out, "w") as f:
             json.dump(doc, f, indent=2)
     if args.trace:
-        import numpy as np
-
-        header, rows = result.trace_table()
-        np.savetxt(args.trace, rows, fmt="%.10g", delimiter=",", header=",".join(header), comments="")
+        result.write_trace(args.trace)
     if args.plot:
         from ocalib.viz.calibration import plot_trace
 

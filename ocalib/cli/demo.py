@@ -32,8 +32,6 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 def run(args) -> int:
     from pathlib import Path
 
-    import numpy as np
-
     from ocalib.calibnet.run import calibrate_sequence
     from ocalib.cli.calibrate import errors_table
     from ocalib.cli.calibrate_poses import summary
@@ -54,8 +52,7 @@ def run(args) -> int:
                                 progress=None)
     doc = result.result_json()
     (out / "result.json").write_text(json.dumps(doc, indent=2))
-    header, rows = result.run.trace_table()
-    np.savetxt(out / "trace.csv", rows, fmt="%.10g", delimiter=",", header=",".join(header), comments="")
+    result.run.write_trace(out / "trace.csv")
     plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png")
     print(summary(doc))
     print(truth_table(sequence, doc))
