@@ -434,6 +434,13 @@ def run_warnings(run: CalibrationRun) -> list[str]:
         unobservable = e.translation_directions[0, k].mT[e.translation_unobservable[0, k]].tolist()
         if unobservable and not bool(e.planar_motion[0, k]):
             out.append(f"{f}: translation unobservable along {', '.join(_fmt(d) for d in unobservable)} (camera 0's frame)")
+        scale = float(e.scale[0, k])
+        if not scale > 0:
+            out.append(
+                f"{f}: scale {scale:.4g} is not positive: this camera's translations point against what camera 0's "
+                "imply (a front end with an inconsistent scale or a flipped translation sign?); translation and "
+                "scale are not meaningful"
+            )
         rejected = int(e.frames_rejected[0, k])
         if rejected:
             out.append(

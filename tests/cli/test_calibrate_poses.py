@@ -164,6 +164,23 @@ def test_pure_translation_is_flagged(tmp_path, capsys):
     assert "rotation not observable" in err and "ROTATION UNOBSERVABLE" in stdout
 
 
+def test_flipped_translation_sign_gives_a_negative_scale_and_a_warning(tmp_path, capsys):
+    """Camera 1's translations negated (a front end with a flipped sign): ``(I - R0) dT + s dR t1 = t0`` then
+    holds exactly with -s, so the scale comes out negative, which is reported, not passed off as a result."""
+    poses, X = simulate(frames=60, noise=0.0)
+    poses[:, 1, :3, 3] *= -1
+    out = tmp_path / "result.json"
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["extrinsics"][0]["scale"] == pytest.approx(-SCALES[0], rel=1e-6)
+    assert any("is not positive" in w for w in doc["warnings"]) and "is not positive" in err
+
+    poses[:, 1, :3, 3] *= -1  # the same rig with the right sign: no such warning
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--out", out)
+    assert code == 0 and "is not positive" not in err
+
+
 def test_planar_motion_is_flagged(tmp_path, capsys):
     poses, X = simulate(trajectory="car", frames=300, noise=1e-4)
     out = tmp_path / "result.json"
