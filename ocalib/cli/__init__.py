@@ -48,5 +48,17 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except (InputError, FileNotFoundError) as err:
-        print(f"ocalib {args.command}: error: {err}", file=sys.stderr)
+        print(f"ocalib {args.command}: error: {error_message(err)}", file=sys.stderr)
         return 2
+
+
+def error_message(err: Exception) -> str:
+    """The message of ``err``; for an error re-raised from a DataLoader worker (whose message is the worker's
+    whole traceback), the original message only."""
+    text = str(err)
+    if "Original Traceback" in text:
+        prefix = f"{type(err).__module__}.{type(err).__name__}: "
+        lines = [line[len(prefix):] for line in text.splitlines() if line.startswith(prefix)]
+        if lines:
+            return lines[-1]
+    return text

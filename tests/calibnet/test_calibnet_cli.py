@@ -74,6 +74,7 @@ def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     ("too short", "too short to calibrate"),
     ("unequal counts", "frame is missing"),
     ("wrong checkpoint", "not an ocalib ego-motion model"),
+    ("corrupt frame", "000007.png: cannot read the image"),
 ])
 def test_clear_errors(tiny, tmp_path, capsys, case, message):
     root, seq, model = tiny
@@ -87,8 +88,14 @@ def test_clear_errors(tiny, tmp_path, capsys, case, message):
         shutil.copytree(seq, broken)
         next(iter(sorted((broken / "cam1" / "images").iterdir()))).unlink()
         args[2] = str(broken)
+    elif case == "corrupt frame":  # read in a DataLoader worker: still one line naming the file
+        broken = tmp_path / "seq"
+        shutil.copytree(seq, broken)
+        (broken / "cam1" / "images" / "000007.png").write_bytes(b"not a png")
+        args[2] = str(broken)
     else:
         torch.save({"weights": torch.zeros(3)}, tmp_path / "other.pt")
         args[4] = str(tmp_path / "other.pt")
     assert main(args) == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
