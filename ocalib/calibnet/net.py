@@ -84,5 +84,6 @@ class OnlineCalibrationNet(nn.Module):
         mean = torch.where(first, length, m * self.step_length + (1 - m) * length)
         self.step_length = torch.where(self.started[..., 0, 0], mean, self.step_length)
         unit = torch.where(self.step_length > 0, self.step_length, torch.ones_like(self.step_length))
-        return torch.cat([torch.cat([step[..., :3, :3], step[..., :3, 3:] / unit[..., None, None]], -1),
-                          step[..., 3:, :]], -2)
+        out = step.clone()
+        out[..., :3, 3] = step[..., :3, 3] / unit[..., None]
+        return out
