@@ -15,26 +15,25 @@ import torch
 from torch import Tensor
 
 from ocalib.calib.handeye import pair_features, rotation_block, translation_rows
-from ocalib.calib.online import MOTIONS
+from ocalib.calib.pairing import MOTIONS, gap_weights
 from ocalib.calib.rotation import batch_rotation, planar_motion, rotation_observable
 from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 
-def motion_pairs(num_frames: int, motion: str | tuple[int, ...]) -> tuple[Tensor, Tensor]:
+def motion_pairs(num_frames: int, motion: str | tuple[int, ...]) -> tuple[Tensor, Tensor, Tensor]:
     """Frame indices (start, end) of every motion pair of a sequence, in the order the on-line solver
-    meets them (by end frame). Gap 0 stands for the pair with frame 0."""
+    meets them (by end frame), and the index of each pair's gap in the pairing. Gap 0 stands for the pair
+    with frame 0."""
     gaps = MOTIONS[motion] if isinstance(motion, str) else tuple(motion)
-    start, end = [], []
+    start, end, gap = [], [], []
     for t in range(num_frames):
-        for g in gaps:
-            if g > 0 and t - g >= 0:
-                start.append(t - g)
+        for i, g in enumerate(gaps):
+            if (g > 0 and t - g >= 0) or (g == 0 and t > 0):
+                start.append(t - g if g > 0 else 0)
                 end.append(t)
-            elif g == 0 and t > 0:
-                start.append(0)
-                end.append(t)
-    return torch.tensor(start, dtype=torch.long), torch.tensor(end, dtype=torch.long)
+                gap.append(i)
+    return tuple(torch.tensor(x, dtype=torch.long) for x in (start, end, gap))
 
 
 def pair_motions(poses: Tensor, start: Tensor, end: Tensor) -> Tensor:
@@ -59,25 +58,28 @@ def batch_calibrate(
         ``singular_values`` (K, 4), ``refined`` (K,) bool, and the stacked ``blocks`` (K, M, 4, 4) and
         ``features`` (K, M D, 15) (D = 2 if symmetric).
     """
-    start, end = motion_pairs(poses.shape[0], motion)
+    start, end, gap = motion_pairs(poses.shape[0], motion)
     m = pair_motions(poses, start, end)  # (M, C, 4, 4)
     q = rotation_matrix_to_quaternion(m[..., :3, :3])
     q0, q1 = q[:, :1].expand_as(q[:, 1:]), q[:, 1:]
     A = rotation_block(q0, q1).transpose(0, 1)  # (K, M, 4, 4)
-    quat, S, _ = batch_rotation(A)
+    w = _pair_weights(A, gap)  # (K, M)
+    quat, S, _ = batch_rotation(A, w)
     dR = quaternion_to_rotation_matrix(quat)
     z = pair_features(m[:, :1].expand_as(m[:, 1:]), m[:, 1:], symmetric).transpose(0, 1).flatten(1, 2)  # (K, MD, 15)
     R0, t0, t1 = z[..., :9].unflatten(-1, (3, 3)), z[..., 12:], z[..., 9:12]
     R0 = torch.eye(3, dtype=R0.dtype) - R0
     B, b = translation_rows(R0, t0, t1, dR.unsqueeze(1))
-    B, b = B.flatten(1, 2), b.flatten(1, 2)  # (K, 3MD, 4), (K, 3MD)
+    sw = w.sqrt().repeat_interleave(z.shape[1] // len(start), 1)[..., None]  # each pair's D rows
+    B, b = (sw[..., None] * B).flatten(1, 2), (sw * b).flatten(1, 2)  # (K, 3MD, 4), (K, 3MD)
     x = (torch.linalg.pinv(B) @ b.unsqueeze(-1)).squeeze(-1)
     refined = torch.zeros(len(quat), dtype=torch.bool)
     if refine:
-        pairs = torch.full(S.shape[:1], float(len(start)), dtype=S.dtype)
-        refined = rotation_observable(S, pairs) & ~planar_motion(S, pairs) & (len(start) >= 3)
+        pairs = w.sum(-1)
+        refined = rotation_observable(S, pairs) & ~planar_motion(S, pairs) & (pairs >= 3)
         for k in torch.nonzero(refined).flatten().tolist():
-            quat[k], x[k] = _refine(A[k], R0[k], t0[k], t1[k], quat[k], x[k], len(start))
+            quat[k], x[k] = _refine(w[k].sqrt()[:, None, None] * A[k], R0[k], t0[k], t1[k], sw[k], quat[k], x[k],
+                                    float(pairs[k]))
         dR = quaternion_to_rotation_matrix(quat)
     return {
         "quaternion": quat,
@@ -91,9 +93,19 @@ def batch_calibrate(
     }
 
 
-def _refine(A, R0, t0, t1, quat, x, pairs: int, iterations: int = 100) -> tuple[Tensor, Tensor]:
-    """Levenberg-Marquardt on all rows: rotation rows ``A q`` (M, 4, 4) and translation rows
-    ``(I - R0) dT + s dR t1 - t0`` (N, ...), weighted by the closed form's residual variances
+def _pair_weights(A: Tensor, gap: Tensor) -> Tensor:
+    """Each pair's weight (K, M): its gap's :func:`~ocalib.calib.pairing.gap_weights`, from the SVD of that
+    gap's blocks alone (A: (K, M, 4, 4), gap: (M,) gap indices)."""
+    present = gap.unique()
+    S2 = torch.stack([torch.linalg.svdvals(A[:, gap == g].flatten(1, 2)).square() for g in present], 1)  # (K, G, 4)
+    rows = torch.stack([(gap == g).sum() for g in present]).to(A.dtype).expand(S2.shape[:2])
+    w = gap_weights(S2, rows) if len(present) > 1 else torch.ones_like(rows)
+    return w[:, torch.searchsorted(present, gap)]
+
+
+def _refine(A, R0, t0, t1, row_weight, quat, x, pairs: float, iterations: int = 100) -> tuple[Tensor, Tensor]:
+    """Levenberg-Marquardt on all rows: rotation rows ``A q`` (M, 4, 4) (weighted) and translation rows
+    ``(I - R0) dT + s dR t1 - t0`` (N, ...), each times ``row_weight`` (N, 1), weighted by the closed form's residual variances
     (``2 M - 3`` and ``3 M - 4`` degrees of freedom for M motion pairs). -> (quat (4,), x (4,))."""
     eye = torch.eye(3, dtype=quat.dtype)
 
@@ -103,7 +115,7 @@ def _refine(A, R0, t0, t1, quat, x, pairs: int, iterations: int = 100) -> tuple[
         q = quaternion_multiply(q0, dq)
         dR = quaternion_to_rotation_matrix(q)
         rot = (A @ q).flatten()
-        trans = ((eye - R0) @ x[:3] + x[3] * (dR @ t1.unsqueeze(-1)).squeeze(-1) - t0).flatten()
+        trans = (row_weight * ((eye - R0) @ x[:3] + x[3] * (dR @ t1.unsqueeze(-1)).squeeze(-1) - t0)).flatten()
         return rot, trans
 
     zero = torch.zeros(3, dtype=quat.dtype)

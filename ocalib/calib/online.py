@@ -15,25 +15,21 @@ from torch import Tensor, nn
 from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
 from ocalib.calib.result import Calibration
 from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
+from ocalib.calib.pairing import MOTIONS, combine_gaps, gap_weights
+from ocalib.calib.linalg import guarded_eigh
 from ocalib.calib.rotation import incremental_svd_update
 from ocalib.calib.solve import estimate
 from ocalib.calib.translation import rls_update
 from ocalib.geometry.pose import invert_pose, orthonormality_error
 from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
 
-MOTIONS = {
-    "first": (0,),  # every pose against frame 0: the paper
-    "consecutive": (1,),  # frame t-1 to t: visual odometry
-    "multi": (1, 2, 4, 8),  # gaps of 1..8 frames: within 1.1x of the better of the two above under both
-    # noise models (docs/simulation.md)
-}
-
-
 class OnlineCalibrator(nn.Module):
     """On-line hand-eye calibration of B rigs of C cameras (camera 0 against cameras 1..C-1).
 
     Each frame, the motions of every camera over a set of frame gaps (``motion``) give hand-eye rows;
-    rotation is updated by incremental SVD (:mod:`ocalib.calib.rotation`), translation and scale by
+    each gap's rotation system is updated by incremental SVD (:mod:`ocalib.calib.rotation`) and its
+    translation moment by a sum; the gaps are combined with weights from their noise
+    (:mod:`ocalib.calib.pairing`); translation and scale come from
     the exact moment solver or the paper's RLS (:mod:`ocalib.calib.translation`); the exact solver then
     refines rotation, translation and scale jointly (:mod:`ocalib.calib.refine`). All state is kept in
     buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
@@ -100,7 +96,7 @@ class OnlineCalibrator(nn.Module):
 
     def reset(self) -> None:
         """Forget everything: the next frame is frame 0."""
-        B, C, K = self.batch_size, self.num_cameras, self.num_cameras - 1
+        B, C, K, P = self.batch_size, self.num_cameras, self.num_cameras - 1, len(self.gaps)
         f = dict(dtype=self._dtype, device=self._device)
         eye4 = torch.eye(4, **f)
         state = {
@@ -110,11 +106,16 @@ class OnlineCalibrator(nn.Module):
             "history_valid": torch.zeros(B, C, self.history_size, dtype=torch.bool, device=self._device),
             "first": eye4.expand(B, C, 4, 4).clone(),
             "first_valid": torch.zeros(B, dtype=torch.bool, device=self._device),
+            # per gap (in the order of the motion pairs: positive gaps, then gap 0)
+            "gap_S2": torch.zeros(B, K, P, 4, **f),
+            "gap_V": eye4.expand(B, K, P, 4, 4).clone(),
+            "gap_rotation_rows": torch.zeros(B, K, P, **f),
+            "gap_Z": torch.zeros(B, K, P, FEATURES, FEATURES, **f),
+            "gap_translation_rows": torch.zeros(B, K, P, **f),
+            # the combined rotation system of the last frame (its estimate weighs the next frame's rows)
             "S2": torch.zeros(B, K, 4, **f),
             "V": eye4.expand(B, K, 4, 4).clone(),
             "rotation_rows": torch.zeros(B, K, **f),
-            "Z": torch.zeros(B, K, FEATURES, FEATURES, **f),
-            "translation_rows": torch.zeros(B, K, **f),
             "rls_x": torch.zeros(B, K, 4, **f),
             "rls_C": self.rls_c0 * eye4.expand(B, K, 4, 4).clone(),
             "screw_scale": torch.zeros(B, K, **f),
@@ -165,29 +166,30 @@ class OnlineCalibrator(nn.Module):
         ok = pair_valid & (screw <= thr.unsqueeze(-1))
         st["screw_scale"], st["screw_count"] = update_screw_scale(st["screw_scale"], st["screw_count"], screw, pair_valid)
 
-        # Rotation: incremental SVD of the weighted blocks.
+        # Rotation: incremental SVD of each gap's weighted blocks. Translation: each gap's moment.
         A = rotation_block(q[:, :1].expand_as(q[:, 1:]), q[:, 1:])  # (B, K, P, 4, 4)
         moving = (angle[:, :1] + angle[:, 1:]) / 2 >= self.min_rotation
         w_rot = (ok & moving).to(poses.dtype) * robust_weight(st["S2"], st["V"], st["rotation_rows"], A, self.robust)
-        W = (w_rot.sqrt()[..., None, None] * A).flatten(-3, -2)
         lam = self.forgetting
-        S2, V = st["S2"], st["V"] = incremental_svd_update(st["S2"], st["V"], W, lam)
-        st["rotation_rows"] = lam * st["rotation_rows"] + w_rot.sum(-1)
-
-        # Translation moment.
+        st["gap_S2"], st["gap_V"] = incremental_svd_update(st["gap_S2"], st["gap_V"], w_rot.sqrt()[..., None, None] * A, lam)
+        st["gap_rotation_rows"] = lam * st["gap_rotation_rows"] + w_rot
         w_tr = ok.to(poses.dtype)
         z = pair_features(motion[:, :1].expand_as(motion[:, 1:]), motion[:, 1:], self.symmetric)  # (B, K, P, D, 15)
-        zw = (z * w_tr[..., None, None]).flatten(-3, -2)
-        Z = st["Z"] = lam * st["Z"] + zw.mT @ z.flatten(-3, -2)
-        st["translation_rows"] = lam * st["translation_rows"] + w_tr.sum(-1)
+        st["gap_Z"] = lam * st["gap_Z"] + (z * w_tr[..., None, None]).mT @ z
+        st["gap_translation_rows"] = lam * st["gap_translation_rows"] + w_tr
 
-        est = estimate(S2, V, Z, st["rotation_rows"], st["translation_rows"], self.refine)
+        # The gaps, weighted by their noise.
+        S2, V, rotation_rows, Z, trans_rows, gap_w = combine_statistics(
+            st["gap_S2"], st["gap_V"], st["gap_rotation_rows"], st["gap_Z"], st["gap_translation_rows"])
+        st["S2"], st["V"], st["rotation_rows"] = S2, V, rotation_rows
+
+        est = estimate(S2, V, Z, rotation_rows, trans_rows, self.refine)
         x = torch.cat([est["translation"], est["scale"].unsqueeze(-1)], -1)
         if self.solver == "rls":
             t1 = motion[:, 1:, :, :3, 3]
             R0, t0 = motion[:, :1, :, :3, :3].expand_as(motion[:, 1:, :, :3, :3]), motion[:, :1, :, :3, 3].expand_as(t1)
             B, b = translation_rows(R0, t0, t1, est["rotation"][:, :, None])
-            sw = w_tr.sqrt()[..., None]
+            sw = (w_tr * gap_w).sqrt()[..., None]
             x, C = rls_update(st["rls_x"], st["rls_C"], (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2), lam)
             go = frame >= self.rls_delay
             x = st["rls_x"] = torch.where(go, x, st["rls_x"])
@@ -218,8 +220,29 @@ class OnlineCalibrator(nn.Module):
             frames_used=st["frames_used"],
             frames_rejected=st["frames_rejected"],
             rotation_basis=V,
-            rotation_rows=st["rotation_rows"],
+            rotation_rows=rotation_rows,
             translation_moment=Z,
-            translation_rows=st["translation_rows"],
+            translation_rows=trans_rows,
             refined=est["refined"],
         )
+
+
+def combine_statistics(
+    gap_S2: Tensor, gap_V: Tensor, gap_rotation_rows: Tensor, gap_Z: Tensor, gap_translation_rows: Tensor
+) -> tuple[Tensor, ...]:
+    """The rotation system and translation moment of all gaps, weighted by :func:`~ocalib.calib.pairing.gap_weights`.
+
+    Args: per gap (..., P, *): squared singular values (4) and right singular vectors (4, 4) of the rotation
+    rows, their count, the translation moment (15, 15) and its row count.
+
+    Returns ``S2`` (..., 4) descending, ``V`` (..., 4, 4), ``rotation_rows``, ``Z`` (..., 15, 15),
+    ``translation_rows`` and the weights (..., P). One gap: its statistics as they are.
+    """
+    if gap_S2.shape[-2] == 1:
+        w = torch.ones_like(gap_rotation_rows)
+        return gap_S2[..., 0, :], gap_V[..., 0, :, :], gap_rotation_rows[..., 0], gap_Z[..., 0, :, :], gap_translation_rows[..., 0], w
+    w = gap_weights(gap_S2, gap_rotation_rows)
+    M, rotation_rows, Z, translation_rows = combine_gaps(
+        w, (gap_V * gap_S2.unsqueeze(-2)) @ gap_V.mT, gap_rotation_rows, gap_Z, gap_translation_rows)
+    evals, evecs = guarded_eigh(M)
+    return evals.flip(-1), evecs.flip(-1), rotation_rows, Z, translation_rows, w

@@ -23,7 +23,7 @@ from torch import Tensor
 from ocalib.calib.gating import affine_scan, robust_weight, screw_gate_sequence
 from ocalib.calib.handeye import pair_features, rotation_block
 from ocalib.calib.linalg import guarded_eigh
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.online import OnlineCalibrator, combine_statistics
 from ocalib.calib.result import Calibration
 from ocalib.calib.solve import estimate
 from ocalib.geometry.pose import invert_pose, orthonormality_error
@@ -62,7 +62,7 @@ def calibrate_sequence(poses: Tensor, chunk: int = 1024, progress=None, **option
     P = index.shape[-1]
     chunk = max(1, min(chunk, PAIRS_PER_CHUNK // (B * C * P)))
     lam, outputs = head.forgetting, []
-    M = (st["V"] * st["S2"].unsqueeze(-2)) @ st["V"].mT
+    M = (st["gap_V"] * st["gap_S2"].unsqueeze(-2)) @ st["gap_V"].mT  # each gap's Gram matrix
     for a in range(0, T, chunk):
         frames = torch.arange(a, min(a + chunk, T), device=poses.device)
         out, M = _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam)
@@ -95,7 +95,7 @@ def _pairs(valid: Tensor, gaps: tuple[int, ...]) -> tuple[Tensor, Tensor]:
 
 
 def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[dict[str, Tensor], Tensor]:
-    """The estimates of ``frames`` (L,); the state ``st`` (and the Gram matrix ``M``) move to their end."""
+    """The estimates of ``frames`` (L,); the state ``st`` (and each gap's Gram matrix ``M``) move to their end."""
     L, B = len(frames), valid.shape[1]
     rigs = torch.arange(B, device=poses.device)
     start = poses[index[frames], rigs[None, :, None]]  # (L, B, P, C, 4, 4)
@@ -115,31 +115,32 @@ def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[d
     # row is down-weighted; pass k is exact for the chunk's first k frames at least).
     A = rotation_block(q[:, :, :1].expand_as(q[:, :, 1:]), q[:, :, 1:])  # (L, B, K, P, 4, 4)
     rows = (ok & ((angle[:, :, :1] + angle[:, :, 1:]) / 2 >= head.min_rotation)).to(poses.dtype)
+    w_tr = ok.to(poses.dtype)
+    z = pair_features(motion[:, :, :1].expand_as(motion[:, :, 1:]), motion[:, :, 1:], head.symmetric)
+    gap_Z = _scan((z * w_tr[..., None, None]).mT @ z, st["gap_Z"], lam)  # (L, B, K, P, 15, 15)
+    gap_translation_rows = _scan(w_tr, st["gap_translation_rows"], lam)
     before = st["S2"].unsqueeze(0), st["V"].unsqueeze(0), st["rotation_rows"].unsqueeze(0)
     weight = robust_weight(*before, A, head.robust)
     for _ in range(L):
         w_rot = rows * weight
-        M_all = _scan((w_rot[..., None, None] * A.mT @ A).sum(-3), M, lam)
-        rotation_rows = _scan(w_rot.sum(-1), st["rotation_rows"], lam)
-        evals, evecs = guarded_eigh(M_all)
-        S2, V = evals.flip(-1), evecs.flip(-1)
+        gap_M = _scan(w_rot[..., None, None] * A.mT @ A, M, lam)  # (L, B, K, P, 4, 4)
+        gap_rotation_rows = _scan(w_rot, st["gap_rotation_rows"], lam)
+        evals, evecs = guarded_eigh(gap_M)
+        gap_S2, gap_V = evals.flip(-1), evecs.flip(-1)
+        S2, V, rotation_rows, Z, translation_rows, _ = combine_statistics(
+            gap_S2, gap_V, gap_rotation_rows, gap_Z, gap_translation_rows)
         previous = [torch.cat([b, x[:-1]]) for b, x in zip(before, (S2, V, rotation_rows))]
         new = robust_weight(*previous, A, head.robust)
         if bool((new - weight).abs().max() <= WEIGHT_TOLERANCE):
             break
         weight = new
-
-    w_tr = ok.to(poses.dtype)
-    z = pair_features(motion[:, :, :1].expand_as(motion[:, :, 1:]), motion[:, :, 1:], head.symmetric)
-    moment = ((z * w_tr[..., None, None]).flatten(-3, -2).mT @ z.flatten(-3, -2))
-    Z = _scan(moment, st["Z"], lam)
-    translation_rows = _scan(w_tr.sum(-1), st["translation_rows"], lam)
     est = estimate(S2, V, Z, rotation_rows, translation_rows, head.refine)
 
     used = ok.any(-1)
     frames_used = st["frames_used"] + used.cumsum(0)
     frames_rejected = st["frames_rejected"] + (~used & (frames > 0)[:, None, None]).cumsum(0)
-    st.update(S2=S2[-1], V=V[-1], Z=Z[-1], rotation_rows=rotation_rows[-1], translation_rows=translation_rows[-1],
+    st.update(gap_S2=gap_S2[-1], gap_V=gap_V[-1], gap_rotation_rows=gap_rotation_rows[-1], gap_Z=gap_Z[-1],
+              gap_translation_rows=gap_translation_rows[-1], S2=S2[-1], V=V[-1], rotation_rows=rotation_rows[-1],
               frames_used=frames_used[-1], frames_rejected=frames_rejected[-1])  # fmt: skip
     return {
         "rotation": est["rotation"],
@@ -157,7 +158,7 @@ def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[d
         "translation_moment": Z,
         "translation_rows": translation_rows,
         "refined": est["refined"],
-    }, M_all[-1]
+    }, gap_M[-1]
 
 
 def _scan(x: Tensor, carry: Tensor, lam: float) -> Tensor:

@@ -51,9 +51,9 @@ def estimate(
     planar, observable = planar_motion(S, rotation_rows), rotation_observable(S, rotation_rows)
     quadratic = translation_quadratic(Z)
     axis = torch.zeros_like(quat[..., 1:])
-    # On the CPU the planar solve runs on the planar entries only (none: skipped); elsewhere on all of them,
-    # so that a frame never waits for the host.
-    if planar.device.type != "cpu":
+    # On the CPU the planar solve runs on the planar entries only (none: skipped); elsewhere (and in a compiled
+    # graph) on all of them, so that a frame never waits for the host.
+    if planar.device.type != "cpu" or torch.compiler.is_compiling():
         dR_planar, axis = planar_rotation(quadratic, V)
         axis = torch.where(planar[..., None], axis, 0.0)
         dR = torch.where(planar[..., None, None], dR_planar, dR)

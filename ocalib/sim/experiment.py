@@ -32,7 +32,8 @@ METHODS: dict[str, dict] = {
     "first": {"motion": "first"},  # the default with frame-0 pairing
     "consecutive": {"motion": "consecutive"},  # the default with consecutive pairing
 }
-# any other pairing: "gaps-1-2-4-8" is the default with motion=(1, 2, 4, 8) (gap 0: the pair with frame 0)
+# any other pairing: "gaps-1-2-4-8" is the default with motion=(1, 2, 4, 8) (gap 0: the pair with frame 0); the gaps
+# are weighted by their noise as in the default (ocalib.calib.pairing)
 
 ERRORS = ("rotation_deg", "axis_deg", "translation_direction_deg", "translation_rel", "scale_rel")
 ERROR_LABELS = {

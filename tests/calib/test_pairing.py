@@ -1,0 +1,63 @@
+import pytest
+import torch
+from calib_helpers import lds_rig
+
+from ocalib.calib.batch import batch_calibrate
+from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.pairing import GAP_PRIOR_DOF, GAP_WEIGHT_POWER, gap_weights
+
+
+def _system(residual: list[float], rows: list[float]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Squared singular values (P, 4) whose smallest is the residual, and row counts (P,)."""
+    S2 = torch.tensor([[100.0, 50.0, 20.0, r] for r in residual], dtype=torch.float64)
+    return S2, torch.tensor(rows, dtype=torch.float64)
+
+
+def test_gap_weights_closed_form():
+    # Equal noise: all weights 1. Gap 2 twice as noisy: (1/2 shrunk toward the pooled variance)^power.
+    S2, rows = _system([1.0, 1.0], [1001.5, 1001.5])  # 2000 degrees of freedom each
+    torch.testing.assert_close(gap_weights(S2, rows), torch.ones(2, dtype=torch.float64))
+    S2, rows = _system([1.0, 2.0], [1001.5, 1001.5])
+    pooled = 3.0 / 4000
+    var = (torch.tensor([1.0, 2.0], dtype=torch.float64) + GAP_PRIOR_DOF * pooled) / (2000 + GAP_PRIOR_DOF)
+    expected = (var[0] / var) ** GAP_WEIGHT_POWER
+    torch.testing.assert_close(gap_weights(S2, rows), expected, rtol=1e-9, atol=0)
+    # A gap without residual degrees of freedom weighs 1 and does not set the reference.
+    S2, rows = _system([1e-9, 1.0, 2.0], [1.0, 1001.5, 1001.5])
+    assert gap_weights(S2, rows)[0] == 1 and gap_weights(S2, rows)[1] == 1
+
+
+def test_noise_free_weights_are_one(generator):
+    poses, _, _ = lds_rig(generator, frames=40)
+    cal = OnlineCalibrator(2)
+    for t in range(len(poses)):
+        cal(poses[t])
+    w = gap_weights(cal.gap_S2, cal.gap_rotation_rows)
+    torch.testing.assert_close(w, torch.ones_like(w), atol=1e-4, rtol=0)  # rounding against the floor
+
+
+@pytest.mark.parametrize("model", ["independent", "drift"])
+def test_long_gaps_fade_under_drift_only(generator, model):
+    """Against the noise the simulator put in: under drift a gap-16 motion is 16x as noisy as a consecutive
+    one and its weight falls to nothing; under independent noise all gaps are alike and keep their weight."""
+    poses, _, _ = lds_rig(generator, frames=128, noise=0.01, model=model)
+    cal = OnlineCalibrator(2, motion=(1, 2, 4, 8, 16))
+    for t in range(len(poses)):
+        cal(poses[t])
+    w = gap_weights(cal.gap_S2, cal.gap_rotation_rows)[0, 0]
+    if model == "drift":
+        assert w[0] == 1 and w[4] < 1e-4 and bool((w[1:].diff() < 0).all())
+    else:
+        assert bool((w > 0.3).all())
+
+
+def test_weighted_gaps_equal_the_weighted_batch_under_drift(generator):
+    """Where the weights matter (drift), the stream still equals the batch solve with the same weights."""
+    poses, _, _ = lds_rig(generator, frames=48, noise=0.01, model="drift")
+    cal = OnlineCalibrator(2, refine=False, screw_gate_deg=1e9, min_rotation_deg=0.0, robust_deg=1e9)
+    for t in range(len(poses)):
+        out = cal(poses[t])
+    ref = batch_calibrate(poses, "multi", refine=False)
+    torch.testing.assert_close(out.quaternion[0], ref["quaternion"], atol=1e-8, rtol=0)
+    torch.testing.assert_close(out.translation[0], ref["translation"], atol=1e-8, rtol=0)
+    assert gap_weights(cal.gap_S2, cal.gap_rotation_rows).min() < 0.1  # the weights did matter
