@@ -175,7 +175,8 @@ class OnlineCalibrator(nn.Module):
         st["gap_rotation_rows"] = lam * st["gap_rotation_rows"] + w_rot
         w_tr = ok.to(poses.dtype)
         z = pair_features(motion[:, :1].expand_as(motion[:, 1:]), motion[:, 1:], self.symmetric)  # (B, K, P, D, 15)
-        st["gap_Z"] = lam * st["gap_Z"] + (z * w_tr[..., None, None]).mT @ z
+        moment = (z * w_tr[..., None, None]).mT @ z
+        st["gap_Z"] = st["gap_Z"] + moment if lam == 1 else lam * st["gap_Z"] + moment  # the largest state: one pass
         st["gap_translation_rows"] = lam * st["gap_translation_rows"] + w_tr
 
         # The gaps, weighted by their noise.

@@ -49,8 +49,5 @@ def gap_weights(S2: Tensor, rows: Tensor) -> Tensor:
 
 def combine_gaps(weights: Tensor, *statistics: Tensor) -> tuple[Tensor, ...]:
     """Weighted sums over the gap dimension: each statistic (..., P, *) -> (..., *), weights (..., P)."""
-    out = []
-    for x in statistics:
-        w = weights.reshape(*weights.shape, *[1] * (x.dim() - weights.dim()))
-        out.append((w * x).sum(weights.dim() - 1))
-    return tuple(out)
+    d, w = weights.dim(), weights.unsqueeze(-2)  # (..., 1, P)
+    return tuple((w @ x.reshape(*x.shape[:d], -1)).reshape(x.shape[: d - 1] + x.shape[d:]) for x in statistics)
