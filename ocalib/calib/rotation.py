@@ -20,7 +20,7 @@ from torch import Tensor
 from ocalib.calib.linalg import guarded_eigh
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix
 
-ROTATION_OBSERVABLE_MIN_SV = 0.25  # S[2] must exceed this (a ~14 degree motion, or many smaller ones) ...
+ROTATION_OBSERVABLE_MIN_SV = 0.1  # S[2] must exceed this (a ~6 degree motion, or many smaller ones) ...
 # ... and stand out of the noise floor: (S[2]^2 / S[3]^2 - 1) sqrt(2 n - 3) > this. Over n rows, S[3]^2 is the
 # residual (noise) and S[2]^2 noise plus signal; their ratio falls as 1 / sqrt(dof) for noise alone. Measured
 # (docs/simulation.md): noise-only directions (planar car, sigma 0.01-0.05) reach 12 at most, median 4.
@@ -73,7 +73,7 @@ def batch_rotation(A: Tensor, weights: Tensor | None = None) -> tuple[Tensor, Te
 
 
 def rotation_observable(S: Tensor, rows: Tensor) -> Tensor:
-    """Rotation is observable when the 3-D orthogonal complement of ``dq`` is excited: ``S[2] > 0.25`` and
+    """Rotation is observable when the 3-D orthogonal complement of ``dq`` is excited: ``S[2] > 0.1`` and
     ``S[2]`` significantly above the noise floor ``S[3]`` given the ``rows`` motion pairs (see
     ``ROTATION_OBSERVABLE_SIGNIFICANCE``). Shapes (..., 4), (...) -> (...) bool."""
     return excited(S, rows, 2)

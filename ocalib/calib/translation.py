@@ -18,13 +18,14 @@ from torch import Tensor
 
 from ocalib.calib.handeye import normal_equations, translation_quadratic
 from ocalib.calib.linalg import guarded_eigh
+from ocalib.calib.rotation import ROTATION_OBSERVABLE_MIN_SV
 
 RANK_TOLERANCE = 1e-9  # eigenvalues below this times the largest are treated as zero
 # A translation direction is unobservable with less information than 1e-6 of the best direction's,
-# or than one 14-degree rotation about an axis perpendicular to it (``(2 sin(7 deg))^2``: the excitation
-# rotation itself needs, see ``ocalib.calib.rotation.ROTATION_OBSERVABLE_MIN_SV``).
+# or than the excitation rotation itself needs (``ROTATION_OBSERVABLE_MIN_SV^2``: one 6-degree rotation about an
+# axis perpendicular to it, ``(2 sin(3 deg))^2``, or many smaller ones).
 UNOBSERVABLE_RELATIVE = 1e-6
-UNOBSERVABLE_ABSOLUTE = 0.25**2
+UNOBSERVABLE_ABSOLUTE = ROTATION_OBSERVABLE_MIN_SV**2
 
 
 def pinv_solve(H: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:

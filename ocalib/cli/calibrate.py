@@ -33,7 +33,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--trajectories", metavar="DIR", help="write each camera's front-end trajectory (KITTI) here")
     p.add_argument("--device", default="cpu", help="torch device of the network and the head (cpu, cuda)")
     p.add_argument("--motion", choices=("first", "consecutive", "multi"), default="multi",
-                   help="motion pairs of the head (default: gaps of 1, 2, 4 and 8 frames)")
+                   help="motion pairs of the head (default: gaps of 1, 2, 4, 8 and 16 frames, weighted by their noise)")
     p.add_argument("--solver", choices=("exact", "rls"), default="exact", help="the head's translation solver")
     p.add_argument("--forgetting", type=float, default=1.0, metavar="L", help="forgetting factor in (0, 1]")
     p.add_argument("--scale", choices=("head", "normalise"), default="head",

@@ -30,7 +30,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
     p.add_argument("--motion", choices=("first", "consecutive", "multi"), default="multi",
-                   help="motion pairs: against frame 0, consecutive frames, or gaps of 1, 2, 4 and 8 frames (default)")
+                   help="motion pairs: against frame 0, consecutive frames, or gaps of 1, 2, 4, 8 and 16 frames weighted by their noise (default)")
     p.add_argument("--solver", choices=("exact", "rls", "batch"), default="exact",
                    help="exact on-line least squares (default), the paper's RLS, or one batch solve")
     p.add_argument("--forgetting", type=float, default=1.0, metavar="L",
