@@ -4,6 +4,7 @@ Measures, in one run on this machine (one intra-op thread: on this shared 2-core
 10x slower for 4096 rigs):
 * the head's per-frame update (``OnlineCalibrator.forward``, reading the estimate) for 1, 64 and 4096 rigs
   batched, with the joint refinement (the default) and without (``refine=False``, the closed form);
+* the same through ``torch.compile`` (one graph, C++ wrapper) for 1 and 4096 rigs;
 * the whole-sequence path (``calibrate_sequence``: the same estimates for a recorded sequence), per frame;
 * re-solving the batch problem (``batch_calibrate``, closed form) on all N frames so far, which is what a
   non-recursive method pays per frame, and one ``cv2.calibrateHandEye`` call on N poses (OpenCV builds
@@ -43,9 +44,15 @@ def rig_sequence(frames: int, rigs: int, seed: int = 0) -> torch.Tensor:
     return torch.stack([seqs[i % len(seqs)] for i in range(rigs)], 1)
 
 
-def time_stream(poses: torch.Tensor, warmup: int = 20, **options) -> list[float]:
-    """Seconds per frame of the head (forward + reading the estimate) on poses (T, B, 2, 4, 4)."""
+def time_stream(poses: torch.Tensor, warmup: int = 20, compiled: bool = False, **options) -> list[float]:
+    """Seconds per frame of the head (forward + reading the estimate) on poses (T, B, 2, 4, 4); ``compiled``:
+    through ``torch.compile`` (one graph, C++ wrapper; the compile itself is the first frame's, not counted)."""
     cal = OnlineCalibrator(2, batch_size=poses.shape[1], **options)
+    if compiled:
+        import torch._inductor.config as inductor
+
+        inductor.cpp_wrapper = True
+        cal = torch.compile(cal, fullgraph=True, dynamic=False)
     times = []
     with torch.inference_mode():
         for t in range(len(poses)):
@@ -106,6 +113,10 @@ def main() -> None:
                 samples.setdefault(("stream", rigs, refine), []).extend(time_stream(poses, refine=refine))
         for rigs, poses in sequences.items():
             samples.setdefault(("sequence", rigs, True), []).append(time_sequence(poses))
+    for rigs in (1, 4096):  # compiled once (each compile takes about a minute on this CPU)
+        compiled_start = time.perf_counter()
+        samples[("compiled", rigs, True)] = time_stream(data[rigs], warmup=min(20, len(data[rigs]) // 4), compiled=True)
+        print(f"compiled {rigs} rig(s) in {time.perf_counter() - compiled_start:.0f} s (with the timed frames)")
     rows = []
 
     def add(name, per, samples, note=""):
@@ -119,6 +130,8 @@ def main() -> None:
         label = "refined" if refine else "closed form"
         if kind == "stream":
             add(f"on-line head, {rigs} rig(s), {label}", "frame", times)
+        elif kind == "compiled":
+            add(f"on-line head, {rigs} rig(s), {label}, torch.compile", "frame", times, "one graph, C++ wrapper")
         else:
             add(f"whole-sequence path, {rigs} rig(s)", "frame", times, f"{len(sequences[rigs])} frames at once")
     for n in (128, 1000):
@@ -133,6 +146,8 @@ def main() -> None:
         "one_rig_closed_form_us": ms["on-line head, 1 rig(s), closed form"] * 1e3,
         "rigs_4096_ms": ms["on-line head, 4096 rig(s), refined"],
         "rigs_4096_closed_form_ms": ms["on-line head, 4096 rig(s), closed form"],
+        "one_rig_compiled_us": ms["on-line head, 1 rig(s), refined, torch.compile"] * 1e3,
+        "rigs_4096_compiled_ms": ms["on-line head, 4096 rig(s), refined, torch.compile"],
         "sequence_1_rig_us_per_frame": ms["whole-sequence path, 1 rig(s)"] * 1e3,
         "sequence_4096_rigs_ms_per_frame": ms["whole-sequence path, 4096 rig(s)"],
         "speedup_vs_batch_resolve_N1000": ms["batch re-solve on N=1000 frames"] / one,

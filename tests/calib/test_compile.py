@@ -1,0 +1,19 @@
+"""The streaming head compiles as one graph (``torch.compile(fullgraph=True)``) and gives the eager result."""
+
+import torch
+from calib_helpers import lds_rig
+
+from ocalib.calib.online import OnlineCalibrator
+
+
+def test_head_compiles_to_one_graph_with_the_eager_result(generator):
+    poses, _, _ = lds_rig(generator, frames=24, noise=0.01)
+    eager, compiled = OnlineCalibrator(2), OnlineCalibrator(2)
+    step = torch.compile(compiled, fullgraph=True, dynamic=False)  # raises on any graph break
+    with torch.inference_mode():
+        for t in range(len(poses)):
+            a, b = eager(poses[t]), step(poses[t])
+    torch.testing.assert_close(b.quaternion, a.quaternion, atol=1e-10, rtol=0)
+    torch.testing.assert_close(b.translation, a.translation, atol=1e-10, rtol=0)
+    for name, buffer in eager.named_buffers():
+        torch.testing.assert_close(compiled.get_buffer(name), buffer, atol=1e-10, rtol=0, msg=name)
