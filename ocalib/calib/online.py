@@ -180,8 +180,13 @@ class OnlineCalibrator(nn.Module):
         st["gap_translation_rows"] = lam * st["gap_translation_rows"] + w_tr
 
         # The gaps, weighted by their noise.
-        S2, V, rotation_rows, Z, trans_rows, gap_w = combine_statistics(
-            st["gap_S2"], st["gap_V"], st["gap_rotation_rows"], st["gap_Z"], st["gap_translation_rows"])
+        if len(self.gaps) == 1:  # one gap: its statistics as they are
+            S2, V, rotation_rows = st["gap_S2"][:, :, 0], st["gap_V"][:, :, 0], st["gap_rotation_rows"][:, :, 0]
+            Z, trans_rows, gap_w = st["gap_Z"][:, :, 0], st["gap_translation_rows"][:, :, 0], torch.ones_like(w_tr)
+        else:
+            gap_M = (st["gap_V"] * st["gap_S2"].unsqueeze(-2)) @ st["gap_V"].mT
+            S2, V, rotation_rows, Z, trans_rows, gap_w = combine_statistics(
+                gap_M, st["gap_S2"], st["gap_rotation_rows"], st["gap_Z"], st["gap_translation_rows"])
         st["S2"], st["V"], st["rotation_rows"] = S2, V, rotation_rows
 
         est = estimate(S2, V, Z, rotation_rows, trans_rows, self.refine)
@@ -229,21 +234,17 @@ class OnlineCalibrator(nn.Module):
 
 
 def combine_statistics(
-    gap_S2: Tensor, gap_V: Tensor, gap_rotation_rows: Tensor, gap_Z: Tensor, gap_translation_rows: Tensor
+    gap_M: Tensor, gap_S2: Tensor, gap_rotation_rows: Tensor, gap_Z: Tensor, gap_translation_rows: Tensor
 ) -> tuple[Tensor, ...]:
     """The rotation system and translation moment of all gaps, weighted by :func:`~ocalib.calib.pairing.gap_weights`.
 
-    Args: per gap (..., P, *): squared singular values (4) and right singular vectors (4, 4) of the rotation
-    rows, their count, the translation moment (15, 15) and its row count.
+    Args: per gap (..., P, *): the Gram matrix (4, 4) of the rotation rows and its eigenvalues (4), descending,
+    their count, the translation moment (15, 15) and its row count.
 
     Returns ``S2`` (..., 4) descending, ``V`` (..., 4, 4), ``rotation_rows``, ``Z`` (..., 15, 15),
-    ``translation_rows`` and the weights (..., P). One gap: its statistics as they are.
+    ``translation_rows`` and the weights (..., P).
     """
-    if gap_S2.shape[-2] == 1:
-        w = torch.ones_like(gap_rotation_rows)
-        return gap_S2[..., 0, :], gap_V[..., 0, :, :], gap_rotation_rows[..., 0], gap_Z[..., 0, :, :], gap_translation_rows[..., 0], w
     w = gap_weights(gap_S2, gap_rotation_rows)
-    M, rotation_rows, Z, translation_rows = combine_gaps(
-        w, (gap_V * gap_S2.unsqueeze(-2)) @ gap_V.mT, gap_rotation_rows, gap_Z, gap_translation_rows)
+    M, rotation_rows, Z, translation_rows = combine_gaps(w, gap_M, gap_rotation_rows, gap_Z, gap_translation_rows)
     evals, evecs = guarded_eigh(M)
     return evals.flip(-1), evecs.flip(-1), rotation_rows, Z, translation_rows, w

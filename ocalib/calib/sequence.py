@@ -125,10 +125,13 @@ def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[d
         w_rot = rows * weight
         gap_M = _scan(w_rot[..., None, None] * A.mT @ A, M, lam)  # (L, B, K, P, 4, 4)
         gap_rotation_rows = _scan(w_rot, st["gap_rotation_rows"], lam)
-        evals, evecs = guarded_eigh(gap_M)
-        gap_S2, gap_V = evals.flip(-1), evecs.flip(-1)
-        S2, V, rotation_rows, Z, translation_rows, _ = combine_statistics(
-            gap_S2, gap_V, gap_rotation_rows, gap_Z, gap_translation_rows)
+        if gap_M.shape[-3] == 1:  # one gap: its statistics as they are
+            evals, evecs = guarded_eigh(gap_M[..., 0, :, :])
+            S2, V, rotation_rows = evals.flip(-1), evecs.flip(-1), gap_rotation_rows[..., 0]
+            Z, translation_rows = gap_Z[..., 0, :, :], gap_translation_rows[..., 0]
+        else:  # each gap's eigenvalues for its weight, then one eigen-decomposition of the weighted sum
+            S2, V, rotation_rows, Z, translation_rows, _ = combine_statistics(
+                gap_M, torch.linalg.eigvalsh(gap_M).flip(-1), gap_rotation_rows, gap_Z, gap_translation_rows)
         previous = [torch.cat([b, x[:-1]]) for b, x in zip(before, (S2, V, rotation_rows))]
         new = robust_weight(*previous, A, head.robust)
         if bool((new - weight).abs().max() <= WEIGHT_TOLERANCE):
@@ -139,7 +142,8 @@ def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[d
     used = ok.any(-1)
     frames_used = st["frames_used"] + used.cumsum(0)
     frames_rejected = st["frames_rejected"] + (~used & (frames > 0)[:, None, None]).cumsum(0)
-    st.update(gap_S2=gap_S2[-1], gap_V=gap_V[-1], gap_rotation_rows=gap_rotation_rows[-1], gap_Z=gap_Z[-1],
+    gap_S2, gap_V = (x.flip(-1) for x in guarded_eigh(gap_M[-1]))  # the stream's per-gap state after the chunk
+    st.update(gap_S2=gap_S2, gap_V=gap_V, gap_rotation_rows=gap_rotation_rows[-1], gap_Z=gap_Z[-1],
               gap_translation_rows=gap_translation_rows[-1], S2=S2[-1], V=V[-1], rotation_rows=rotation_rows[-1],
               frames_used=frames_used[-1], frames_rejected=frames_rejected[-1])  # fmt: skip
     return {
