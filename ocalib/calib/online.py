@@ -15,8 +15,7 @@ from torch import Tensor, nn
 from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
 from ocalib.calib.result import Calibration
 from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
-from ocalib.calib.pairing import MOTIONS, combine_gaps, gap_weights
-from ocalib.calib.linalg import guarded_eigh
+from ocalib.calib.pairing import MOTIONS, combine_statistics
 from ocalib.calib.rotation import incremental_svd_update
 from ocalib.calib.solve import estimate
 from ocalib.calib.translation import rls_update
@@ -232,19 +231,3 @@ class OnlineCalibrator(nn.Module):
             refined=est["refined"],
         )
 
-
-def combine_statistics(
-    gap_M: Tensor, gap_S2: Tensor, gap_rotation_rows: Tensor, gap_Z: Tensor, gap_translation_rows: Tensor
-) -> tuple[Tensor, ...]:
-    """The rotation system and translation moment of all gaps, weighted by :func:`~ocalib.calib.pairing.gap_weights`.
-
-    Args: per gap (..., P, *): the Gram matrix (4, 4) of the rotation rows and its eigenvalues (4), descending,
-    their count, the translation moment (15, 15) and its row count.
-
-    Returns ``S2`` (..., 4) descending, ``V`` (..., 4, 4), ``rotation_rows``, ``Z`` (..., 15, 15),
-    ``translation_rows`` and the weights (..., P).
-    """
-    w = gap_weights(gap_S2, gap_rotation_rows)
-    M, rotation_rows, Z, translation_rows = combine_gaps(w, gap_M, gap_rotation_rows, gap_Z, gap_translation_rows)
-    evals, evecs = guarded_eigh(M)
-    return evals.flip(-1), evecs.flip(-1), rotation_rows, Z, translation_rows, w

@@ -23,6 +23,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ocalib.calib.linalg import guarded_eigh
+
 MOTIONS = {
     "first": (0,),  # every pose against frame 0: the paper
     "consecutive": (1,),  # frame t-1 to t: visual odometry
@@ -51,3 +53,20 @@ def combine_gaps(weights: Tensor, *statistics: Tensor) -> tuple[Tensor, ...]:
     """Weighted sums over the gap dimension: each statistic (..., P, *) -> (..., *), weights (..., P)."""
     d, w = weights.dim(), weights.unsqueeze(-2)  # (..., 1, P)
     return tuple((w @ x.reshape(*x.shape[:d], -1)).reshape(x.shape[: d - 1] + x.shape[d:]) for x in statistics)
+
+
+def combine_statistics(
+    gap_M: Tensor, gap_S2: Tensor, gap_rotation_rows: Tensor, gap_Z: Tensor, gap_translation_rows: Tensor
+) -> tuple[Tensor, ...]:
+    """The rotation system and translation moment of all gaps, weighted by :func:`gap_weights`.
+
+    Args: per gap (..., P, *): the Gram matrix (4, 4) of the rotation rows and its eigenvalues (4), descending,
+    their count, the translation moment (15, 15) and its row count.
+
+    Returns ``S2`` (..., 4) descending, ``V`` (..., 4, 4), ``rotation_rows``, ``Z`` (..., 15, 15),
+    ``translation_rows`` and the weights (..., P).
+    """
+    w = gap_weights(gap_S2, gap_rotation_rows)
+    M, rotation_rows, Z, translation_rows = combine_gaps(w, gap_M, gap_rotation_rows, gap_Z, gap_translation_rows)
+    evals, evecs = guarded_eigh(M)
+    return evals.flip(-1), evecs.flip(-1), rotation_rows, Z, translation_rows, w

@@ -23,7 +23,8 @@ from torch import Tensor
 from ocalib.calib.gating import affine_scan, robust_weight, screw_gate_sequence
 from ocalib.calib.handeye import pair_features, rotation_block
 from ocalib.calib.linalg import guarded_eigh
-from ocalib.calib.online import OnlineCalibrator, combine_statistics
+from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.pairing import combine_statistics
 from ocalib.calib.result import Calibration
 from ocalib.calib.solve import estimate
 from ocalib.geometry.pose import invert_pose, orthonormality_error
