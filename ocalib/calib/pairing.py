@@ -13,7 +13,8 @@ of the current statistics alone, so a frame's estimate equals the batch solve wi
 shrunk toward the pooled value with ``GAP_PRIOR_DOF`` degrees of freedom (a gap with a few rows does not
 decide the weights). Measured (``docs/simulation.md``, 50 rigs): with power 6 the default is 0.27-0.30x of
 frame-0 pairing under independent noise and 1.00-1.01x of consecutive pairing under drift (rotation); power 3
-was 1.16x under drift, power 1 (inverse variance, which ignores that the gaps share frames) 1.07-1.22x.
+was 1.16x under drift; fixed 1/g weights (inverse variance under drift, which ignores that the gaps share
+frames) were 1.07-1.22x.
 
 Convention: gaps in frames; gap 0 stands for the pair with the first frame.
 """
