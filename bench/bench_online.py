@@ -4,7 +4,8 @@ Measures, in one run on this machine (one intra-op thread: on this shared 2-core
 10x slower for 4096 rigs):
 * the head's per-frame update (``OnlineCalibrator.forward``, reading the estimate) for 1, 64 and 4096 rigs
   batched, with the joint refinement (the default) and without (``refine=False``, the closed form);
-* the same through ``torch.compile`` (one graph, C++ wrapper) for 1 and 4096 rigs;
+* the same through ``torch.compile`` (one graph, C++ wrapper) for 1 and 4096 rigs, and for 1 rig in the leanest
+  configuration (frame-0 pairing, one direction, closed form): the floor of a compiled head on this CPU;
 * the whole-sequence path (``calibrate_sequence``: the same estimates for a recorded sequence), per frame;
 * re-solving the batch problem (``batch_calibrate``, closed form) on all N frames so far, which is what a
   non-recursive method pays per frame, and one ``cv2.calibrateHandEye`` call on N poses (OpenCV builds
@@ -35,6 +36,7 @@ from ocalib.calib.sequence import calibrate_sequence
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 
 OUT = Path(__file__).parent / "results" / "online.json"
+LEAN = {"motion": "first", "symmetric": False, "refine": False}  # the fewest operations a frame
 
 
 def rig_sequence(frames: int, rigs: int, seed: int = 0) -> torch.Tensor:
@@ -117,6 +119,7 @@ def main() -> None:
         compiled_start = time.perf_counter()
         samples[("compiled", rigs, True)] = time_stream(data[rigs], warmup=min(20, len(data[rigs]) // 4), compiled=True)
         print(f"compiled {rigs} rig(s) in {time.perf_counter() - compiled_start:.0f} s (with the timed frames)")
+    samples[("compiled-lean", 1, False)] = time_stream(data[1], compiled=True, **LEAN)
     rows = []
 
     def add(name, per, samples, note=""):
@@ -132,6 +135,8 @@ def main() -> None:
             add(f"on-line head, {rigs} rig(s), {label}", "frame", times)
         elif kind == "compiled":
             add(f"on-line head, {rigs} rig(s), {label}, torch.compile", "frame", times, "one graph, C++ wrapper")
+        elif kind == "compiled-lean":
+            add(f"on-line head, {rigs} rig(s), leanest, torch.compile", "frame", times, f"{LEAN}")
         else:
             add(f"whole-sequence path, {rigs} rig(s)", "frame", times, f"{len(sequences[rigs])} frames at once")
     for n in (128, 1000):
@@ -148,6 +153,7 @@ def main() -> None:
         "rigs_4096_closed_form_ms": ms["on-line head, 4096 rig(s), closed form"],
         "one_rig_compiled_us": ms["on-line head, 1 rig(s), refined, torch.compile"] * 1e3,
         "rigs_4096_compiled_ms": ms["on-line head, 4096 rig(s), refined, torch.compile"],
+        "one_rig_compiled_leanest_us": ms["on-line head, 1 rig(s), leanest, torch.compile"] * 1e3,
         "sequence_1_rig_us_per_frame": ms["whole-sequence path, 1 rig(s)"] * 1e3,
         "sequence_4096_rigs_ms_per_frame": ms["whole-sequence path, 4096 rig(s)"],
         "speedup_vs_batch_resolve_N1000": ms["batch re-solve on N=1000 frames"] / one,

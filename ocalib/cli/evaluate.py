@@ -22,7 +22,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         description="Predict every camera of a sequence and measure it against the ground truth: depth (abs rel, "
         "sq rel, RMSE, RMSE log, delta < 1.25^k, median scaling) and poses (the SfMLearner 5-frame snippet ATE; "
         "ATE and RPE after Sim(3) Umeyama alignment; frame-to-frame rotation and translation-direction errors; "
-        "per-frame scale ratio and its coefficient of variation). Writes the metrics JSON, the predicted "
+        "per-frame scale ratio and its coefficient of variation; the rotation gain about each camera axis: 1 is "
+        "unbiased, below 1 the model under-reports rotation). Writes the metrics JSON, the predicted "
         "trajectories (KITTI) and optional plots.",
     )
     add_model_arguments(p)
@@ -93,7 +94,8 @@ def summary(doc: dict) -> str:
                          f"{fmt(p['rpe_rot_rmse_deg'])} deg")
             lines.append(f"  frame-to-frame: rotation error median {fmt(p['rotation_error_deg_median'])} deg, "
                          f"translation direction median {fmt(p['direction_error_deg_median'])} deg, "
-                         f"scale ratio CV {fmt(p['scale_ratio_cv'])}")
+                         f"scale ratio CV {fmt(p['scale_ratio_cv'])}, "
+                         f"rotation gain x/y/z {'/'.join(fmt(g) for g in p['rotation_gain_xyz'])}")
             lines.append(f"  image-blind baselines: no rotation {fmt(p['baseline_zero_rotation_deg_median'])} deg, "
                          f"fixed direction {fmt(p['baseline_constant_direction_deg_median'])} deg, "
                          f"fixed step length CV {fmt(p['baseline_constant_step_scale_cv'])}")

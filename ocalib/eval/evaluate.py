@@ -132,6 +132,8 @@ def evaluation_json(results: list[CameraEvaluation]) -> dict:
 
 
 def _clean(d: dict | None):
+    """NaN and inf (also in lists) -> None, for JSON."""
     if d is None:
         return None
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+    finite = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
+    return {k: [finite(x) for x in v] if isinstance(v, list) else finite(v) for k, v in d.items()}

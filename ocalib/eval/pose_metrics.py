@@ -1,5 +1,6 @@
 """Ego-motion error metrics: SfMLearner's 5-frame snippet ATE, ATE and RPE after Sim(3) alignment,
-frame-to-frame rotation and translation-direction errors, and the per-frame scale ratio.
+frame-to-frame rotation and translation-direction errors, the per-frame scale ratio, and the rotation gain
+per camera axis.
 
 Convention: poses are camera-to-world (N, 4, 4) float64 numpy arrays, predicted and ground truth for the same
 N frames, each in its own world frame and units (predictions are up to scale). The frame-to-frame motion is
@@ -29,6 +30,28 @@ def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
     skew = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
     cos = (np.trace(R, axis1=-2, axis2=-1) - 1) / 2
     return np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1) / 2, cos))
+
+
+def rotation_vector(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) (axis times angle, radians) of rotation matrices (..., 3, 3), for angles below
+    180 degrees (the axis from the skew part, the angle in atan2 form: accurate near 0)."""
+    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1) / 2
+    sin = np.linalg.norm(w, axis=-1, keepdims=True)
+    angle = np.arctan2(sin, (np.trace(R, axis1=-2, axis2=-1)[..., None] - 1) / 2)
+    return np.where(sin > 0, w * angle / np.maximum(sin, 1e-300), w)
+
+
+def rotation_gain(pred: np.ndarray, truth: np.ndarray, min_rms_deg: float = 0.01) -> np.ndarray:
+    """How much of the true rotation a predictor reports, about each camera axis: from frame-to-frame motions
+    (N, 4, 4) predicted and true, the least-squares ``g_i`` of ``r_pred,i = g_i r_true,i`` over the rotation
+    vectors' components i = x, y, z (camera frame) -> (3,). 1 is unbiased; below 1 the predictor under-reports
+    the rotation (a pose network short of training regresses toward no motion). NaN about an axis whose true
+    rotation is below ``min_rms_deg`` RMS (nothing to measure). Different gains per axis bend the rotation axes,
+    which biases hand-eye calibration even where the per-frame errors are small."""
+    rp, rt = rotation_vector(pred[:, :3, :3]), rotation_vector(truth[:, :3, :3])
+    power = (rt * rt).sum(0)
+    excited = np.sqrt(power / len(rt)) > np.radians(min_rms_deg)
+    return np.where(excited, (rp * rt).sum(0) / np.where(excited, power, 1.0), np.nan)
 
 
 def frame_motions(poses: np.ndarray, delta: int = 1) -> np.ndarray:
@@ -134,6 +157,7 @@ def pose_metrics(pred: np.ndarray, gt: np.ndarray, rpe_delta: int = 1, snippet: 
         "direction_error_deg_mean": float(np.mean(direction)),
         "scale_ratio_median": float(np.median(ratio)),
         "scale_ratio_cv": float(np.std(ratio) / np.mean(ratio)) if np.mean(ratio) > 0 else float("inf"),
+        "rotation_gain_xyz": [float(g) for g in rotation_gain(frame_motions(pred), truth)],
         **baseline,
     }
     details = {"aligned": aligned, "sim3": sim3, "ate": ate, "rpe_trans": rpe_t, "rpe_rot_deg": rpe_r,

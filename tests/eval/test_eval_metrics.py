@@ -8,7 +8,9 @@ import pytest
 from ocalib.errors import InputError
 from ocalib.eval.alignment import align_poses, align_trajectory, umeyama
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
-from ocalib.eval.pose_metrics import frame_errors, frame_motions, pose_metrics, rotation_angle_deg, rpe, snippet_ate
+from ocalib.eval.pose_metrics import (
+    frame_errors, frame_motions, pose_metrics, rotation_angle_deg, rotation_gain, rotation_vector, rpe, snippet_ate,
+)
 
 
 def rot(axis, angle):
@@ -223,3 +225,25 @@ def test_baselines_are_the_metrics_of_image_blind_predictors():
     blind_summary, _ = pose_metrics(blind, gt)
     assert summary["baseline_constant_step_scale_cv"] == pytest.approx(blind_summary["scale_ratio_cv"])
     assert summary["baseline_zero_rotation_deg_median"] > 1  # the test trajectory turns 0.6-4.6 deg a frame
+
+
+def test_rotation_vector_matches_opencv_rodrigues():
+    rng = np.random.default_rng(3)
+    R = np.stack([rot(rng.normal(size=3), a) for a in (1e-9, 1e-4, 0.3, 2.0, 3.0)])
+    expected = np.stack([cv2.Rodrigues(r)[0].ravel() for r in R])
+    np.testing.assert_allclose(rotation_vector(R), expected, atol=1e-9)
+
+
+def test_rotation_gain_recovers_per_axis_scaling():
+    """A predictor that reports 0.5x the rotation about x, 1x about y and 0.25x about z (its translation
+    exact), and one that never rotates about z: their gains, and NaN about an axis the truth never turns."""
+    gt = trajectory(60, seed=5)
+    truth = frame_motions(gt)
+    rv = rotation_vector(truth[:, :3, :3])
+    gains = np.array([0.5, 1.0, 0.25])
+    pred = np.stack([pose(cv2.Rodrigues(gains * r)[0], m[:3, 3]) for r, m in zip(rv, truth)])
+    summary, _ = pose_metrics(_chain(pred), gt)
+    np.testing.assert_allclose(summary["rotation_gain_xyz"], gains, atol=1e-9)
+    flat = np.stack([pose(rot([0, 1, 0], 0.02 * (i % 3)), [0, 0, 1]) for i in range(30)])  # turns about y only
+    g = rotation_gain(flat, flat)
+    assert np.isnan(g[[0, 2]]).all() and g[1] == pytest.approx(1.0)
