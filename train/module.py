@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from ocalib.eval.depth_metrics import depth_errors
-from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.eval.pose_metrics import rotation_angle_deg, rotation_gain
 from ocalib.geometry.pose import invert_pose
 from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.models import EgoMotionModel, disp_to_depth
@@ -120,6 +120,8 @@ class EgoMotionModule(pl.LightningModule):
             gt = batch["poses"][:, 1:].cpu().double().numpy()
             rot, direction, ratio = pair_errors(pred.reshape(-1, 4, 4), gt.reshape(-1, 4, 4))
             self._val["rotation"] += rot.tolist()
+            self._val["pred_motions"] += list(pred.reshape(-1, 4, 4))
+            self._val["true_motions"] += list(gt.reshape(-1, 4, 4))
             self._val["direction"] += direction.tolist()
             S1 = pred.shape[1]
             for b in range(B):
@@ -144,6 +146,8 @@ class EgoMotionModule(pl.LightningModule):
         if v["rotation"]:
             metrics["val/rotation_error_deg"] = float(np.median(v["rotation"]))
             metrics["val/direction_error_deg"] = float(np.nanmedian(v["direction"]))
+            gains = rotation_gain(np.stack(v["pred_motions"]), np.stack(v["true_motions"]))
+            metrics.update({f"val/rotation_gain_{axis}": float(g) for axis, g in zip("xyz", gains) if np.isfinite(g)})
             cvs = [np.nanstd(r) / np.nanmean(r) for k, r in v.items() if k[0] == "ratio" and np.isfinite(r).sum() > 1]
             if cvs:
                 metrics["val/scale_ratio_cv"] = float(np.mean(cvs))
