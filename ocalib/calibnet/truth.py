@@ -27,6 +27,16 @@ def trajectory_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
     return scale
 
 
+def front_end_rotation_gain(estimate: np.ndarray, truth: np.ndarray) -> list[float]:
+    """Rotation gain (3,) about each camera axis of a front-end trajectory (T, 4, 4) against the truth (T, 4, 4),
+    over the frame-to-frame motions where both are finite (NaN: nothing to measure)."""
+    from ocalib.eval.pose_metrics import frame_motions, rotation_gain
+
+    m, g = frame_motions(estimate), frame_motions(truth)
+    ok = np.isfinite(m).all((1, 2)) & np.isfinite(g).all((1, 2))
+    return [float(x) for x in rotation_gain(m[ok], g[ok])] if ok.sum() >= 2 else [math.nan] * 3
+
+
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Angle between two vectors in degrees (NaN when either is zero)."""
     na, nb = np.linalg.norm(a), np.linalg.norm(b)
@@ -45,8 +55,10 @@ def extrinsic_errors(estimate: Calibration, extrinsics: np.ndarray, trajectory: 
 
     Keys: ``rotation_error_deg``, ``translation_direction_error_deg``, and with ``truth``:
     ``metric_scale`` (front-end units of camera 0 -> metres), ``translation_error`` (metres, after that
-    scale), ``translation_error_rel_baseline`` (over the true baseline, same components) and
-    ``scale_true`` (the scale that maps camera k's front-end units into camera 0's).
+    scale), ``translation_error_rel_baseline`` (over the true baseline, same components),
+    ``scale_true`` (the scale that maps camera k's front-end units into camera 0's), and
+    ``rotation_gain_reference`` / ``rotation_gain`` (3 each): the front end's rotation gain about each axis of
+    camera 0 / camera k (:func:`~ocalib.eval.pose_metrics.rotation_gain`; unequal gains bend the rotation axes).
     """
     C = extrinsics.shape[0]
     ref = np.linalg.inv(extrinsics[0])
@@ -55,6 +67,7 @@ def extrinsic_errors(estimate: Calibration, extrinsics: np.ndarray, trajectory: 
     if truth is not None:
         rebased = np.linalg.inv(truth[:1]) @ truth  # each camera's truth relative to its first frame
         scales = [trajectory_scale(trajectory[:, c], rebased[:, c]) for c in range(C)]
+        gains = [front_end_rotation_gain(trajectory[:, c], rebased[:, c]) for c in range(C)]
     out = []
     for k in range(1, C):
         R, t = estimate.rotation[0, k - 1].double().numpy(), estimate.translation[0, k - 1].double().numpy()
@@ -79,5 +92,6 @@ def extrinsic_errors(estimate: Calibration, extrinsics: np.ndarray, trajectory: 
             e["translation_error_rel_baseline"] = e["translation_error"] / baseline if baseline > 0 else math.nan
             e["scale_true"] = scales[k] / a if a and math.isfinite(a) else math.nan
             e["scale"] = float(estimate.scale[0, k - 1])
+            e["rotation_gain_reference"], e["rotation_gain"] = gains[0], gains[k]
         out.append(e)
     return out

@@ -98,6 +98,9 @@ def errors_table(errors: list[dict], cameras: list[str]) -> str:
             text += (f", translation {e['translation_error']:.3f} m = {e['translation_error_rel_baseline']:.1%} of the "
                      f"baseline (camera 0 scaled to metres x{e['metric_scale']:.3g}), scale {e['scale']:.3f} "
                      f"(true {e['scale_true']:.3f})")
+            gains = lambda g: "/".join(f"{x:.2f}" for x in g)  # noqa: E731
+            text += (f"\n    front-end rotation gain x/y/z (1: unbiased): {cameras[0]} {gains(e['rotation_gain_reference'])}, "
+                     f"{cameras[e['camera']]} {gains(e['rotation_gain'])}")
         lines.append(text)
     return "\n".join(lines)
 

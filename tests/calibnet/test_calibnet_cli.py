@@ -3,6 +3,7 @@
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -67,6 +68,19 @@ def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     assert err["rotation_error_deg"] < 0.05 and err["translation_direction_error_deg"] < 0.5
     assert err["metric_scale"] == pytest.approx(1 / 2.5, rel=1e-6)
     assert err["translation_error_rel_baseline"] < 0.01 and err["scale_true"] == pytest.approx(1.0, rel=1e-6)
+    np.testing.assert_allclose(err["rotation_gain_reference"] + err["rotation_gain"], 1.0, atol=1e-9)
+    # a front end that reports half the rotation of camera 1 about its z axis
+    from ocalib.eval.pose_metrics import frame_motions, rotation_vector
+
+    steps = frame_motions(front_end[:, 1])
+    rv = rotation_vector(steps[:, :3, :3]) * [1.0, 1.0, 0.5]
+    halved = front_end.copy()
+    for t, (step, r) in enumerate(zip(steps, rv)):
+        step[:3, :3] = cv2.Rodrigues(r)[0]
+        halved[t + 1, 1] = halved[t, 1] @ step
+    (err,) = extrinsic_errors(est, T, halved, truth)
+    assert err["rotation_gain"][2] == pytest.approx(0.5, abs=1e-9)
+    np.testing.assert_allclose(err["rotation_gain"][:2], 1.0, atol=1e-9)
 
 
 @pytest.mark.parametrize("case, message", [
