@@ -1,4 +1,5 @@
-"""Figures of one camera's evaluation: trajectory top view, per-frame scale ratio, error histograms.
+"""Figures of one camera's evaluation: trajectory top view, per-frame scale ratio, error histograms, the
+predicted against the true rotation about each camera axis (the rotation gain) and the rotation error over time.
 
 Convention: trajectories are drawn in the ground truth's first camera frame (x right, z forward), the
 prediction after its Sim(3) alignment; the top view is the x-z plane.
@@ -11,16 +12,17 @@ from pathlib import Path
 import numpy as np
 
 from ocalib.eval.evaluate import CameraEvaluation
+from ocalib.eval.pose_metrics import frame_motions, rotation_vector
 
 
 def plot_camera(result: CameraEvaluation, path: str | Path, title: str = "") -> Path:
-    """Write a PNG of 2x2 panels (those without data say so) and return its path."""
+    """Write a PNG of 2x3 panels (those without data say so) and return its path."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 2, figsize=(12, 9))
+    fig, axes = plt.subplots(2, 3, figsize=(17, 9))
     d = result.details
     ax = axes[0, 0]
     if d is not None:
@@ -69,6 +71,28 @@ def plot_camera(result: CameraEvaluation, path: str | Path, title: str = "") -> 
         ax.set_title(f"depth abs rel per image (mean {np.mean(abs_rel):.3g})", fontsize=10)
     else:
         _empty(ax, "no ground-truth depth")
+    ax = axes[0, 2]
+    if d is not None:
+        pred, true = (np.degrees(rotation_vector(frame_motions(p)[:, :3, :3])) for p in (result.poses, result.truth))
+        gains = result.pose["rotation_gain_xyz"]
+        for i, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
+            gain = "n/a" if gains[i] is None or not np.isfinite(gains[i]) else f"{gains[i]:.2f}"
+            ax.plot(true[:, i], pred[:, i], ".", ms=3, color=colour, label=f"about {axis} (gain {gain})")
+        lim = max(np.abs(true).max(), np.abs(pred).max(), 1e-6)
+        ax.plot([-lim, lim], [-lim, lim], "k-", lw=0.8, label="unbiased")
+        ax.set_aspect("equal")
+        ax.legend(fontsize=8)
+        ax.set_title("frame-to-frame rotation vector, predicted vs true (deg)", fontsize=10)
+        ax.set_xlabel("true")
+        ax.set_ylabel("predicted")
+
+        ax = axes[1, 2]
+        ax.plot(np.arange(1, len(d["rotation_deg"]) + 1), d["rotation_deg"], ".-", ms=3)
+        ax.set_title("frame-to-frame rotation error (deg)", fontsize=10)
+        ax.set_xlabel("frame")
+    else:
+        _empty(axes[0, 2], "no ground-truth poses")
+        _empty(axes[1, 2], "no ground-truth poses")
     fig.suptitle(f"{title} camera {result.name}".strip(), fontsize=11)
     fig.tight_layout()
     path = Path(path)
