@@ -13,7 +13,6 @@ the scale that multiplies camera k's front-end units into camera 0's.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, fields
 from pathlib import Path
 
