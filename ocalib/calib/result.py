@@ -14,6 +14,7 @@ from ocalib.calib.planar import planar_rotation_std
 from ocalib.calib.refine import joint_covariance
 from ocalib.calib.rotation import rotation_std
 from ocalib.calib.translation import translation_uncertainty, unobservable_directions
+from ocalib.io.jsonable import finite_or_null
 
 
 @dataclass
@@ -129,9 +130,9 @@ class Calibration:
             "scale": float(get("scale")),
             "frames_used": int(get("frames_used")),
             "frames_rejected": int(get("frames_rejected")),
-            "rotation_std_deg": _finite_or_none(torch.rad2deg(get("rotation_std"))),
-            "translation_std": _finite_or_none(get("translation_std")),
-            "scale_std": _finite_or_none(get("scale_std")),
+            "rotation_std_deg": finite_or_null(torch.rad2deg(get("rotation_std")).tolist()),
+            "translation_std": finite_or_null(get("translation_std").tolist()),
+            "scale_std": finite_or_null(get("scale_std").tolist()),
             "observability": {
                 "rotation_singular_values": get("rotation_singular_values").tolist(),
                 "rotation_observable": bool(get("rotation_observable")),
@@ -141,8 +142,3 @@ class Calibration:
             },
         }
 
-
-def _finite_or_none(x: Tensor):
-    """JSON has no infinity: unobservable (infinite) standard deviations become null."""
-    values = [v if math.isfinite(v) else None for v in x.reshape(-1).tolist()]
-    return values if x.dim() else values[0]

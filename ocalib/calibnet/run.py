@@ -12,7 +12,6 @@ the scale that multiplies camera k's front-end units into camera 0's.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -30,6 +29,7 @@ from ocalib.data.layout import open_sequence
 from ocalib.data.stream import RigStream
 from ocalib.errors import InputError
 from ocalib.eval.predict import FrameImages, check_motion, model_view
+from ocalib.io.jsonable import finite_or_null
 
 FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
@@ -46,17 +46,8 @@ class ImageCalibration:
     def result_json(self) -> dict:
         doc = self.run.result_json()
         if self.errors is not None:
-            doc["ground_truth_errors"] = _finite_or_null(self.errors)
+            doc["ground_truth_errors"] = finite_or_null(self.errors)
         return doc
-
-
-def _finite_or_null(x):
-    """``x`` (nested lists and dicts) with NaN and inf floats as None, for JSON."""
-    if isinstance(x, dict):
-        return {k: _finite_or_null(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_finite_or_null(v) for v in x]
-    return None if isinstance(x, float) and not math.isfinite(x) else x
 
 
 def calibrate_sequence(

@@ -12,7 +12,6 @@ frame (every pose metric is invariant to that choice), so aligned predictions li
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -25,6 +24,7 @@ from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
 from ocalib.eval.pose_metrics import invert, pose_metrics
 from ocalib.eval.predict import FramePrediction, ModelView, chain, model_view, predict_frames
+from ocalib.io.jsonable import finite_or_null
 
 
 @dataclass
@@ -122,18 +122,11 @@ def evaluation_json(results: list[CameraEvaluation]) -> dict:
     """The per-camera JSON document (``cameras``: name -> depth, pose, missing) and ``warnings``; NaN -> null."""
     doc = {"cameras": {}, "warnings": []}
     for r in results:
-        doc["cameras"][r.name] = {"frames": len(r.poses), "depth": _clean(r.depth), "pose": _clean(r.pose),
-                                  "missing": r.missing}
+        doc["cameras"][r.name] = {"frames": len(r.poses), "depth": finite_or_null(r.depth),
+                                  "pose": finite_or_null(r.pose), "missing": r.missing}
         if r.missing:
             done = [k for k, v in (("depth", r.depth), ("pose", r.pose)) if v is not None]
             doc["warnings"].append(f"camera {r.name}: no ground-truth {' or '.join(r.missing)}; evaluated: "
                                    f"{', '.join(done) or 'nothing'}")
     return doc
 
-
-def _clean(d: dict | None):
-    """NaN and inf (also in lists) -> None, for JSON."""
-    if d is None:
-        return None
-    finite = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
-    return {k: [finite(x) for x in v] if isinstance(v, list) else finite(v) for k, v in d.items()}

@@ -32,7 +32,7 @@ def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1) / 2, cos))
 
 
-def rotation_vector(R: np.ndarray) -> np.ndarray:
+def rotation_matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
     """Rotation vectors (..., 3) (axis times angle, radians) of rotation matrices (..., 3, 3), for angles below
     180 degrees (the axis from the skew part, the angle in atan2 form: accurate near 0)."""
     w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1) / 2
@@ -48,7 +48,7 @@ def rotation_gain(pred: np.ndarray, truth: np.ndarray, min_rms_deg: float = 0.01
     the rotation (a pose network short of training regresses toward no motion). NaN about an axis whose true
     rotation is below ``min_rms_deg`` RMS (nothing to measure). Different gains per axis bend the rotation axes,
     which biases hand-eye calibration even where the per-frame errors are small."""
-    rp, rt = rotation_vector(pred[:, :3, :3]), rotation_vector(truth[:, :3, :3])
+    rp, rt = rotation_matrix_to_axis_angle(pred[:, :3, :3]), rotation_matrix_to_axis_angle(truth[:, :3, :3])
     power = (rt * rt).sum(0)
     excited = np.sqrt(power / len(rt)) > np.radians(min_rms_deg)
     return np.where(excited, (rp * rt).sum(0) / np.where(excited, power, 1.0), np.nan)

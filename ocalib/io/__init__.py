@@ -1,1 +1,1 @@
-"""File formats: pose files (KITTI, TUM)."""
+"""File formats: pose files (KITTI, TUM); JSON-safe numbers."""

@@ -70,10 +70,10 @@ def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     assert err["translation_error_rel_baseline"] < 0.01 and err["scale_true"] == pytest.approx(1.0, rel=1e-6)
     np.testing.assert_allclose(err["rotation_gain_reference"] + err["rotation_gain"], 1.0, atol=1e-9)
     # a front end that reports half the rotation of camera 1 about its z axis
-    from ocalib.eval.pose_metrics import frame_motions, rotation_vector
+    from ocalib.eval.pose_metrics import frame_motions, rotation_matrix_to_axis_angle
 
     steps = frame_motions(front_end[:, 1])
-    rv = rotation_vector(steps[:, :3, :3]) * [1.0, 1.0, 0.5]
+    rv = rotation_matrix_to_axis_angle(steps[:, :3, :3]) * [1.0, 1.0, 0.5]
     halved = front_end.copy()
     for t, (step, r) in enumerate(zip(steps, rv)):
         step[:3, :3] = cv2.Rodrigues(r)[0]

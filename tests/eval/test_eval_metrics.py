@@ -9,7 +9,8 @@ from ocalib.errors import InputError
 from ocalib.eval.alignment import align_poses, align_trajectory, umeyama
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
 from ocalib.eval.pose_metrics import (
-    frame_errors, frame_motions, pose_metrics, rotation_angle_deg, rotation_gain, rotation_vector, rpe, snippet_ate,
+    frame_errors, frame_motions, pose_metrics, rotation_angle_deg, rotation_gain, rotation_matrix_to_axis_angle, rpe,
+    snippet_ate,
 )
 
 
@@ -227,11 +228,11 @@ def test_baselines_are_the_metrics_of_image_blind_predictors():
     assert summary["baseline_zero_rotation_deg_median"] > 1  # the test trajectory turns 0.6-4.6 deg a frame
 
 
-def test_rotation_vector_matches_opencv_rodrigues():
+def test_axis_angle_matches_opencv_rodrigues():
     rng = np.random.default_rng(3)
     R = np.stack([rot(rng.normal(size=3), a) for a in (1e-9, 1e-4, 0.3, 2.0, 3.0)])
     expected = np.stack([cv2.Rodrigues(r)[0].ravel() for r in R])
-    np.testing.assert_allclose(rotation_vector(R), expected, atol=1e-9)
+    np.testing.assert_allclose(rotation_matrix_to_axis_angle(R), expected, atol=1e-9)
 
 
 def test_rotation_gain_recovers_per_axis_scaling():
@@ -239,7 +240,7 @@ def test_rotation_gain_recovers_per_axis_scaling():
     exact), and one that never rotates about z: their gains, and NaN about an axis the truth never turns."""
     gt = trajectory(60, seed=5)
     truth = frame_motions(gt)
-    rv = rotation_vector(truth[:, :3, :3])
+    rv = rotation_matrix_to_axis_angle(truth[:, :3, :3])
     gains = np.array([0.5, 1.0, 0.25])
     pred = np.stack([pose(cv2.Rodrigues(gains * r)[0], m[:3, 3]) for r, m in zip(rv, truth)])
     summary, _ = pose_metrics(_chain(pred), gt)
