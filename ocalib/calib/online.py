@@ -22,6 +22,7 @@ from ocalib.calib.translation import rls_update
 from ocalib.geometry.pose import invert_pose, orthonormality_error
 from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
 
+
 class OnlineCalibrator(nn.Module):
     """On-line hand-eye calibration of B rigs of C cameras (camera 0 against cameras 1..C-1).
 
@@ -230,4 +231,3 @@ class OnlineCalibrator(nn.Module):
             translation_rows=trans_rows,
             refined=est["refined"],
         )
-
