@@ -1,10 +1,13 @@
-"""Callbacks of the training application: the slim model file written at the end of a fit."""
+"""Callbacks of the training application: the slim model file written at the end of a fit, and a clean exit of
+distributed workers."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import lightning.pytorch as pl
+import torch.distributed as dist
+from lightning.pytorch.trainer.states import TrainerStatus
 
 from ocalib.models import save_model
 
@@ -23,3 +26,18 @@ class ExportModel(pl.Callback):
         meta = {"global_step": int(trainer.global_step), "epoch": int(trainer.current_epoch),
                 "hparams": {k: v for k, v in pl_module.hparams.items() if isinstance(v, (int, float, str, bool))}}
         self.path = save_model(pl_module.model, folder / self.filename, meta)
+
+
+class ReleaseProcessGroup(pl.Callback):
+    """At teardown, wait for every rank (after a run that finished) and destroy the process group.
+
+    Lightning leaves the group alive; a spawned CPU worker (``ddp_spawn``, gloo) that exits with it alive can abort
+    (SIGABRT, "terminate called without an active exception") after a finished fit, failing the whole run.
+    """
+
+    def teardown(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
+        if not (dist.is_available() and dist.is_initialized()):
+            return
+        if trainer.state.status == TrainerStatus.RUNNING:  # not after an exception: a dead rank would hang a barrier
+            dist.barrier()
+        dist.destroy_process_group()

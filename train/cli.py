@@ -11,7 +11,7 @@ import torch
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.cli import LightningCLI
 
-from train.callbacks import ExportModel
+from train.callbacks import ExportModel, ReleaseProcessGroup
 from train.datamodule import SnippetDataModule
 from train.module import EgoMotionModule
 
@@ -34,7 +34,7 @@ class EgoMotionCLI(LightningCLI):
 def trainer_defaults() -> dict:
     return {
         "callbacks": [ModelCheckpoint(save_last=True, every_n_train_steps=500), LearningRateMonitor("step"),
-                      ExportModel()],
+                      ExportModel(), ReleaseProcessGroup()],
         "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger", "init_args": {"save_dir": "runs"}},
     }
 
