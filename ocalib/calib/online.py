@@ -17,7 +17,7 @@ from ocalib.calib.result import Calibration
 from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
 from ocalib.calib.pairing import MOTIONS, combine_statistics
 from ocalib.calib.rotation import incremental_svd_update
-from ocalib.calib.solve import estimate
+from ocalib.calib.solve import REFINE_MODES, estimate
 from ocalib.calib.translation import rls_update
 from ocalib.geometry.pose import invert_pose, orthonormality_error
 from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
@@ -42,7 +42,9 @@ class OnlineCalibrator(nn.Module):
         solver: ``exact`` (moment solver, equals batch least squares) or ``rls`` (the paper's).
         refine: with the exact solver, refine the closed form jointly every frame (equals the batch joint
             least squares of :func:`~ocalib.calib.batch.batch_calibrate`); False: the closed form (rotation
-            first, then translation and scale), which equals the batch closed form.
+            first, then translation and scale), which equals the batch closed form; ``"unobservable"``: refine
+            only where the rotation rows alone leave the rotation unobservable (monocular front ends, whose
+            translation directions are biased: see :data:`~ocalib.calib.solve.REFINE_MODES`).
         symmetric: translation rows of every motion pair in both directions (see :mod:`ocalib.calib.handeye`).
         forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
         rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
@@ -60,7 +62,7 @@ class OnlineCalibrator(nn.Module):
         batch_size: int = 1,
         motion: str | tuple[int, ...] = "multi",
         solver: str = "exact",
-        refine: bool = True,
+        refine: bool | str = True,
         symmetric: bool = True,
         forgetting: float = 1.0,
         rls_c0: float = 1e4,
@@ -80,11 +82,13 @@ class OnlineCalibrator(nn.Module):
             raise ValueError(f"solver must be 'exact' or 'rls', got {solver!r}")
         if not 0 < forgetting <= 1:
             raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
+        if refine not in REFINE_MODES:
+            raise ValueError(f"refine must be one of {REFINE_MODES}, got {refine!r}")
         gaps = MOTIONS[motion] if isinstance(motion, str) else tuple(int(g) for g in motion)
         if not gaps or min(gaps) < 0:
             raise ValueError(f"motion gaps must be non-negative frame counts, got {gaps}")
         self.num_cameras, self.batch_size, self.gaps, self.solver = num_cameras, batch_size, gaps, solver
-        self.refine, self.symmetric = refine and solver == "exact", symmetric
+        self.refine, self.symmetric = refine if solver == "exact" else False, symmetric
         self.forgetting, self.rls_c0, self.rls_delay = forgetting, rls_c0, rls_delay
         self.min_rotation = math.radians(min_rotation_deg)
         self.screw_gate, self.screw_gate_sigma = math.radians(screw_gate_deg), screw_gate_sigma

@@ -247,13 +247,15 @@ def calibrate_rig(
     motion: str = "multi",
     solver: str = "exact",
     forgetting: float = 1.0,
+    refine: bool | str = True,
     progress: bool | None = False,
 ) -> CalibrationRun:
     """Calibrate cameras 1..K of ``rig`` against camera 0.
 
     solver: ``exact`` or ``rls``: the on-line head's estimate at every frame (``exact`` through the
     whole-sequence path of :mod:`ocalib.calib.sequence`, which equals streaming the frames; ``rls`` streams
-    them); ``batch`` solves all frames with every pose valid at once (one estimate). progress: a tqdm bar
+    them); ``batch`` solves all frames with every pose valid at once (one estimate). refine: the head's (see
+    :class:`OnlineCalibrator`; the batch solver refines only with True, and only where rotation is observable). progress: a tqdm bar
     (None: only on a terminal).
     """
     if solver not in SOLVERS:
@@ -262,17 +264,18 @@ def calibrate_rig(
         raise InputError(f"forgetting must be in (0, 1], got {forgetting}")
     poses = torch.from_numpy(rig.poses)
     if solver == "batch":
-        final = _batch(poses, rig.valid.all(1), motion)
+        final = _batch(poses, rig.valid.all(1), motion, refine is True)
         trace, frames = trace_rows(final), np.array([len(poses) - 1])
     elif solver == "exact":
-        (final, trace), frames = _sequence(poses, motion, forgetting, progress), np.arange(len(poses))
+        (final, trace), frames = _sequence(poses, motion, forgetting, refine, progress), np.arange(len(poses))
     else:
         head = OnlineCalibrator(rig.poses.shape[1], motion=motion, solver=solver, forgetting=forgetting,
-                                pose_tolerance=POSE_TOLERANCE)  # fmt: skip
+                                refine=refine, pose_tolerance=POSE_TOLERANCE)  # fmt: skip
         (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
     times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
     trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
-    settings = {"motion": motion, "solver": solver, "forgetting": forgetting, "frames": len(poses), "max_dt": rig.max_dt}
+    settings = {"motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine, "frames": len(poses),
+                "max_dt": rig.max_dt}
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = run_warnings(run)
     return run
@@ -287,11 +290,12 @@ def calibrate_files(
     motion: str = "multi",
     solver: str = "exact",
     forgetting: float = 1.0,
+    refine: bool | str = True,
     progress: bool | None = False,
 ) -> CalibrationRun:
     """:func:`load_rig` then :func:`calibrate_rig`; see both for the arguments."""
     rig = load_rig(files, format, times, time_offset, max_dt)
-    run = calibrate_rig(rig, motion, solver, forgetting, progress)
+    run = calibrate_rig(rig, motion, solver, forgetting, refine, progress)
     run.settings["format"] = format
     return run
 
@@ -308,14 +312,15 @@ def _single_thread():
         torch.set_num_threads(threads)
 
 
-def _sequence(poses: torch.Tensor, motion: str, forgetting: float, progress: bool | None) -> tuple[Calibration, dict]:
+def _sequence(poses: torch.Tensor, motion: str, forgetting: float, refine: bool | str,
+              progress: bool | None) -> tuple[Calibration, dict]:
     """Every frame (T, C, 4, 4) at once (:func:`~ocalib.calib.sequence.calibrate_sequence`) -> (the last
     estimate, the trace of every frame); the uncertainty is computed ``TRACE_CHUNK`` frames at a time."""
     with torch.inference_mode(), _single_thread(), tqdm(
         total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False
     ) as bar:
-        out = calibrate_sequence(poses, motion=motion, forgetting=forgetting, pose_tolerance=POSE_TOLERANCE,
-                                 progress=bar.update)  # fmt: skip
+        out = calibrate_sequence(poses, motion=motion, forgetting=forgetting, refine=refine,
+                                 pose_tolerance=POSE_TOLERANCE, progress=bar.update)  # fmt: skip
         names = [f.name for f in fields(Calibration)]
         part = lambda a, b: Calibration(**{n: getattr(out, n)[a:b] for n in names})  # noqa: E731
         chunks = [trace_rows(part(a, a + TRACE_CHUNK)) for a in range(0, len(poses), TRACE_CHUNK)]
@@ -376,12 +381,12 @@ def progress_text(out: Calibration) -> str:
     return f"cam1 rot {angle:.2f}deg t=({t[0]:+.3f},{t[1]:+.3f},{t[2]:+.3f}) s={s:.3f}"
 
 
-def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str) -> Calibration:
+def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str, refine: bool) -> Calibration:
     """The batch solution of the frames with every pose valid, as a one-frame Calibration (1, K).
 
     Its uncertainty comes from the same batch system (rotation blocks and translation features).
     """
-    out = batch_calibrate(poses[torch.from_numpy(valid)], motion)
+    out = batch_calibrate(poses[torch.from_numpy(valid)], motion, refine=refine)
     _, S, V = batch_rotation(out["blocks"])
     features = out["features"]
     rows = torch.full(S.shape[:1], float(out["blocks"].shape[1]), dtype=S.dtype)  # motion pairs

@@ -4,7 +4,9 @@ whole-sequence path (:mod:`ocalib.calib.sequence`).
 From the rotation system (``S2, V``: squared singular values and right singular vectors) and the translation
 moment ``Z``: the closed-form rotation (the null vector; on planar motion the translation route of
 :mod:`ocalib.calib.planar`), the exact least-squares translation and scale with that rotation, then the
-joint refinement of :mod:`ocalib.calib.refine` where rotation is observable and the motion is not planar.
+joint refinement of :mod:`ocalib.calib.refine` where two rotation directions are excited and the motion is not
+planar (``refine=True``), or only where the rotation rows alone leave the rotation unobservable
+(``refine="unobservable"``: for monocular front ends, see :data:`REFINE_MODES`).
 
 Convention: ``T_cam0_camk`` (``p_cam0 = dR p_camk + dT``), ``s`` multiplies camera-k units into camera-0
 units, quaternions (w, x, y, z) with w >= 0. Any leading batch shape (rigs, cameras, frames).
@@ -23,13 +25,23 @@ from ocalib.calib.translation import solve_translation
 from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 
+# The joint refinement lets the translation rows move the rotation. Where those rows are trustworthy (poses from
+# SLAM, metric VO) that makes it more accurate (docs/simulation.md: 0.137 vs 0.191 deg on OpenCV's protocol). A
+# monocular front end (OpenCV VO, a pose network) gets translation directions wrong in a biased way (the
+# rotation-translation ambiguity): the refinement weighs rows by their scatter, which does not see a bias, and
+# pulls the rotation off (measured on the held-out handheld rig: OpenCV VO 1.6 deg closed form vs 5.7 refined; the
+# networks 5.5 vs 6.9, 5.7 vs 13.5). "unobservable" refines only where the rotation needs the translation rows:
+# near-planar motion whose third rotation direction the rotation rows do not fix.
+REFINE_MODES = (True, False, "unobservable")
+
+
 def estimate(
     S2: Tensor,
     V: Tensor,
     Z: Tensor,
     rotation_rows: Tensor,
     translation_rows: Tensor,
-    refine: bool = True,
+    refine: bool | str = True,
     refine_steps: int = 3,
 ) -> dict[str, Tensor]:
     """Extrinsics from the statistics.
@@ -38,7 +50,9 @@ def estimate(
         S2: (..., 4) squared singular values (descending), V: (..., 4, 4) right singular vectors of the
             weighted rotation rows. Z: (..., 15, 15) weighted translation moment.
         rotation_rows, translation_rows: (...) weighted numbers of motion pairs behind them.
-        refine: run the joint refinement (else the closed form). refine_steps: its steps.
+        refine: one of :data:`REFINE_MODES`: True runs the joint refinement, False keeps the closed form,
+            ``"unobservable"`` refines only where the rotation is not observable from the rotation rows.
+            refine_steps: the refinement's steps.
 
     Returns:
         ``quaternion`` (..., 4), ``rotation`` (..., 3, 3), ``translation`` (..., 3), ``scale`` (...),
@@ -70,6 +84,8 @@ def estimate(
         # Where at least two rotation directions are excited and the motion is not planar (rotation observable,
         # or weak in the third direction: the translation rows then carry it).
         active = excited(S, rotation_rows, 1) & ~planar & (translation_rows >= 3)
+        if refine == "unobservable":
+            active = active & ~observable
         quat, x, refined = joint_refine(M, quadratic, quat, x, rotation_rows, translation_rows, active, refine_steps)
         dR = torch.where(refined[..., None, None], quaternion_to_rotation_matrix(quat), dR)
 

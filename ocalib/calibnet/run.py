@@ -60,6 +60,7 @@ def calibrate_sequence(
     solver: str = "exact",
     forgetting: float = 1.0,
     scale: str = "head",
+    refine: bool | str = "unobservable",
     max_frames: int | None = None,
     intrinsics: str | None = None,
     progress: bool | None = None,
@@ -68,8 +69,9 @@ def calibrate_sequence(
     """Calibrate cameras 1..C-1 of the sequence at ``path`` against camera 0 (the first of ``cameras``).
 
     frontend: ``network`` (the pose network of ``checkpoint``, default the shipped one) or ``opencv``.
-    motion, solver, forgetting: the head's (see :class:`OnlineCalibrator`); scale: see
-    :class:`OnlineCalibrationNet`. max_frames: use only the first frames. on_frame(t, estimate): called
+    motion, solver, forgetting, refine: the head's (see :class:`OnlineCalibrator`; ``refine`` defaults to
+    ``"unobservable"``: a monocular front end's translation directions must not move an observable rotation, see
+    :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet`. max_frames: use only the first frames. on_frame(t, estimate): called
     after every frame (e.g. TensorBoard). progress: a tqdm bar with the current estimate (None: on a terminal).
     """
     if frontend not in FRONTENDS:
@@ -89,11 +91,12 @@ def calibrate_sequence(
         views = [model_view(c, model.height, model.width) for c in sequence.cameras]
         frames_in = FrameImages(sequence, views)
         net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver,
-                                   forgetting=forgetting, scale=scale).to(device)
+                                   forgetting=forgetting, refine=refine, scale=scale).to(device)
         step = _network_step(net, device)
     else:
         frames_in = RigStream(sequence, size=sequence.cameras[0].size)
-        head = OnlineCalibrator(len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting)
+        head = OnlineCalibrator(len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting,
+                                refine=refine)
         step = _opencv_step(head)
 
     final, trace, trajectory = _stream(frames_in, frames, step, progress, on_frame)
@@ -103,7 +106,7 @@ def calibrate_sequence(
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
     settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
-                "motion": motion, "solver": solver, "forgetting": forgetting, "scale": scale,
+                "motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine, "scale": scale,
                 "frames": frames, "max_dt": None, "sequence": str(path)}
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = run_warnings(run)

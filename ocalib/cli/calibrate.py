@@ -10,6 +10,8 @@ import argparse
 import json
 import sys
 
+REFINE_CHOICES = {"unobservable": "unobservable", "always": True, "never": False}  # --refine -> the head's refine
+
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -36,6 +38,10 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    help="motion pairs of the head (default: gaps of 1, 2, 4, 8 and 16 frames, weighted by their noise)")
     p.add_argument("--solver", choices=("exact", "rls"), default="exact", help="the head's translation solver")
     p.add_argument("--forgetting", type=float, default=1.0, metavar="L", help="forgetting factor in (0, 1]")
+    p.add_argument("--refine", choices=REFINE_CHOICES, default="unobservable",
+                   help="joint refinement of the closed form by the translation rows: only where the rotation rows "
+                   "leave the rotation unobservable (default: a monocular front end's translation directions are "
+                   "biased and would pull an observable rotation off), always, or never")
     p.add_argument("--scale", choices=("head", "normalise"), default="head",
                    help="network scale: trust it per camera and solve the ratio (head, default), or normalise "
                    "each camera's steps by their running mean length")
@@ -56,7 +62,7 @@ def run(args) -> int:
     try:
         result = calibrate_sequence(
             args.sequence, args.cameras, args.frontend, args.checkpoint, args.device, args.motion, args.solver,
-            args.forgetting, args.scale, args.max_frames, args.intrinsics, progress=None,
+            args.forgetting, args.scale, REFINE_CHOICES[args.refine], args.max_frames, args.intrinsics, progress=None,
             on_frame=(lambda t, e: log_frame(writer, t, e)) if writer else None,
         )  # fmt: skip
     finally:

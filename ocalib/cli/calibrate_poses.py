@@ -11,6 +11,8 @@ import argparse
 import json
 import sys
 
+from ocalib.cli.calibrate import REFINE_CHOICES
+
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -38,6 +40,10 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--time-offset", nargs="+", metavar="SECONDS|auto",
                    help="clock offset added to camera k's timestamps (t0 = tk + offset): one value for all cameras "
                    "or one per camera; 'auto' estimates it from the angular speeds (needs timestamps)")
+    p.add_argument("--refine", choices=REFINE_CHOICES, default="always",
+                   help="joint refinement of the closed form by the translation rows: always (default, for SLAM or "
+                   "metric poses), only where the rotation rows leave the rotation unobservable (for monocular VO, "
+                   "whose translation directions are biased), or never")
     p.add_argument("--max-dt", type=float, metavar="S",
                    help="pair poses at most S seconds apart (default: half camera 0's median frame period)")
     return p
@@ -51,7 +57,7 @@ def run(args) -> int:
         raise InputError("--plot shows per-frame estimates, which --solver batch does not make; use exact or rls")
     result = calibrate_files(
         args.files, args.format, args.times, args.time_offset, args.max_dt,
-        args.motion, args.solver, args.forgetting, progress=None,
+        args.motion, args.solver, args.forgetting, REFINE_CHOICES[args.refine], progress=None,
     )  # fmt: skip
     doc = result.result_json()
     if args.out:

@@ -118,6 +118,37 @@ def test_screw_gate_rejects_outlier_motions(generator):
     assert err_g < 0.3 < err_p
 
 
+def biased_translations(poses, camera, angle):
+    """The trajectory of ``camera`` re-chained with every frame-to-frame translation turned by ``angle`` (rad) about
+    that camera's x axis: a monocular front end's biased translation directions (rotations untouched)."""
+    P = poses[:, camera]
+    motion = torch.linalg.inv(P[:-1]) @ P[1:]
+    turn = so3_exp(torch.tensor([angle, 0.0, 0.0], dtype=torch.float64))
+    motion[:, :3, 3] = motion[:, :3, 3] @ turn.mT
+    chained = [P[0]]
+    for m in motion:
+        chained.append(chained[-1] @ m)
+    out = poses.clone()
+    out[:, camera] = torch.stack(chained)
+    return out
+
+
+def test_refine_unobservable_keeps_biased_translations_off_an_observable_rotation(generator):
+    """refine="unobservable" is the closed form where rotation is observable, so translation directions that are
+    15 degrees off (a monocular front end) cannot pull the rotation, as they pull the joint refinement's."""
+    poses, X, _ = lds_rig(generator, frames=100, noise=0.002)
+    biased = biased_translations(poses, 1, math.radians(15))
+    heads = {mode: OnlineCalibrator(2, refine=mode) for mode in (True, "unobservable", False)}
+    for t in range(len(poses)):
+        out = {mode: head(biased[t]) for mode, head in heads.items()}
+    assert out["unobservable"].rotation_observable.all() and not out["unobservable"].refined.any()
+    torch.testing.assert_close(out["unobservable"].quaternion, out[False].quaternion, atol=1e-12, rtol=0)
+    err = {mode: rotation_error_deg(o.rotation[0], X[:, :3, :3]) for mode, o in out.items()}
+    assert err["unobservable"] < 0.15 and err[True] > 1.5 * err["unobservable"]
+    with pytest.raises(ValueError, match="refine must be one of"):
+        OnlineCalibrator(2, refine="sometimes")
+
+
 def test_planar_motion_is_flagged_and_rotation_recovered(generator):
     poses, X = car_rig(generator, frames=300, noise=0.001)
     cal = OnlineCalibrator(2)

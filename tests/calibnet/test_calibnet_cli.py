@@ -35,6 +35,7 @@ def test_calibrate_writes_json_trace_plot_and_errors(tiny, tmp_path, capsys):
     assert rc == 0
     doc = json.loads(out.read_text())
     assert doc["reference"] == "cam0" and [e["camera"] for e in doc["extrinsics"]] == ["cam1"]
+    assert doc["settings"]["refine"] == "unobservable"  # the image front ends' default
     e = doc["extrinsics"][0]
     R = np.array(e["rotation"])
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)

@@ -256,3 +256,19 @@ def test_bad_options(tmp_path, capsys):
     assert code == 2 and "forgetting must be in (0, 1]" in err
     code, _, err = calibrate(capsys, files[0])
     assert code == 2 and "at least 2 pose files" in err
+
+
+@pytest.mark.parametrize("refine", ["always", "never"])
+def test_refine_option_reaches_the_head(tmp_path, capsys, refine):
+    """--refine reaches the solver: with --solver batch, never gives the closed form, always the joint least squares."""
+    from ocalib.calib.batch import batch_calibrate
+
+    poses, _ = simulate(noise=0.01)
+    out = tmp_path / "r.json"
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--refine", refine, "--out", out, "--solver", "batch")
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["settings"]["refine"] == (refine == "always")
+    ref = batch_calibrate(torch.from_numpy(poses), "multi", refine=refine == "always")
+    np.testing.assert_allclose(doc["extrinsics"][0]["quaternion_wxyz"], ref["quaternion"][0].numpy(), atol=1e-9)
+    assert bool(ref["refined"][0]) == (refine == "always")
