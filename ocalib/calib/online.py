@@ -139,6 +139,7 @@ class OnlineCalibrator(nn.Module):
                 f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}"
             )
         st = self._buffers  # the state, read and replaced directly (nn.Module attribute access is slow)
+        differentiable = torch.is_grad_enabled() and (poses.requires_grad or st["gap_Z"].requires_grad)
         poses = poses.to(st["S2"].dtype)
         valid = poses.isfinite().flatten(-2).all(-1)
         eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
@@ -180,7 +181,10 @@ class OnlineCalibrator(nn.Module):
         w_tr = ok.to(poses.dtype)
         z = pair_features(motion[:, :1].expand_as(motion[:, 1:]), motion[:, 1:], self.symmetric)  # (B, K, P, D, 15)
         moment = (z * w_tr[..., None, None]).mT @ z
-        st["gap_Z"] = st["gap_Z"] + moment if lam == 1 else lam * st["gap_Z"] + moment  # the largest state: one pass
+        if differentiable:
+            st["gap_Z"] = st["gap_Z"] + moment if lam == 1 else lam * st["gap_Z"] + moment
+        else:  # in place: the largest state (B x K x gaps x 15 x 15); a new one a frame costs its page faults
+            st["gap_Z"] = (st["gap_Z"] if lam == 1 else st["gap_Z"].mul_(lam)).add_(moment)
         st["gap_translation_rows"] = lam * st["gap_translation_rows"] + w_tr
 
         # The gaps, weighted by their noise.
@@ -211,7 +215,7 @@ class OnlineCalibrator(nn.Module):
         st["frames_used"] = st["frames_used"] + used
         st["frames_rejected"] = st["frames_rejected"] + (~used & (frame > 0))
         slot = (frame % self.history_size).reshape(1)
-        if torch.is_grad_enabled() and poses.requires_grad:  # keep earlier frames' graph intact
+        if differentiable:  # keep earlier frames' graph intact
             st["history"] = st["history"].index_copy(2, slot, poses.unsqueeze(2))
         else:  # in place: the ring buffer is the largest state (B x C x 32 poses)
             st["history"] = st["history"].detach().index_copy_(2, slot, poses.unsqueeze(2))
