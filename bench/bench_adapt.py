@@ -70,7 +70,8 @@ def adapt(model: EgoMotionModel, path: Path, steps: int, rig: dict | None, seed:
             dR = axis_angle_to_rotation_matrix(omega[None])[0] @ dR0
             rotation = (A[:, :3, :3] @ dR - dR @ B[:, :3, :3]).square().sum((-1, -2)).mean()
             residual = ((A[:, :3, :3] - torch.eye(3)) @ dT + A[:, :3, 3] - log_s.exp() * B[:, :3, 3] @ dR.mT)
-            translation = residual.square().sum(-1).mean() / A[:, :3, 3].detach().square().sum(-1).mean().clamp_min(1e-8)
+            step = A[:, :3, 3].detach().square().sum(-1).mean().clamp_min(1e-8)  # camera 0's squared step length
+            translation = residual.square().sum(-1).mean() / step
             loss = loss + RIG_WEIGHTS[0] * rotation + RIG_WEIGHTS[1] * translation
         optimiser.zero_grad()
         loss.backward()

@@ -255,8 +255,8 @@ def calibrate_rig(
     solver: ``exact`` or ``rls``: the on-line head's estimate at every frame (``exact`` through the
     whole-sequence path of :mod:`ocalib.calib.sequence`, which equals streaming the frames; ``rls`` streams
     them); ``batch`` solves all frames with every pose valid at once (one estimate). refine: the head's (see
-    :class:`OnlineCalibrator`; the batch solver refines only with True, and only where rotation is observable). progress: a tqdm bar
-    (None: only on a terminal).
+    :class:`OnlineCalibrator`; the batch solver refines only with True, and only where rotation is
+    observable). progress: a tqdm bar (None: only on a terminal).
     """
     if solver not in SOLVERS:
         raise InputError(f"unknown solver {solver!r}: {', '.join(SOLVERS)}")

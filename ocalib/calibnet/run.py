@@ -71,8 +71,9 @@ def calibrate_sequence(
     frontend: ``network`` (the pose network of ``checkpoint``, default the shipped one) or ``opencv``.
     motion, solver, forgetting, refine: the head's (see :class:`OnlineCalibrator`; ``refine`` defaults to
     ``"unobservable"``: a monocular front end's translation directions must not move an observable rotation, see
-    :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet`. max_frames: use only the first frames. on_frame(t, estimate): called
-    after every frame (e.g. TensorBoard). progress: a tqdm bar with the current estimate (None: on a terminal).
+    :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet`. max_frames: use only
+    the first frames. on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar
+    with the current estimate (None: on a terminal).
     """
     if frontend not in FRONTENDS:
         raise InputError(f"unknown front end {frontend!r}: {', '.join(FRONTENDS)}")

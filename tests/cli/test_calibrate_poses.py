@@ -265,7 +265,8 @@ def test_refine_option_reaches_the_head(tmp_path, capsys, refine):
 
     poses, _ = simulate(noise=0.01)
     out = tmp_path / "r.json"
-    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--refine", refine, "--out", out, "--solver", "batch")
+    files = write_files(tmp_path, poses)
+    code, _, err = calibrate(capsys, *files, "--refine", refine, "--out", out, "--solver", "batch")
     assert code == 0, err
     doc = json.loads(out.read_text())
     assert doc["settings"]["refine"] == (refine == "always")
