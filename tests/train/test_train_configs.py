@@ -15,7 +15,7 @@ CPU = ["--trainer.accelerator=cpu", "--trainer.devices=1", "--trainer.strategy=a
 
 def test_all_configs_are_there():
     names = {p.stem for p in CONFIGS}
-    assert {"synthetic-cpu", "synthetic-cpu-nosc", "kitti-raw", "kitti-odometry", "sfmlearner", "folder", "gpu"} <= names
+    assert {"synthetic-cpu", "synthetic-cpu-sc", "shipped-default", "kitti-raw", "kitti-odometry", "sfmlearner", "folder", "gpu"} <= names
 
 
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
@@ -26,6 +26,6 @@ def test_config_instantiates(config, tmp_path):
                                                                      cli.datamodule.hparams.width)
     if config.stem.startswith("synthetic"):
         assert isinstance(cli.datamodule, SyntheticDataModule) and cli.model.hparams.size == "small"
-        assert (cli.model.hparams.geometry > 0) == (config.stem == "synthetic-cpu")
+        assert (cli.model.hparams.geometry > 0) == (config.stem == "synthetic-cpu-sc")
     if config.stem == "gpu":
         assert cli.model.hparams.size == "large"
