@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from ocalib.calib.result import Calibration
+from ocalib.eval.pose_metrics import frame_motions, rotation_gain
 
 
 def trajectory_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
@@ -30,8 +31,6 @@ def trajectory_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
 def front_end_rotation_gain(estimate: np.ndarray, truth: np.ndarray) -> list[float]:
     """Rotation gain (3,) about each camera axis of a front-end trajectory (T, 4, 4) against the truth (T, 4, 4),
     over the frame-to-frame motions where both are finite (NaN: nothing to measure)."""
-    from ocalib.eval.pose_metrics import frame_motions, rotation_gain
-
     m, g = frame_motions(estimate), frame_motions(truth)
     ok = np.isfinite(m).all((1, 2)) & np.isfinite(g).all((1, 2))
     return [float(x) for x in rotation_gain(m[ok], g[ok])] if ok.sum() >= 2 else [math.nan] * 3

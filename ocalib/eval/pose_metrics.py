@@ -25,19 +25,24 @@ def invert(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def _sin_axis_cos(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``sin(angle) * axis`` (..., 3) (the skew part of R) and ``cos(angle)`` (..., 1) of rotations (..., 3, 3)."""
+    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1) / 2
+    return w, (np.trace(R, axis1=-2, axis2=-1)[..., None] - 1) / 2
+
+
 def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
     """Rotation angles in degrees, [0, 180], of rotation matrices (..., 3, 3) (atan2 form, accurate near 0)."""
-    skew = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-    cos = (np.trace(R, axis1=-2, axis2=-1) - 1) / 2
-    return np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1) / 2, cos))
+    w, cos = _sin_axis_cos(R)
+    return np.degrees(np.arctan2(np.linalg.norm(w, axis=-1), cos[..., 0]))
 
 
 def rotation_matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
     """Rotation vectors (..., 3) (axis times angle, radians) of rotation matrices (..., 3, 3), for angles below
     180 degrees (the axis from the skew part, the angle in atan2 form: accurate near 0)."""
-    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1) / 2
+    w, cos = _sin_axis_cos(R)
     sin = np.linalg.norm(w, axis=-1, keepdims=True)
-    angle = np.arctan2(sin, (np.trace(R, axis1=-2, axis2=-1)[..., None] - 1) / 2)
+    angle = np.arctan2(sin, cos)
     return np.where(sin > 0, w * angle / np.maximum(sin, 1e-300), w)
 
 
