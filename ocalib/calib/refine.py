@@ -24,11 +24,10 @@ camera-k units into camera-0 units.
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import torch
 from torch import Tensor
 
+from ocalib.geometry.constants import constant_cache
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, quaternion_to_rotation_matrix
 
 
@@ -140,23 +139,22 @@ def _costs(M: Tensor, P: Tensor, p: Tensor, c: Tensor, q: Tensor, x: Tensor) -> 
     return Er, Et
 
 
-@lru_cache(maxsize=None)
+@constant_cache
 def _bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Constants, for the unknowns ordered (d, s, dT): ``G`` (3, 3, 3) the generators ``[e_k]x``; the Newton
     terms as maps from ``vec(D)`` (9) to the flattened 7x7 Hessian: ``newton_s`` (9, 49), times s, for
     ``<D, (G_k G_l + G_l G_k) / 2>`` in the (d, d) block (the second derivative of ``dR R(d)``), ``newton_1``
     (9, 49) for ``<D, G_k>`` in the (d, s) entries, and ``newton_r`` (49,) the identity of the (d, d) block
-    (the second derivative of ``q * (1, d/2) / |.|`` is ``-q / 4``). Made outside inference mode."""
-    with torch.inference_mode(False):
-        eye = torch.eye(3, dtype=torch.float64)
-        G = torch.stack([torch.linalg.cross(eye[k].expand(3, 3), eye, dim=-1).mT for k in range(3)])
-        newton_s = torch.zeros(9, 7, 7, dtype=torch.float64)
-        newton_1 = torch.zeros(9, 7, 7, dtype=torch.float64)
-        newton_r = torch.zeros(7, 7, dtype=torch.float64)
-        for k in range(3):
-            for l in range(3):
-                newton_s[:, k, l] = (0.5 * (G[k] @ G[l] + G[l] @ G[k])).flatten()
-            newton_1[:, k, 3] = newton_1[:, 3, k] = G[k].flatten()
-            newton_r[k, k] = 1.0
-        out = G, newton_s.flatten(1), newton_1.flatten(1), newton_r.flatten()
-        return tuple(t.to(dtype=dtype, device=device) for t in out)
+    (the second derivative of ``q * (1, d/2) / |.|`` is ``-q / 4``)."""
+    eye = torch.eye(3, dtype=torch.float64)
+    G = torch.stack([torch.linalg.cross(eye[k].expand(3, 3), eye, dim=-1).mT for k in range(3)])
+    newton_s = torch.zeros(9, 7, 7, dtype=torch.float64)
+    newton_1 = torch.zeros(9, 7, 7, dtype=torch.float64)
+    newton_r = torch.zeros(7, 7, dtype=torch.float64)
+    for k in range(3):
+        for l in range(3):
+            newton_s[:, k, l] = (0.5 * (G[k] @ G[l] + G[l] @ G[k])).flatten()
+        newton_1[:, k, 3] = newton_1[:, 3, k] = G[k].flatten()
+        newton_r[k, k] = 1.0
+    out = G, newton_s.flatten(1), newton_1.flatten(1), newton_r.flatten()
+    return tuple(t.to(dtype=dtype, device=device) for t in out)

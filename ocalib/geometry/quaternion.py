@@ -7,10 +7,10 @@ function is a handful of tensor operations; all are differentiable, for any lead
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import torch
 from torch import Tensor
+
+from ocalib.geometry.constants import constant_cache
 
 
 def quaternion_multiply(p: Tensor, q: Tensor) -> Tensor:
@@ -46,17 +46,10 @@ def _shepperd(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     ]
 
 
-@lru_cache(maxsize=None)
+@constant_cache
 def _bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Constant matrices of the linear maps above: L (4, 16), R (4, 16), Shepperd (9, 16) + offset (16,).
+    """Constant matrices of the linear maps above: L (4, 16), R (4, 16), Shepperd (9, 16) + offset (16,)."""
 
-    Made outside inference mode: cached inference tensors could not be used by autograd later.
-    """
-    with torch.inference_mode(False):
-        return _make_bases(dtype, device)
-
-
-def _make_bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     def as_rows(f, n):  # row i: the flattened f(e_i), as tensor operations (torch.compile traces them)
         entries = f(*torch.eye(n, dtype=torch.float64).unbind(-1))  # 4 x 4 entries, each (n,): over e_1..e_n
         return torch.stack([torch.stack([torch.as_tensor(e, dtype=torch.float64).expand(n) for e in row]) for row in entries]).reshape(16, n).T
