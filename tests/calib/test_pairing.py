@@ -18,13 +18,23 @@ def test_gap_weights_closed_form():
     S2, rows = _system([1.0, 1.0], [1001.5, 1001.5])  # 2000 degrees of freedom each
     torch.testing.assert_close(gap_weights(S2, rows), torch.ones(2, dtype=torch.float64))
     S2, rows = _system([1.0, 2.0], [1001.5, 1001.5])
-    pooled = 3.0 / 4000
-    var = (torch.tensor([1.0, 2.0], dtype=torch.float64) + GAP_PRIOR_DOF * pooled) / (2000 + GAP_PRIOR_DOF)
+    residual, prior_dof = torch.tensor([1.0, 2.0], dtype=torch.float64), GAP_PRIOR_DOF
+    shrunk = (residual + prior_dof * 3.0 / 4000) / (2000 + prior_dof)  # toward the pooled variance
+    var = (residual + prior_dof * shrunk.max()) / (2000 + prior_dof)  # toward the noisiest gap's
     expected = (var[0] / var) ** GAP_WEIGHT_POWER
     torch.testing.assert_close(gap_weights(S2, rows), expected, rtol=1e-9, atol=0)
-    # A gap without residual degrees of freedom weighs 1 and does not set the reference.
-    S2, rows = _system([1e-9, 1.0, 2.0], [1.0, 1001.5, 1001.5])
-    assert gap_weights(S2, rows)[0] == 1 and gap_weights(S2, rows)[1] == 1
+    # A gap without residual degrees of freedom counts as the noisiest measured gap and does not set the reference.
+    S2, rows = _system([0.0, 1.0, 2.0], [1.0, 1001.5, 1001.5])
+    w = gap_weights(S2, rows)
+    shrunk = (residual + prior_dof * 3.0 / 4000) / (2000 + prior_dof)
+    var = (residual + prior_dof * shrunk.max()) / (2000 + prior_dof)
+    assert w[1] == 1
+    # (up to the rounding floor, 1e-12 of the largest signal per row: 1e-10 with the new gap's single row)
+    torch.testing.assert_close(w[1:], (var[0] / var) ** GAP_WEIGHT_POWER, rtol=1e-5, atol=0)
+    torch.testing.assert_close(w[0], (var[0] / shrunk.max()) ** GAP_WEIGHT_POWER, rtol=1e-5, atol=0)
+    # Without any measured gap, all weigh 1.
+    S2, rows = _system([0.0, 0.0], [1.0, 1.0])
+    assert bool((gap_weights(S2, rows) == 1).all())
 
 
 def test_noise_free_weights_are_one(generator):
@@ -49,6 +59,18 @@ def test_long_gaps_fade_under_drift_only(generator, model):
         assert w[0] == 1 and w[4] < 1e-4 and bool((w[1:].diff() < 0).all())
     else:
         assert bool((w > 0.3).all())
+
+
+def test_new_long_gap_starts_light_under_drift(generator):
+    """Under drift, gap 16's first rows (frame 16) come in at about the weight of the noisiest gap already
+    measured (gap 8: 8x the variance of gap 1), not at weight 1."""
+    poses, _, _ = lds_rig(generator, frames=18, noise=0.01, model="drift")
+    cal = OnlineCalibrator(2, motion=(1, 2, 4, 8, 16))
+    for t in range(17):
+        cal(poses[t])
+    assert 0 < float(cal.gap_rotation_rows[0, 0, 4]) <= 1  # one (robustly weighted) row
+    w = gap_weights(cal.gap_S2, cal.gap_rotation_rows)[0, 0]
+    assert w[4] < 0.01 and w[4] <= 1.5 * w[3]
 
 
 def test_weighted_gaps_equal_the_weighted_batch_under_drift(generator):
