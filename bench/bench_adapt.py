@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import random
 import tempfile
 import time
@@ -31,6 +30,7 @@ import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from bench_calibnet_accuracy import DEFAULT, ensure
+from common import write_json
 from ocalib.calibnet.run import calibrate_sequence
 from ocalib.data.layout import open_sequence
 from ocalib.data.snippets import SnippetDataset, collate_snippets
@@ -123,9 +123,8 @@ def main() -> None:
             rel = r["translation_rel_baseline"]
             print(f"{name:18} {label:20} {r['rotation_deg']:9.2f} {r['direction_deg']:9.2f} "
                   f"{'n/a' if rel is None else f'{rel:10.2f}':>10}  {r['rotation_gains_xyz'][0]} / {r['rotation_gains_xyz'][1]}")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({"frames": args.frames, "steps": args.steps,
-                                          "checkpoint": args.checkpoint or "default", "results": results}, indent=2))
+    write_json(args.out, {"frames": args.frames, "steps": args.steps, "checkpoint": args.checkpoint or "default",
+                          "results": results})
 
 
 if __name__ == "__main__":

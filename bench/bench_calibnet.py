@@ -11,14 +11,12 @@ when available. Prints a table and writes ``bench/results/calibnet.json``.
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import statistics
 import time
-from pathlib import Path
 
 import torch
 
+from common import write_json
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.models import EgoMotionModel, load_model
@@ -83,9 +81,7 @@ def main() -> None:
     for r in runs:
         for name, c in r["cases"].items():
             print(f"{r['device']:8} {name:14} {c['median_ms']:10.2f} {c['fps']:10.1f}")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({"machine": platform.processor() or platform.machine(),
-                                          "threads": args.threads, "model": model.size, "runs": runs}, indent=2))
+    write_json(args.out, {"threads": args.threads, "model": model.size, "runs": runs})
 
 
 if __name__ == "__main__":

@@ -13,13 +13,13 @@ relative to the baseline after scaling camera 0's trajectory to metres. Prints a
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from common import write_json
 from ocalib.calib.pipeline import RigPoses, calibrate_rig
 from ocalib.calibnet.run import calibrate_sequence
 from ocalib.calibnet.truth import extrinsic_errors
@@ -92,9 +92,7 @@ def main() -> None:
             rel = r["translation_rel_baseline"]
             print(f"{name:18} {label:26} {r['rotation_deg']:9.3f} {r['direction_deg']:9.2f} "
                   f"{'n/a' if rel is None else f'{rel:10.3f}':>10} {r['fps']:7.1f}" + ("  (in plane)" if r["in_plane"] else ""))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({"frames": args.frames, "checkpoint": args.checkpoint or "default",
-                                          "results": results}, indent=2))
+    write_json(args.out, {"frames": args.frames, "checkpoint": args.checkpoint or "default", "results": results})
 
 
 if __name__ == "__main__":

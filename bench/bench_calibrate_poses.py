@@ -21,8 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -33,6 +31,7 @@ import cv2
 import numpy as np
 import torch
 
+from common import write_json
 from ocalib.calib.pipeline import calibrate_rig, load_rig
 from ocalib.io.poses import write_kitti
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
@@ -142,18 +141,8 @@ def main() -> None:
         "opencv": opencv,
         "pipeline_over_fastest_opencv": stages["total"] / fastest,
         "cli_over_fastest_opencv": cli / fastest,
-        "machine": {
-            "cpus": os.cpu_count(),
-            "load_average": os.getloadavg(),
-            "torch": torch.__version__,
-            "opencv": cv2.__version__,
-            "python": platform.python_version(),
-        },
     }
-    out = ROOT / "bench" / "results" / "calibrate_poses.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {out.relative_to(ROOT)}")
+    write_json(ROOT / "bench" / "results" / "calibrate_poses.json", result)
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 import torch
 
+from common import write_json
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.sequence import calibrate_sequence
@@ -162,8 +163,7 @@ def main() -> None:
         "load_average": os.getloadavg(),
     }
     print(json.dumps(summary, indent=1))
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps({"rows": rows, "summary": summary, "torch": torch.__version__, "opencv": cv2.__version__}, indent=1))
+    write_json(OUT, {"rows": rows, "summary": summary})
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ Usage: ``python bench/bench_opencv_accuracy.py`` -- prints tables, writes
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import time
@@ -27,6 +26,7 @@ import cv2
 import numpy as np
 import torch
 
+from common import write_json
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.sim.trajectory import add_noise, car_trajectory, random_rig, rig_trajectories
@@ -270,11 +270,9 @@ def main():
     print(f"({time.perf_counter() - t0:.1f} s)")
     drop_raw = lambda res: {k: {e: {s: v for s, v in d.items() if s != "raw"} if isinstance(d, dict) else d  # noqa: E731
                                for e, d in r.items()} for k, r in res.items()}
-    out = ROOT / "bench/results/opencv_accuracy.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"setup": setup, "opencv_version": cv2.__version__,
-                               "protocol": {k: drop_raw(v) for k, v in results.items()}, "large": drop_raw(large),
-                               "planar": drop_raw(planar)}, indent=1))  # fmt: skip
+    write_json(ROOT / "bench/results/opencv_accuracy.json",
+               {"setup": setup, "protocol": {k: drop_raw(v) for k, v in results.items()}, "large": drop_raw(large),
+                "planar": drop_raw(planar)})  # fmt: skip
     doc = ROOT / "docs/simulation.md"
     start, end = "<!-- opencv-accuracy:start -->", "<!-- opencv-accuracy:end -->"
     text = doc.read_text() if doc.exists() else f"# Simulation\n\n## Against OpenCV\n\n{start}\n{end}\n"

@@ -20,9 +20,7 @@ Sequences are rendered into ``--data`` when missing. Prints tables and writes th
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from common import write_json
 from ocalib.calib.pipeline import calibrate_files
 from ocalib.data import RigStream, open_sequence
 from ocalib.frontend import OpenCVOdometry
@@ -158,10 +157,7 @@ def main(argv=None) -> int:
             print(f"| {r['preset']} | {r['poses']} | {r['frames']} | {r['rotation_err_deg']:.2f} | {direction} | "
                   f"{r['translation_err_pct_baseline']:.0f} | {r['scale']:.3f} ({r['scale_true']:.3f}) | "
                   f"{r['planar_motion']} |")
-    doc = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_avg": os.getloadavg()},
-           "settings": vars(args), "vo": vo_rows, "calibration": calib_rows}  # fmt: skip
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(doc, indent=2))
+    write_json(args.out, {"settings": vars(args), "vo": vo_rows, "calibration": calib_rows})
     return 0
 
 

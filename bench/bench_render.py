@@ -10,15 +10,12 @@ Prints a table and writes ``bench/results/render.json``.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
 import time
-from pathlib import Path
 
 import torch
 
+from common import write_json
 from ocalib.synth import preset
 from ocalib.synth.render import WorldTensors, render_view
 from ocalib.synth.sequence import camera_poses, world_for
@@ -68,11 +65,7 @@ def main(argv=None) -> int:
     print(f"{'size':>9} {'threads':>7} {'ms/view':>8} {'fps/camera':>10}   (median of {args.repeats}; {args.preset})")
     for r in rows:
         print(f"{r['height']}x{r['width']:<5} {r['threads']:>7} {r['ms_per_view_median']:>8.1f} {r['fps_per_camera_median']:>10.1f}")
-    result = {"benchmark": "synth render", "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-              "torch": torch.__version__, "load_average_at_end": os.getloadavg()}, "results": rows}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, {"benchmark": "synth render", "results": rows})
     return 0
 
 

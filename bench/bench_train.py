@@ -13,16 +13,13 @@ backward). Medians over the repeats. Prints a table and writes ``bench/results/t
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
 import time
-from pathlib import Path
 
 import kornia
 import torch
 
+from common import write_json
 from ocalib.losses import ssim_error
 from ocalib.models import EgoMotionModel
 from train.module import EgoMotionModule
@@ -116,14 +113,9 @@ def main(argv=None) -> int:
         unit = "snippets" if "snippets_per_s" in r else "frames" if rate else ""
         text = f"{rate:.1f} {unit}" if rate else ""
         print(f"{r['case']:<34} {r['device']:>6} {r['threads']:>7} {r['batch']:>5} {r['ms']:>8.1f} {text:>15}")
-    result = {"benchmark": "ego-motion training", "size": args.size, "height": args.height, "width": args.width,
-              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "torch": torch.__version__,
-                          "cuda": torch.cuda.get_device_name() if torch.cuda.is_available() else None,
-                          "load_average_at_end": os.getloadavg()},
-              "results": [{k: round(v, 2) if isinstance(v, float) else v for k, v in r.items()} for r in rows]}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, {"benchmark": "ego-motion training", "size": args.size, "height": args.height,
+                          "width": args.width,
+                          "results": [{k: round(v, 2) if isinstance(v, float) else v for k, v in r.items()} for r in rows]})
     return 0
 
 
