@@ -14,13 +14,13 @@ def constant_cache(make):
     later). Under ``torch.compile`` ``make`` is traced instead: Dynamo would ignore the cache (and warn), and the
     compiler folds the result into constants.
     """
-    cached = lru_cache(maxsize=None)(make)
+    @lru_cache(maxsize=None)
+    def cached(dtype: torch.dtype, device: torch.device):
+        with torch.inference_mode(False):
+            return make(dtype, device)
 
     @wraps(make)
     def get(dtype: torch.dtype, device: torch.device):
-        if torch.compiler.is_compiling():
-            return make(dtype, device)
-        with torch.inference_mode(False):
-            return cached(dtype, device)
+        return make(dtype, device) if torch.compiler.is_compiling() else cached(dtype, device)
 
     return get
