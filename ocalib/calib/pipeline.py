@@ -36,13 +36,14 @@ from ocalib.calib.rotation import (
 )
 from ocalib.errors import InputError
 from ocalib.io.poses import describe_invalid, pose_validity, read_poses
-from ocalib.io.timing import associate, estimate_time_offset
+from ocalib.io.timing import associate, estimate_time_offset, interpolate
 
 MIN_FRAMES = 3  # synchronised frames with every pose valid, below which there is nothing to calibrate
 PROGRESS_EVERY = 100  # frames between progress-bar updates (and between copies of the per-frame estimates)
 TRACE_CHUNK = 4096  # frames whose uncertainty is computed at once
 POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
 SOLVERS = ("exact", "rls", "batch")
+SYNC_MODES = ("interpolate", "nearest")  # how timestamped cameras meet camera 0's stamps (see load_rig)
 
 # The per-camera keys of the result JSON, in the order of the issue's format.
 CAMERA_KEYS = (
@@ -59,7 +60,7 @@ class RigPoses:
     times: (T,) camera-0 seconds, or None (KITTI without times). lines: (T, C) the file line of each pose.
     time_offsets: (C,) seconds added to camera k's clock (0 for camera 0), None without timestamps.
     offset_quality: per camera, the ``OffsetQuality`` of an estimated (``auto``) offset, else None.
-    max_dt: the association tolerance used, seconds (None without timestamps).
+    max_dt: the association tolerance used, seconds (the largest over the cameras; None without timestamps).
     """
 
     files: list[str]
@@ -82,6 +83,7 @@ def load_rig(
     times: list[str | Path] | None = None,
     time_offset: list[float | str] | None = None,
     max_dt: float | None = None,
+    sync: str = "interpolate",
 ) -> RigPoses:
     """Read C >= 2 pose files and pair their poses into synchronised frames.
 
@@ -90,12 +92,20 @@ def load_rig(
         times: KITTI ``times.txt`` files, one per pose file (TUM files carry their own timestamps).
         time_offset: one value for every camera k >= 1, or one per camera: seconds, or ``"auto"``
             (estimated by cross-correlating angular speeds). Needs timestamps.
-        max_dt: association tolerance in seconds; default half camera 0's median frame period.
+        max_dt: association tolerance in seconds: ``nearest``: the largest distance from a camera-0 stamp to the
+            camera-k stamp paired with it, default half camera 0's median frame period; ``interpolate``: half the
+            longest gap between camera-k samples to interpolate across, default 1.25 camera-k median frame periods
+            (one dropped frame is bridged, two are not).
+        sync: with timestamps, how camera k's poses meet camera 0's stamps: ``interpolate`` (SLERP and linear
+            between the two samples around each stamp, see :func:`~ocalib.io.timing.interpolate`) or ``nearest``
+            (the nearest sample, one-to-one).
 
     Without timestamps the files must hold one pose per frame (equal lengths). With timestamps every
-    camera is paired with camera 0 (nearest stamp within ``max_dt``) and only frames that every camera
-    has are kept. Raises InputError naming the file (and line) on any bad input.
+    camera is brought to camera 0's stamps (``sync``) and only frames that every camera has are kept.
+    Raises InputError naming the file (and line) on any bad input.
     """
+    if sync not in SYNC_MODES:
+        raise InputError(f"unknown sync {sync!r}: {', '.join(SYNC_MODES)}")
     files = [str(f) for f in files]
     if len(files) < 2:
         raise InputError(f"a rig needs at least 2 pose files (camera 0 and one more), got {len(files)}")
@@ -122,7 +132,7 @@ def load_rig(
         missing = ", ".join(f for f, ok in zip(files, timed) if not ok)
         raise InputError(f"{missing}: no timestamps, while the other files have them; give --times for KITTI files")
     else:
-        rig = _associate(files, trajs, offsets, max_dt)
+        rig = _associate(files, trajs, offsets, max_dt, sync)
 
     valid = rig.valid.all(1)
     if valid.sum() < MIN_FRAMES:
@@ -150,34 +160,41 @@ def _offset_specs(time_offset, cameras: int) -> list[float | str | None]:
     return values
 
 
-def _associate(files, trajs, offsets, max_dt) -> RigPoses:
-    """Pair every camera's poses with camera 0's by timestamp; keep the frames every camera has."""
+def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
+    """Bring every camera's poses to camera 0's timestamps; keep the frames every camera has."""
     t0 = trajs[0].times
-    if max_dt is None:
-        max_dt = 0.5 * float(np.median(np.diff(t0))) if len(t0) > 1 else 0.0
-    resolved, quality, pairs = [0.0], [None], []
+    period = lambda t: float(np.median(np.diff(t))) if len(t) > 1 else 0.0  # noqa: E731
+    resolved, quality, pairs, tolerances = [0.0], [None], [], []
     for f, t, spec in zip(files[1:], trajs[1:], offsets):
         q = None
         if spec == "auto":
             spec, q = estimate_time_offset(t0, trajs[0].poses, t.times, t.poses, names=(files[0], f))
         resolved.append(float(spec or 0.0))
         quality.append(q)
-        pairs.append(associate(t0, t.times, max_dt, resolved[-1], names=(files[0], f)))
-    frames = reduce(np.intersect1d, [i0 for i0, _ in pairs])
+        names = (files[0], f)
+        if sync == "nearest":
+            tolerances.append(0.5 * period(t0) if max_dt is None else max_dt)
+            i0, i1 = associate(t0, t.times, tolerances[-1], resolved[-1], names=names)
+            pairs.append((i0, t.poses[i1], i1))
+        else:
+            tolerances.append(1.25 * period(t.times) if max_dt is None else max_dt)
+            pairs.append(interpolate(t0, t.times, t.poses, tolerances[-1], resolved[-1], names=names))
+    frames = reduce(np.intersect1d, [i0 for i0, _, _ in pairs])
     if not len(frames):
         raise InputError(
-            f"no frame where every camera has a pose within max_dt = {max_dt} s of {files[0]}'s: "
-            + ", ".join(f"{f}: {len(i0)} pairs" for f, (i0, _) in zip(files[1:], pairs))
+            f"no frame of {files[0]} where every camera has a pose ({sync}, max_dt "
+            + ", ".join(f"{d:.6g} s" for d in tolerances) + "): "
+            + ", ".join(f"{f}: {len(i0)} frames" for f, (i0, _, _) in zip(files[1:], pairs))
         )
-    index = [frames] + [i1[np.searchsorted(i0, frames)] for i0, i1 in pairs]
+    at = [np.searchsorted(i0, frames) for i0, _, _ in pairs]
     return RigPoses(
         files,
-        np.stack([t.poses[i] for t, i in zip(trajs, index)], 1),
+        np.stack([trajs[0].poses[frames]] + [p[j] for (_, p, _), j in zip(pairs, at)], 1),
         t0[frames],
-        np.stack([t.lines[i] for t, i in zip(trajs, index)], 1),
+        np.stack([trajs[0].lines[frames]] + [t.lines[i1[j]] for t, (_, _, i1), j in zip(trajs[1:], pairs, at)], 1),
         resolved,
         quality,
-        max_dt,
+        max(tolerances),
     )
 
 
@@ -292,11 +309,12 @@ def calibrate_files(
     forgetting: float = 1.0,
     refine: bool | str = True,
     progress: bool | None = False,
+    sync: str = "interpolate",
 ) -> CalibrationRun:
     """:func:`load_rig` then :func:`calibrate_rig`; see both for the arguments."""
-    rig = load_rig(files, format, times, time_offset, max_dt)
+    rig = load_rig(files, format, times, time_offset, max_dt, sync)
     run = calibrate_rig(rig, motion, solver, forgetting, refine, progress)
-    run.settings["format"] = format
+    run.settings.update(format=format, sync=sync if rig.times is not None else None)
     return run
 
 

@@ -44,8 +44,13 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    help="joint refinement of the closed form by the translation rows: always (default, for SLAM or "
                    "metric poses), only where the rotation rows leave the rotation unobservable (for monocular VO, "
                    "whose translation directions are biased), or never")
+    p.add_argument("--sync", choices=("interpolate", "nearest"), default="interpolate",
+                   help="with timestamps: interpolate camera k's poses at camera 0's stamps (rotation by SLERP, "
+                   "position linearly; default), or take the nearest pose")
     p.add_argument("--max-dt", type=float, metavar="S",
-                   help="pair poses at most S seconds apart (default: half camera 0's median frame period)")
+                   help="with timestamps: nearest: pair poses at most S seconds apart (default half a camera-0 frame "
+                   "period); interpolate: across camera-k gaps of at most 2 S (default S: 1.25 camera-k frame periods, "
+                   "so one dropped frame is bridged)")
     return p
 
 
@@ -57,7 +62,7 @@ def run(args) -> int:
         raise InputError("--plot shows per-frame estimates, which --solver batch does not make; use exact or rls")
     result = calibrate_files(
         args.files, args.format, args.times, args.time_offset, args.max_dt,
-        args.motion, args.solver, args.forgetting, REFINE_CHOICES[args.refine], progress=None,
+        args.motion, args.solver, args.forgetting, REFINE_CHOICES[args.refine], progress=None, sync=args.sync,
     )  # fmt: skip
     doc = result.result_json()
     if args.out:

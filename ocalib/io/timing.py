@@ -1,4 +1,4 @@
-"""Timestamps of cameras on one rig: association and clock offset.
+"""Timestamps of cameras on one rig: association (nearest stamp, or interpolation), and clock offset.
 
 Convention: a time offset is ADDED to camera 1's timestamps to put them on camera 0's clock,
 ``t0 = t1 + offset``.
@@ -13,6 +13,7 @@ import torch
 
 from ocalib.errors import InputError
 from ocalib.geometry import rotation_angle
+from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from ocalib.io.poses import pose_validity
 
 # estimate_time_offset: lags overlapping less than MIN_OVERLAP of the shorter recording are not
@@ -50,6 +51,55 @@ def associate(times0, times1, max_dt: float, offset: float = 0.0, names=("camera
     first = np.r_[True, j[order][1:] != j[order][:-1]]
     keep = order[first]
     return i[keep], j[keep]
+
+
+def interpolate(times0, times1, poses1, max_dt: float, offset: float = 0.0, names=("camera 0", "camera 1")):
+    """Camera 1's poses at camera 0's timestamps -> (idx0 (M,), poses (M, 4, 4), idx1 (M,)).
+
+    Each camera-0 stamp ``t`` between two camera-1 samples ``a <= t <= b`` (their stamps shifted by ``offset``)
+    gets the rotation interpolated along the shorter arc (SLERP, :meth:`kornia.geometry.quaternion.Quaternion.slerp`)
+    and the position linearly, both at ``u = (t - t_a) / (t_b - t_a)``: exact for a constant angular and linear
+    velocity between the samples. A stamp on a sample takes that sample as it is. Stamps outside camera 1's span,
+    or between samples more than ``2 max_dt`` apart (a gap in camera 1's recording), are dropped. Where a sample used (``u`` not 0
+    or 1 toward it) is invalid (non-finite or a non-orthonormal rotation), the pose is NaN, so that it is counted
+    as invalid downstream; ``idx1`` is then that sample's index, else the nearer sample's (for messages).
+    times0 (N0,), times1 (N1,) strictly increasing seconds; poses1 (N1, 4, 4) camera-to-world.
+    Convention: ``t0 = t1 + offset``.
+    """
+    from kornia.geometry.quaternion import Quaternion  # here: importing kornia takes 0.2 s, KITTI input never needs it
+
+    t0 = _increasing(times0, names[0])
+    t1 = _increasing(times1, names[1]) + offset
+    if not max_dt >= 0:
+        raise InputError(f"max_dt must be >= 0 seconds, got {max_dt}")
+    if len(t1) < 2:
+        raise InputError(f"{names[1]}: {len(t1)} pose(s): interpolation needs at least 2")
+    b = np.searchsorted(t1, t0).clip(1, len(t1) - 1)
+    a = b - 1
+    before, after = t0 - t1[a], t1[b] - t0
+    on_sample = (before == 0) | (after == 0)
+    keep = np.flatnonzero((before >= 0) & (after >= 0) & (on_sample | (before + after <= 2 * max_dt)))
+    if not len(keep):
+        nearest = np.minimum(np.abs(before), np.abs(after)).min()
+        raise InputError(_no_pairs_message(t0, t1, offset, max_dt, nearest, names))
+    a, b, u = a[keep], b[keep], before[keep] / (t1[b[keep]] - t1[a[keep]])
+    poses1 = np.asarray(poses1, dtype=np.float64)
+    valid = pose_validity(poses1)
+    pa, pb = torch.from_numpy(poses1[a]), torch.from_numpy(poses1[b])
+    ok_a, ok_b = torch.from_numpy(valid[a]), torch.from_numpy(valid[b])
+    eye = torch.eye(3, dtype=torch.float64)
+    qa = rotation_matrix_to_quaternion(torch.where(ok_a[:, None, None], pa[:, :3, :3], eye))
+    qb = rotation_matrix_to_quaternion(torch.where(ok_b[:, None, None], pb[:, :3, :3], eye))
+    w = torch.from_numpy(u)
+    out = torch.zeros_like(pa)
+    out[:, :3, :3] = quaternion_to_rotation_matrix(Quaternion(qa).slerp(Quaternion(qb), w).data)
+    out[:, :3, 3] = (1 - w[:, None]) * pa[:, :3, 3] + w[:, None] * pb[:, :3, 3]
+    out[:, 3, 3] = 1
+    out = torch.where((w == 0)[:, None, None], pa, torch.where((w == 1)[:, None, None], pb, out))  # samples as they are
+    bad_a, bad_b = ~valid[a] & (u < 1), ~valid[b] & (u > 0)
+    poses = np.where((bad_a | bad_b)[:, None, None], np.nan, out.numpy())
+    idx1 = np.where(bad_a, a, np.where(bad_b, b, np.where(u <= 0.5, a, b)))
+    return keep, poses, idx1
 
 
 def _no_pairs_message(t0, t1, offset, max_dt, closest, names) -> str:

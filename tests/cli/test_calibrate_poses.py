@@ -6,6 +6,7 @@ import csv
 import json
 import math
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -133,9 +134,11 @@ def test_frame_zero_pairing_warns_that_its_std_is_optimistic(tmp_path, capsys):
     assert rotation_z["first"] > 3 and rotation_z["multi"] < 3, rotation_z
 
 
+@pytest.mark.parametrize("sync", ["interpolate", "nearest"])
 @pytest.mark.parametrize("offset", [0.0, 1500.0])
-def test_tum_association_and_time_offset(tmp_path, capsys, offset):
-    """Camera 1 misses every 4th frame and runs on a clock ``offset`` s behind; auto recovers it."""
+def test_tum_association_and_time_offset(tmp_path, capsys, offset, sync):
+    """Camera 1 misses every 4th frame and runs on a clock ``offset`` s behind; auto recovers it. Nearest pairing
+    keeps the frames camera 1 has; interpolation bridges the dropped ones (one frame, within 2 max_dt)."""
     poses, X = simulate(frames=400, trajectory="lds")
     t = 1e9 + np.arange(len(poses)) / 20.0  # camera 0: Unix time, 20 Hz
     keep = np.arange(len(poses)) % 4 != 3
@@ -145,15 +148,46 @@ def test_tum_association_and_time_offset(tmp_path, capsys, offset):
         paths.append(str(tmp_path / f"cam{c}.tum"))
         write_tum(paths[-1], times, p)
     out = tmp_path / "result.json"
-    code, stdout, err = calibrate(capsys, *paths, "--time-offset", "auto", "--out", out)
+    code, stdout, err = calibrate(capsys, *paths, "--time-offset", "auto", "--out", out, "--sync", sync)
     assert code == 0, err
     doc = json.loads(out.read_text())
     (cam,) = doc["extrinsics"]
     assert abs(cam["time_offset"] - offset) < 5e-3
-    assert doc["settings"]["frames"] == keep.sum()
+    assert doc["settings"]["sync"] == sync
+    if sync == "nearest":
+        assert doc["settings"]["frames"] == keep.sum()
+    else:  # every camera-0 stamp inside camera 1's span (the first is 1 ms before it, or not)
+        assert len(poses) - 2 <= doc["settings"]["frames"] <= len(poses)
     assert doc["time_offset_estimates"][0]["correlation"] > 0.9
     check_accuracy(cam, X[0], SCALES[0])
     assert "time offset" in stdout
+
+
+def smooth_rig(times: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-to-world poses (N, 4, 4) of camera 0 and camera 1 (rig extrinsic X) at arbitrary times (s), on a
+    smooth trajectory rotating about all three axes (up to ~40 deg/s)."""
+    T0 = np.tile(np.eye(4), (len(times), 1, 1))
+    for T, t in zip(T0, times):
+        T[:3, :3] = cv2.Rodrigues(np.array([0.6 * np.sin(1.1 * t), 0.5 * np.sin(0.7 * t + 1), 0.4 * np.sin(0.9 * t + 2)]))[0]
+        T[:3, 3] = [2 * np.sin(0.4 * t), np.cos(0.3 * t), 0.3 * t]
+    return T0, T0 @ X
+
+
+def test_unsynchronised_cameras_are_interpolated(tmp_path, capsys):
+    """Camera 0 at 20 Hz, camera 1 at 30 Hz on another phase, both noise-free: the nearest stamp is up to 1/60 s
+    off, which biases every motion; interpolation brings camera 1 to camera 0's stamps (against the truth)."""
+    X = random_rig(torch.Generator().manual_seed(3)).numpy()
+    t0, t1 = np.arange(0, 30, 1 / 20), np.arange(0.007, 30, 1 / 30)
+    paths = [str(tmp_path / "cam0.tum"), str(tmp_path / "cam1.tum")]
+    write_tum(paths[0], t0, smooth_rig(t0, X)[0])
+    write_tum(paths[1], t1, smooth_rig(t1, X)[1])
+    error = {}
+    for sync in ("interpolate", "nearest"):
+        out = tmp_path / f"{sync}.json"
+        assert calibrate(capsys, *paths, "--sync", sync, "--out", out)[0] == 0
+        cam = json.loads(out.read_text())["extrinsics"][0]
+        error[sync] = math.degrees(float(rotation_angle(torch.tensor(cam["rotation"], dtype=torch.float64).T @ torch.from_numpy(X[:3, :3]))))
+    assert error["interpolate"] < 0.01 and error["nearest"] > 5 * error["interpolate"], error
 
 
 def test_nan_and_non_orthonormal_poses_are_counted(tmp_path, capsys):

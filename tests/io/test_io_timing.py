@@ -1,11 +1,12 @@
 """Timestamp association and clock-offset estimation between the cameras of a rig."""
 
+import cv2
 import numpy as np
 import pytest
 
 from ocalib.errors import InputError
 from ocalib.io.poses import read_poses, write_tum
-from ocalib.io.timing import angular_speed, associate, estimate_time_offset
+from ocalib.io.timing import angular_speed, associate, estimate_time_offset, interpolate
 
 FRAME = 1 / 30  # camera 0's frame period; camera 1 runs at 20 Hz
 
@@ -126,3 +127,46 @@ def test_angular_speed_is_mounting_invariant(rig):
     m1, w1 = angular_speed(t1, p1)
     np.testing.assert_allclose(m0, m1)
     np.testing.assert_allclose(w0, w1, atol=1e-9)
+
+
+def screw_motion(t: float, w=(0.3, -0.5, 0.8), v=(1.0, 0.2, -0.4)) -> np.ndarray:
+    """Camera-to-world pose (4, 4) at time t of a constant angular and linear velocity (the closed form SLERP and
+    linear interpolation must reproduce exactly)."""
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(np.multiply(w, t))[0]
+    T[:3, 3] = np.multiply(v, t) + 0.5
+    return T
+
+
+@pytest.mark.parametrize("offset", [0.0, -0.0123])
+def test_interpolate_is_exact_on_constant_velocity(offset):
+    t1 = np.arange(0.0, 3.0, 1 / 30)  # camera 1 at 30 Hz; camera 0 at 20 Hz, another phase
+    t0 = np.arange(0.01, 3.2, 1 / 20)
+    poses1 = np.stack([screw_motion(t + offset) for t in t1])  # camera 1's clock: t0 = t1 + offset
+    i0, poses, _ = interpolate(t0, t1, poses1, max_dt=1 / 30, offset=offset)
+    inside = (t0 >= t1[0] + offset) & (t0 <= t1[-1] + offset)
+    np.testing.assert_array_equal(i0, np.flatnonzero(inside))
+    np.testing.assert_allclose(poses, np.stack([screw_motion(t) for t in t0[i0]]), atol=1e-12, rtol=0)
+
+
+def test_interpolate_keeps_samples_and_drops_gaps():
+    t1 = np.array([0.0, 0.1, 0.2, 0.5, 0.6])  # a gap of 0.3 s between 0.2 and 0.5
+    poses1 = np.stack([screw_motion(t) for t in t1])
+    t0 = np.array([-0.05, 0.0, 0.05, 0.2, 0.3, 0.5, 0.55, 0.6, 0.7])
+    i0, poses, i1 = interpolate(t0, t1, poses1, max_dt=0.1)
+    np.testing.assert_array_equal(t0[i0], [0.0, 0.05, 0.2, 0.5, 0.55, 0.6])  # not before/after, not in the gap
+    on_sample = np.isin(t0[i0], t1)
+    np.testing.assert_array_equal(poses[on_sample], poses1[i1[on_sample]])  # samples as they are
+    with pytest.raises(InputError, match="cam1.*spans"):
+        interpolate(np.array([1.0, 2.0]), t1, poses1, 0.1, names=("cam0", "cam1"))
+
+
+def test_interpolate_marks_poses_from_invalid_samples():
+    t1 = np.array([0.0, 0.1, 0.2, 0.3, 0.4, 0.5])
+    poses1 = np.stack([screw_motion(t) for t in t1])
+    poses1[2, 0, 0] = np.nan  # sample 2 invalid
+    t0 = np.array([0.15, 0.2, 0.25, 0.3, 0.35])
+    i0, poses, i1 = interpolate(t0, t1, poses1, max_dt=0.1)
+    bad = np.isnan(poses).any(axis=(1, 2))
+    np.testing.assert_array_equal(bad, [True, True, True, False, False])  # every pose that leans on sample 2
+    np.testing.assert_array_equal(i1[bad], [2, 2, 2])  # named by the invalid sample (its file line)
