@@ -17,15 +17,18 @@ from ocalib.cli.calibrate import REFINE_CHOICES
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         name,
-        help="calibrate a rig from per-camera pose files (KITTI or TUM)",
+        help="calibrate a rig from per-camera pose files (KITTI, TUM or EuRoC / ASL CSV)",
         description=(
             "Calibrate cameras 1..K against camera 0 from each camera's trajectory (KITTI: 12 numbers a line; "
-            "TUM: t tx ty tz qx qy qz qw). Prints a summary; writes the result JSON, a per-frame trace and a plot."
+            "TUM: t tx ty tz qx qy qz qw; EuRoC / ASL CSV: t[ns] px py pz qw qx qy qz ...). Prints a summary; writes "
+            "the result JSON, a per-frame trace and a plot."
         ),
     )
     p.add_argument("files", nargs="+", metavar="CAM", help="pose files, camera 0 (the reference) first")
-    p.add_argument("--format", choices=("auto", "kitti", "tum"), default="auto",
-                   help="pose file format (default: auto, from the numbers on the first pose line)")
+    p.add_argument("--format", choices=("auto", "kitti", "tum", "euroc"), default="auto",
+                   help="pose file format: KITTI (3x4 a line), TUM (t tx ty tz qx qy qz qw) or EuRoC / ASL CSV "
+                   "(t[ns] px py pz qw qx qy qz ...); default auto: from the header and the numbers on the first "
+                   "pose line")
     p.add_argument("--times", nargs="+", metavar="FILE",
                    help="KITTI times.txt files, one per pose file, to pair poses by timestamp")
     p.add_argument("--out", metavar="JSON", help="write the result JSON here")

@@ -5,8 +5,10 @@ Convention: every pose is camera-to-world, a 4x4 float64 matrix; quaternions in 
 * KITTI: one pose a line, 12 numbers, the row-major top 3x4 of the matrix. No timestamps (KITTI keeps
   them in a separate ``times.txt``, one number a line).
 * TUM: ``timestamp tx ty tz qx qy qz qw`` a line (qw LAST in the file), timestamps strictly increasing.
+* EuRoC / ASL CSV (EuRoC ground truth, VINS, OKVIS, Kalibr): ``timestamp [ns], px, py, pz, qw, qx, qy, qz``
+  (qw FIRST, nanoseconds), then any further columns (velocity, biases), which are ignored.
 
-Both: ``#`` comments and blank lines are skipped, numbers are separated by whitespace or commas. Every
+All: ``#`` comments and blank lines are skipped, numbers are separated by whitespace or commas. Every
 format error is an :class:`~ocalib.errors.InputError` naming ``file:line``. NaN/inf values and
 non-orthonormal rotations are *not* read errors (the calibration skips and counts them): check them with
 :func:`pose_validity` and report them with :func:`describe_invalid`.
@@ -15,6 +17,7 @@ non-orthonormal rotations are *not* read errors (the calibration skips and count
 from __future__ import annotations
 
 import io
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +29,9 @@ from ocalib.geometry import orthonormality_error, quaternion_to_rotation_matrix,
 
 KITTI_COLUMNS = 12
 TUM_COLUMNS = 8
+EUROC_COLUMNS = 8  # at least: timestamp, position, quaternion (w first)
+NANOSECONDS = 1e12  # a first timestamp above this is in nanoseconds (in seconds it would be the year 33,658)
+FORMATS = ("auto", "kitti", "tum", "euroc")
 
 
 @dataclass
@@ -68,11 +74,13 @@ def _read_rows(path: str | Path, columns: int | None = None) -> tuple[np.ndarray
             if len(values) not in (KITTI_COLUMNS, TUM_COLUMNS):
                 raise InputError(
                     f"{path}:{lineno}: cannot tell the pose format: {len(values)} numbers on the line, expected "
-                    f"{KITTI_COLUMNS} (KITTI: row-major 3x4 pose) or {TUM_COLUMNS} (TUM: t tx ty tz qx qy qz qw)"
+                    f"{KITTI_COLUMNS} (KITTI: row-major 3x4 pose) or {TUM_COLUMNS} (TUM: t tx ty tz qx qy qz qw); "
+                    "for EuRoC / ASL CSV (t[ns] px py pz qw qx qy qz ...) give --format euroc"
                 )
             columns = len(values)
         elif len(values) != columns:
-            kind = "KITTI: a row-major 3x4 pose" if columns == KITTI_COLUMNS else "TUM: t tx ty tz qx qy qz qw"
+            kind = {KITTI_COLUMNS: "KITTI: a row-major 3x4 pose", TUM_COLUMNS: "TUM: t tx ty tz qx qy qz qw"}.get(
+                columns, "as on the first pose line")
             raise InputError(f"{path}:{lineno}: expected {columns} numbers ({kind}), got {len(values)}")
         rows.append(values)
         lines.append(lineno)
@@ -180,17 +188,45 @@ def write_tum(path: str | Path, times, poses) -> None:
             f.write(f"{t:.9f} " + " ".join(f"{v:.9e}" for v in (*xyz, x, y, z, w)) + "\n")
 
 
-def read_poses(path: str | Path, format: str = "auto", times: str | Path | None = None) -> Trajectory:
-    """Read a KITTI or TUM pose file -> Trajectory.
+def read_euroc(path: str | Path) -> Trajectory:
+    """Read an EuRoC / ASL CSV trajectory -> Trajectory with times (N,) in seconds.
 
-    format: "auto" (12 numbers a line -> KITTI, 8 -> TUM, from the first pose line), "kitti" or "tum".
-    times: a KITTI ``times.txt`` with one timestamp per pose (KITTI only; TUM files carry their own).
+    Convention: the file stores ``timestamp [ns], px, py, pz, qw, qx, qy, qz, ...``; further columns are ignored,
+    quaternions are normalised on read (a near-zero one is an InputError), timestamps must strictly increase.
     """
     path = Path(path)
-    columns = {"auto": None, "kitti": KITTI_COLUMNS, "tum": TUM_COLUMNS}.get(format, -1)
-    if columns == -1:
-        raise InputError(f"{path}: unknown pose format {format!r} (auto, kitti or tum)")
-    rows, lines = _read_rows(path, columns)
+    rows, lines = _read_rows(path, _first_line_columns(path))
+    if rows.shape[1] < EUROC_COLUMNS:
+        raise InputError(f"{path}:{lines[0]}: {rows.shape[1]} numbers on the line; EuRoC / ASL CSV needs at least "
+                         f"{EUROC_COLUMNS} (timestamp [ns], px, py, pz, qw, qx, qy, qz)")  # fmt: skip
+    tum = np.concatenate([rows[:, :1] * 1e-9, rows[:, 1:4], rows[:, 5:8], rows[:, 4:5]], 1)  # TUM's column order
+    return _tum_trajectory(tum, lines, path)
+
+
+def read_poses(path: str | Path, format: str = "auto", times: str | Path | None = None) -> Trajectory:
+    """Read a KITTI, TUM or EuRoC / ASL CSV pose file -> Trajectory.
+
+    format: "auto", "kitti", "tum" or "euroc". Auto: a header naming the quaternion w-first (EuRoC's ``q_RS_w``,
+    or ``qw`` before ``qx``) -> EuRoC; else from the first pose line: 12 numbers -> KITTI, 8 -> TUM. An 8-number
+    file whose first timestamp is in nanoseconds without such a header is refused: TUM and headerless EuRoC
+    differ only in the quaternion's order, which the numbers cannot tell.
+    times: a KITTI ``times.txt`` with one timestamp per pose (KITTI only; TUM and EuRoC files carry their own).
+    """
+    path = Path(path)
+    if format not in FORMATS:
+        raise InputError(f"{path}: unknown pose format {format!r} ({', '.join(FORMATS)})")
+    if format == "auto" and _w_first_header(path):
+        format = "euroc"
+    if format == "euroc":
+        if times is not None:
+            raise InputError(f"{path}: an EuRoC file carries its own timestamps; drop the times file {times}")
+        return read_euroc(path)
+    rows, lines = _read_rows(path, {"auto": None, "kitti": KITTI_COLUMNS, "tum": TUM_COLUMNS}[format])
+    if format == "auto" and rows.shape[1] == TUM_COLUMNS and rows[0, 0] > NANOSECONDS:
+        raise InputError(
+            f"{path}:{lines[0]}: 8 numbers a line with a timestamp in nanoseconds ({rows[0, 0]:.6g}): TUM "
+            "(t tx ty tz qx qy qz qw, seconds) or EuRoC / ASL (t[ns] px py pz qw qx qy qz)? Give --format tum or euroc"
+        )
     if rows.shape[1] == TUM_COLUMNS:
         if times is not None:
             raise InputError(f"{path}: a TUM file carries its own timestamps; drop the times file {times}")
@@ -201,6 +237,30 @@ def read_poses(path: str | Path, format: str = "auto", times: str | Path | None 
         if len(stamps) != len(rows):
             raise InputError(f"{times}: {len(stamps)} timestamps for the {len(rows)} poses of {path}")
     return Trajectory(_kitti_poses(rows), stamps, path, lines)
+
+
+def _w_first_header(path: Path) -> bool:
+    """Whether the file's comment header names a w-first quaternion (EuRoC's ``q_RS_w`` ... ``q_RS_x``, ``qw`` ...
+    ``qx``)."""
+    with open(path, errors="replace") as f:
+        for line in f:
+            text = line.strip().lower()
+            if text and not text.startswith("#"):
+                return False
+            names = [m.group(1) for m in re.finditer(r"\bq\w*?_?([wxyz])\b", text)]
+            if "w" in names and "x" in names:
+                return names.index("w") < names.index("x")
+    return False
+
+
+def _first_line_columns(path: Path) -> int | None:
+    """The count of numbers on the first pose line (None for a file without one: the reader then says so)."""
+    with open(path, errors="replace") as f:
+        for line in f:
+            text = line.strip()
+            if text and not text.startswith("#"):
+                return len(text.replace(",", " ").split())
+    return None
 
 
 def pose_validity(poses, tol: float = 1e-3) -> np.ndarray:

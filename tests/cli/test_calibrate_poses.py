@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from ocalib.cli import main
-from ocalib.geometry import rotation_angle
+from ocalib.geometry import rotation_angle, rotation_matrix_to_quaternion
 from ocalib.io.poses import write_kitti, write_tum
 from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, straight_trajectory
 
@@ -188,6 +188,26 @@ def test_unsynchronised_cameras_are_interpolated(tmp_path, capsys):
         cam = json.loads(out.read_text())["extrinsics"][0]
         error[sync] = math.degrees(float(rotation_angle(torch.tensor(cam["rotation"], dtype=torch.float64).T @ torch.from_numpy(X[:3, :3]))))
     assert error["interpolate"] < 0.01 and error["nearest"] > 5 * error["interpolate"], error
+
+
+def test_euroc_csv_end_to_end(tmp_path, capsys):
+    """EuRoC / ASL CSV files (ns timestamps, w-first quaternions, extra columns) are read by their header."""
+    poses, X = simulate(frames=200)
+    stamps = 1403636579758555392 + np.arange(len(poses), dtype=np.int64) * 50_000_000  # 20 Hz in ns
+    paths = []
+    for c in range(2):
+        q = rotation_matrix_to_quaternion(torch.from_numpy(poses[:, c, :3, :3])).numpy()  # (w, x, y, z)
+        rows = [",".join([str(t), *(f"{v:.12g}" for v in (*p[:3, 3], *qq)), "0", "0", "0"])
+                for t, p, qq in zip(stamps, poses[:, c], q)]
+        paths.append(tmp_path / f"cam{c}.csv")
+        paths[-1].write_text("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],"
+                             "q_RS_z [],v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1]\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "result.json"
+    code, _, err = calibrate(capsys, *paths, "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["settings"]["frames"] == len(poses)
+    check_accuracy(doc["extrinsics"][0], X[0], SCALES[0])
 
 
 def test_nan_and_non_orthonormal_poses_are_counted(tmp_path, capsys):

@@ -1,5 +1,6 @@
-"""Pose files: KITTI and TUM reading, writing, auto-detection, validation."""
+"""Pose files: KITTI, TUM and EuRoC / ASL CSV reading, writing, auto-detection, validation."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -9,6 +10,7 @@ from ocalib.io.poses import (
     Trajectory,
     describe_invalid,
     pose_validity,
+    read_euroc,
     read_kitti,
     read_poses,
     read_times,
@@ -154,3 +156,55 @@ def test_tum_nan_pose_is_not_a_read_error(tmp_path):
     traj = read_tum(path)
     np.testing.assert_array_equal(pose_validity(traj.poses), [True, False, False])
     assert pose_validity(traj.poses, tol=1e-3).dtype == bool
+
+
+EUROC_HEADER = ("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z [],"
+                "v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1],b_w_RS_S_x [rad s^-1],b_w_RS_S_y [rad s^-1],"
+                "b_w_RS_S_z [rad s^-1],b_a_RS_S_x [m s^-2],b_a_RS_S_y [m s^-2],b_a_RS_S_z [m s^-2]")
+
+
+def euroc_file(tmp_path, name, header, extra=9, n=20, seed=0):
+    """An EuRoC-style CSV of n random poses (cv2.Rodrigues -> matrices, the reference) -> (path, poses, seconds)."""
+    rng = np.random.default_rng(seed)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, 3] = rng.normal(size=(n, 3))
+    for T in poses:
+        T[:3, :3] = cv2.Rodrigues(rng.normal(size=3))[0]
+    q = torch.tensor(np.stack([_quaternion_wxyz(T[:3, :3]) for T in poses]))
+    stamps = 1403636579758555392 + np.arange(n, dtype=np.int64) * 5_000_000  # ns, 200 Hz
+    lines = [header] if header else []
+    for t, T, qq in zip(stamps, poses, q.numpy()):
+        lines.append(",".join([str(t), *(f"{v:.12f}" for v in (*T[:3, 3], *qq)), *(["0.1"] * extra)]))
+    path = write(tmp_path, "\n".join(lines) + "\n", name)
+    return path, poses, stamps * 1e-9
+
+
+def _quaternion_wxyz(R):
+    """(w, x, y, z) of R from its rotation vector (an independent route to the file's numbers)."""
+    v = cv2.Rodrigues(R)[0].ravel()
+    angle = np.linalg.norm(v)
+    axis = v / angle if angle > 0 else v
+    return np.r_[np.cos(angle / 2), np.sin(angle / 2) * axis]
+
+
+@pytest.mark.parametrize("header, extra", [(EUROC_HEADER, 9), ("# t px py pz qw qx qy qz", 0)])
+def test_euroc_is_detected_from_its_header(tmp_path, header, extra):
+    path, poses, seconds = euroc_file(tmp_path, "gt.csv", header, extra)
+    traj = read_poses(path)
+    np.testing.assert_allclose(traj.poses, poses, atol=1e-9)
+    np.testing.assert_allclose(traj.times, seconds, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(traj.lines, np.arange(2, 22))
+    np.testing.assert_allclose(read_euroc(path).poses, poses, atol=1e-9)
+
+
+def test_headerless_nanosecond_files_need_a_format(tmp_path):
+    path, poses, _ = euroc_file(tmp_path, "vio.csv", None, extra=0)
+    with pytest.raises(InputError, match=rf"{path}:1: .*nanoseconds.*--format tum or euroc"):
+        read_poses(path)
+    np.testing.assert_allclose(read_poses(path, format="euroc").poses, poses, atol=1e-9)
+    path, poses, _ = euroc_file(tmp_path, "vio17.csv", None, extra=9)
+    with pytest.raises(InputError, match=r"17 numbers.*--format euroc"):
+        read_poses(path)
+    np.testing.assert_allclose(read_poses(path, format="euroc").poses, poses, atol=1e-9)
+    with pytest.raises(InputError, match=r"needs at least 8"):
+        read_euroc(write(tmp_path, "1 2 3 4 5 6 7\n", "short.csv"))
