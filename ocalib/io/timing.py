@@ -60,9 +60,10 @@ def interpolate(times0, times1, poses1, max_dt: float, offset: float = 0.0, name
     gets the rotation interpolated along the shorter arc (SLERP, :meth:`kornia.geometry.quaternion.Quaternion.slerp`)
     and the position linearly, both at ``u = (t - t_a) / (t_b - t_a)``: exact for a constant angular and linear
     velocity between the samples. A stamp on a sample takes that sample as it is. Stamps outside camera 1's span,
-    or between samples more than ``2 max_dt`` apart (a gap in camera 1's recording), are dropped. Where a sample used (``u`` not 0
-    or 1 toward it) is invalid (non-finite or a non-orthonormal rotation), the pose is NaN, so that it is counted
-    as invalid downstream; ``idx1`` is then that sample's index, else the nearer sample's (for messages).
+    or between samples more than ``2 max_dt`` apart (a gap in camera 1's recording), are dropped. Where a sample
+    used (``u`` not 0 or 1 toward it) is invalid (non-finite or a non-orthonormal rotation), the pose is NaN, so
+    that it is counted as invalid downstream; ``idx1`` is then that sample's index, else the nearer sample's (for
+    messages).
     times0 (N0,), times1 (N1,) strictly increasing seconds; poses1 (N1, 4, 4) camera-to-world.
     Convention: ``t0 = t1 + offset``.
     """
@@ -80,8 +81,10 @@ def interpolate(times0, times1, poses1, max_dt: float, offset: float = 0.0, name
     on_sample = (before == 0) | (after == 0)
     keep = np.flatnonzero((before >= 0) & (after >= 0) & (on_sample | (before + after <= 2 * max_dt)))
     if not len(keep):
-        nearest = np.minimum(np.abs(before), np.abs(after)).min()
-        raise InputError(_no_pairs_message(t0, t1, offset, max_dt, nearest, names))
+        inside = (before >= 0) & (after >= 0)
+        gap = (before + after)[inside].min() if inside.any() else np.inf
+        rule = f"no {names[0]} stamp between two {names[1]} samples at most 2 max_dt = {2 * max_dt:.6g} s apart"
+        raise InputError(_no_pairs_message(t0, t1, offset, max_dt, gap, names, rule))
     a, b, u = a[keep], b[keep], before[keep] / (t1[b[keep]] - t1[a[keep]])
     poses1 = np.asarray(poses1, dtype=np.float64)
     valid = pose_validity(poses1)
@@ -102,7 +105,9 @@ def interpolate(times0, times1, poses1, max_dt: float, offset: float = 0.0, name
     return keep, poses, idx1
 
 
-def _no_pairs_message(t0, t1, offset, max_dt, closest, names) -> str:
+def _no_pairs_message(t0, t1, offset, max_dt, closest, names, rule: str | None = None) -> str:
+    """Why no camera-0 stamp found a camera-1 pose: the ranges never overlap, or ``rule`` (default: the nearest
+    stamp within max_dt) failed everywhere; ``closest`` says by how much."""
     shift = f" (with time offset {offset:+.6f} s)" if offset else ""
     spans = (
         f"{names[0]} spans [{t0[0]:.6f}, {t0[-1]:.6f}] s, "
@@ -114,7 +119,8 @@ def _no_pairs_message(t0, t1, offset, max_dt, closest, names) -> str:
             f"no timestamps to pair: {spans}; the time ranges never overlap (gap {gap:.6f} s). "
             "If the cameras' clocks differ, use --time-offset auto (or give the offset in seconds)"
         )
-    return f"no timestamp pair within max_dt = {max_dt} s: {spans}; the closest pair is {closest:.6f} s apart"
+    rule = rule or f"no timestamp pair within max_dt = {max_dt} s"
+    return f"{rule}: {spans}; the closest is {closest:.6f} s"
 
 
 def _increasing(times, name: str) -> np.ndarray:
