@@ -42,6 +42,7 @@ class ImageCalibration:
 
     run: CalibrationRun
     errors: list[dict] | None  # per camera k >= 1, see :func:`ocalib.calibnet.truth.extrinsic_errors`
+    truth: np.ndarray | None = None  # (K, 4, 4) the true T_cam0_camk of cameras k >= 1, where the sequence has them
 
     def result_json(self) -> dict:
         doc = self.run.result_json()
@@ -119,7 +120,7 @@ def calibrate_sequence(
         if all(cam.poses is not None for cam in sequence.cameras):
             truth = np.stack([cam.poses[:frames] for cam in sequence.cameras], 1)
         errors = extrinsic_errors(final, np.stack(extrinsics), trajectory, truth)
-    return ImageCalibration(run, errors)
+    return ImageCalibration(run, errors, None if errors is None else np.stack(extrinsics[1:]))
 
 
 def _network_step(net: OnlineCalibrationNet, device: str):

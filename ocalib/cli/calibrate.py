@@ -78,7 +78,7 @@ def run(args) -> int:
     if args.plot:
         from ocalib.viz.calibration import plot_trace
 
-        plot_trace(result.run.trace, result.run.rig.files[1:], args.plot)
+        plot_trace(result.run.trace, result.run.rig.files[1:], args.plot, truth=result.truth)
     if args.trajectories:
         from pathlib import Path
 

@@ -53,7 +53,7 @@ def run(args) -> int:
     doc = result.result_json()
     (out / "result.json").write_text(json.dumps(doc, indent=2))
     result.run.write_trace(out / "trace.csv")
-    plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png")
+    plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png", truth=result.truth)
     print(summary(doc))
     print(truth_table(sequence, doc))
     print(errors_table(result.errors, result.run.rig.files))

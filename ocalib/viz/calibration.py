@@ -1,8 +1,9 @@
 """Per-frame calibration estimates as a figure: rotation, translation, scale and observability.
 
 Convention: as :meth:`ocalib.calib.pipeline.CalibrationRun.trace` -- arrays (F, K, n) over F frames and
-K cameras; rotations are shown as the rotation from the final estimate to each frame's, about camera
-k's axes (the axes of ``rotation_std_deg``), in degrees.
+K cameras; rotations are shown as the rotation from the final estimate to each frame's (or, given the
+ground truth, from the true rotation to each frame's estimate: its error), about camera k's axes (the axes of
+``rotation_std_deg``), in degrees.
 """
 
 from __future__ import annotations
@@ -10,13 +11,21 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import torch
+
+from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 
 AXES = "xyz"
 COLORS = ("tab:red", "tab:green", "tab:blue", "tab:gray")
 
 
-def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Path) -> None:
-    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values."""
+def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Path, truth: np.ndarray | None = None) -> None:
+    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values.
+
+    truth: (K, 4, 4) the true ``T_cam0_camk``, or None. With it the rotation row shows each frame's error against
+    the truth (with the reported 1-sigma band: an honest band covers zero about two times in three) and the
+    translation row's title the angle between the final translation and the true one.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -26,18 +35,30 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
     fig, axes = plt.subplots(4, K, figsize=(6.5 * K, 11), sharex=True, squeeze=False)
     for k in range(K):
         q = trace["quaternion"][:, k]
-        delta = np.rad2deg(rotation_vector(_multiply(_conjugate(q[-1]), q)))
-        ax = axes[0, k]
         rpy = ", ".join(f"{v:.3f}" for v in rpy_deg(q[-1]))
+        ax = axes[0, k]
+        if truth is None:
+            delta, what = rotation_error_deg(q, q[-1]), "rotation - final (deg)"
+        else:
+            delta = rotation_error_deg(q, rotation_matrix_to_quaternion(torch.from_numpy(truth[k, :3, :3])).numpy())
+            what = f"rotation error against the truth (deg), final {np.linalg.norm(delta[-1]):.3f} deg"
         _bands(ax, frames, delta, trace["rotation_std_deg"][:, k], [f"about {a}" for a in AXES])
-        ax.set_title(f"{Path(cameras[k]).name}\nrotation - final (deg); final roll, pitch, yaw = ({rpy}) deg", fontsize=9)
+        if truth is not None:
+            ax.axhline(0, color="black", lw=0.8)
+        ax.set_title(f"{Path(cameras[k]).name}: {what}\nfinal roll, pitch, yaw = ({rpy}) deg", fontsize=9)
 
         ax = axes[1, k]
         t = trace["translation"][:, k]
         t_std = trace["translation_std"][:, k]
         labels = [f"t{a} = {v:.4f}" + ("" if np.isfinite(sd) else " (unobservable)") for a, v, sd in zip(AXES, t[-1], t_std[-1])]
         _bands(ax, frames, t, t_std, labels)
-        ax.set_title("translation in camera 0's frame (camera-0 units)", fontsize=9)
+        title = "translation in camera 0's frame (camera-0 units)"
+        if truth is not None:
+            true_t = truth[k, :3, 3]
+            cos = t[-1] @ true_t / max(np.linalg.norm(t[-1]) * np.linalg.norm(true_t), 1e-300)
+            title += f"\ntrue direction ({', '.join(f'{v:+.3f}' for v in true_t / np.linalg.norm(true_t))}), final " \
+                     f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
+        ax.set_title(title, fontsize=9)
 
         ax = axes[2, k]
         s = trace["scale"][:, k]
@@ -84,6 +105,12 @@ def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str])
     if np.isfinite(lo) and np.isfinite(hi):
         pad = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), 1.0)) * 0.15
         ax.set_ylim(lo - pad, hi + pad)
+
+
+def rotation_error_deg(q: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) in degrees of ``R_reference^T R`` for (w, x, y, z) quaternions q (..., 4) and one
+    reference (4,): about the axes of the frame R maps from (camera k's)."""
+    return np.rad2deg(rotation_vector(_multiply(_conjugate(reference), q)))
 
 
 def _conjugate(q: np.ndarray) -> np.ndarray:
