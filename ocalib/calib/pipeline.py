@@ -43,6 +43,10 @@ PROGRESS_EVERY = 100  # frames between progress-bar updates (and between copies 
 TRACE_CHUNK = 4096  # frames whose uncertainty is computed at once
 POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
 SOLVERS = ("exact", "rls", "batch")
+# A translation residual above this share of camera 0's motion (RMS) is reported. Measured on the held-out rigs
+# (docs/calibnet.md): true poses with VO-like drift 0.002-0.005 leave 1-12 %, OpenCV VO 11-60 %, the pose network
+# 81-98 %; the translations of the last two are 0.5-25 baselines off.
+TRANSLATION_RESIDUAL_WARNING = 0.3
 SYNC_MODES = ("interpolate", "nearest")  # how timestamped cameras meet camera 0's stamps (see load_rig)
 
 # The per-camera keys of the result JSON, in the order of the issue's format.
@@ -457,6 +461,13 @@ def run_warnings(run: CalibrationRun) -> list[str]:
         unobservable = e.translation_directions[0, k].mT[e.translation_unobservable[0, k]].tolist()
         if unobservable and not bool(e.planar_motion[0, k]):
             out.append(f"{f}: translation unobservable along {', '.join(_fmt(d) for d in unobservable)} (camera 0's frame)")
+        residual = float(e.residuals["translation_relative"][0, k])
+        if residual > TRANSLATION_RESIDUAL_WARNING:
+            out.append(
+                f"{f}: the translation equations leave {100 * residual:.0f} % of camera 0's motion unexplained (RMS): "
+                "the translations of the two cameras do not agree with any rigid rig (a front end whose scale drifts "
+                "or whose translation directions are off?); translation and scale are not supported by the data"
+            )
         scale = float(e.scale[0, k])
         if not scale > 0:
             out.append(

@@ -55,7 +55,7 @@ def joint_refine(
     P, p, c = quadratic
     dtype, device = M.dtype, M.device
     _, newton_s, newton_1, newton_r = _bases(dtype, device)
-    Er0, Et0 = _costs(M, P, p, c, quat, x)
+    Er0, Et0 = costs(M, P, p, c, quat, x)
     wr, wt = _weights(M, c, Er0, Et0, rotation_rows, translation_rows)
     # Inactive entries run on harmless numbers (unit weights, an identity Hessian below), so that nothing
     # non-finite reaches the gradient through the discarded branch.
@@ -75,7 +75,7 @@ def joint_refine(
         s_, dT = s_ + d[..., 3:4], dT + d[..., 4:]
 
     q, xr = canonical_quaternion(q), torch.cat([dT, s_], -1)
-    Er, Et = _costs(M, P, p, c, q, xr)
+    Er, Et = costs(M, P, p, c, q, xr)
     ok = active & (wr * Er + wt * Et <= wr * Er0 + wt * Et0) & q.isfinite().all(-1) & xr.isfinite().all(-1)
     return torch.where(ok[..., None], q, quat), torch.where(ok[..., None], xr, x), ok
 
@@ -88,7 +88,7 @@ def joint_covariance(
     vector error about camera k's axes: the inverse Gauss-Newton Hessian of the cost weighted by the residual
     variances at the estimate (each weighted residual then has unit variance). Inf without degrees of freedom."""
     P, p, c = quadratic
-    Er, Et = _costs(M, P, p, c, quat, x)
+    Er, Et = costs(M, P, p, c, quat, x)
     wr, wt = _weights(M, c, Er, Et, rotation_rows, translation_rows)
     H = _system(M, P, p, quat, x[..., 3:], x[..., :3], wr, wt)[0]
     cov, info = torch.linalg.inv_ex(H)
@@ -130,8 +130,9 @@ def _system(M, P, p, q, s, dT, wr, wt) -> tuple[Tensor, ...]:
     return H, g, dR, Jq, r, Mq
 
 
-def _costs(M: Tensor, P: Tensor, p: Tensor, c: Tensor, q: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
-    """Rotation residual ``q^T M q`` and translation residual ``E_t`` (...) at ``(q, x)``."""
+def costs(M: Tensor, P: Tensor, p: Tensor, c: Tensor, q: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
+    """Rotation residual ``q^T M q`` and translation residual ``E_t`` (...) at ``(q, x)``: the weighted sums of
+    squares of the rotation rows (Gram matrix ``M``) and of the translation rows (quadratic ``(P, p, c)``)."""
     dR = quaternion_to_rotation_matrix(q)
     y = torch.cat([x[..., :3], x[..., 3:] * dR.flatten(-2)], -1)
     Er = (q.unsqueeze(-2) @ M @ q.unsqueeze(-1)).squeeze((-1, -2))

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from ocalib.calib.handeye import translation_quadratic
 from ocalib.calib.planar import planar_rotation_std
-from ocalib.calib.refine import joint_covariance
+from ocalib.calib.refine import costs, joint_covariance
 from ocalib.calib.rotation import rotation_std
 from ocalib.calib.translation import translation_uncertainty, unobservable_directions
 from ocalib.io.jsonable import finite_or_null
@@ -118,6 +118,22 @@ class Calibration:
             std = torch.where(self.refined, self._joint[..., 3], std)
         return torch.where(self._translation["scale_unobservable"], torch.inf, std)
 
+    @cached_property
+    def residuals(self) -> dict[str, Tensor]:
+        """How well the estimate explains the motions, (B, K) each (NaN without rows), weighted as the solver weighs
+        them: ``rotation_deg``, the RMS over motion pairs of the angle between camera 0's motion carried into
+        camera k's frame by the estimate and camera k's own motion (``2 |A q|`` a pair, to first order), and
+        ``translation_relative``, the RMS of the translation equations' residual over the RMS length of camera 0's
+        motion translations (0: explained; 1: no better than no translation at all)."""
+        S2, V = self.rotation_singular_values.square(), self.rotation_basis
+        P, p, c = translation_quadratic(self.translation_moment)
+        x = torch.cat([self.translation, self.scale.unsqueeze(-1)], -1)
+        Er, Et = costs((V * S2.unsqueeze(-2)) @ V.mT, P, p, c, self.quaternion, x)
+        rows = self.rotation_rows
+        rotation = torch.where(rows > 0, 2 * (Er.clamp_min(0) / rows.clamp_min(1e-300)).sqrt(), torch.nan)
+        translation = torch.where(c > 0, (Et.clamp_min(0) / c.clamp_min(1e-300)).sqrt(), torch.nan)
+        return {"rotation_deg": torch.rad2deg(rotation), "translation_relative": translation}
+
     def camera_json(self, b: int, k: int) -> dict:
         """The JSON object of camera k+1 of rig b (see ``ocalib calibrate-poses``)."""
         get = lambda name: getattr(self, name)[b, k].detach().cpu().double()  # noqa: E731
@@ -133,6 +149,7 @@ class Calibration:
             "rotation_std_deg": finite_or_null(torch.rad2deg(get("rotation_std")).tolist()),
             "translation_std": finite_or_null(get("translation_std").tolist()),
             "scale_std": finite_or_null(get("scale_std").tolist()),
+            "residuals": finite_or_null({name: float(v[b, k]) for name, v in self.residuals.items()}),
             "observability": {
                 "rotation_singular_values": get("rotation_singular_values").tolist(),
                 "rotation_observable": bool(get("rotation_observable")),

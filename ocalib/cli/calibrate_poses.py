@@ -83,6 +83,13 @@ def run(args) -> int:
     return 0
 
 
+def residual_text(residuals: dict) -> str:
+    """``rotation 0.12 deg, translation 3.4 % of camera 0's motion`` (``?`` where undefined)."""
+    rot, tr = residuals["rotation_deg"], residuals["translation_relative"]
+    return (f"rotation {'?' if rot is None else f'{rot:.3g} deg'}, translation "
+            f"{'?' if tr is None else f'{100 * tr:.3g} %'} of camera 0's motion")
+
+
 def summary(doc: dict) -> str:
     """Readable summary of a result JSON: per camera, rotation, translation, scale with 1-sigma and flags."""
     import numpy as np
@@ -114,6 +121,7 @@ def summary(doc: dict) -> str:
             + "; std about x/y/z (deg): " + ", ".join("?" if v is None else f"{v:.2g}" for v in rstd),
             "  translation: " + ", ".join(pm(v, sd) for v, sd in zip(e["translation"], e["translation_std"] or [None] * 3)),
             f"  scale: {pm(e['scale'], e['scale_std'])}",
+            "  residuals (RMS over motion pairs): " + residual_text(e["residuals"]),
             f"  flags: {', '.join(flags) if flags else 'none'}",
         ]
     return "\n".join(lines)

@@ -76,7 +76,8 @@ def test_kitti_end_to_end(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["reference"] == files[0] and doc["warnings"] == []
     (cam,) = doc["extrinsics"]
-    assert list(cam) == CAMERA_KEYS
+    assert list(cam) == CAMERA_KEYS + ["residuals"]
+    assert 0 < cam["residuals"]["rotation_deg"] < 1 and 0 < cam["residuals"]["translation_relative"] < 0.05
     assert OBSERVABILITY_KEYS <= set(cam["observability"])
     assert cam["camera"] == files[1] and cam["time_offset"] is None
     assert cam["frames_used"] == FRAMES - 1 and cam["frames_rejected"] == 0
@@ -236,6 +237,19 @@ def test_pure_translation_is_flagged(tmp_path, capsys):
     assert not doc["extrinsics"][0]["observability"]["rotation_observable"]
     assert any("rotation not observable" in w for w in doc["warnings"])
     assert "rotation not observable" in err and "ROTATION UNOBSERVABLE" in stdout
+
+
+def test_translations_no_rig_explains_are_reported(tmp_path, capsys):
+    """Camera 1's positions scrambled (its rotations intact): the rotation still comes out, but the translation
+    equations leave most of camera 0's motion unexplained, and the result says so."""
+    poses, X = simulate(frames=200)
+    poses[:, 1, :3, 3] = np.random.default_rng(0).normal(size=(len(poses), 3))
+    out = tmp_path / "result.json"
+    code, stdout, err = calibrate(capsys, *write_files(tmp_path, poses), "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["extrinsics"][0]["residuals"]["translation_relative"] > 0.5
+    assert any("unexplained" in w for w in doc["warnings"]) and "unexplained" in err
 
 
 def test_flipped_translation_sign_gives_a_negative_scale_and_a_warning(tmp_path, capsys):
