@@ -47,6 +47,7 @@ SOLVERS = ("exact", "rls", "batch")
 # (docs/calibnet.md): true poses with VO-like drift 0.002-0.005 leave 1-12 %, OpenCV VO 11-60 %, the pose network
 # 81-98 %; the translations of the last two are 0.5-25 baselines off.
 TRANSLATION_RESIDUAL_WARNING = 0.3
+UNPAIRED_WARNING = 0.1  # camera-0 stamps left without a camera-k pose inside its span, as a share of the frames kept
 SYNC_MODES = ("interpolate", "nearest")  # how timestamped cameras meet camera 0's stamps (see load_rig)
 
 # The per-camera keys of the result JSON, in the order of the issue's format.
@@ -65,6 +66,8 @@ class RigPoses:
     time_offsets: (C,) seconds added to camera k's clock (0 for camera 0), None without timestamps.
     offset_quality: per camera, the ``OffsetQuality`` of an estimated (``auto``) offset, else None.
     max_dt: the association tolerance used, seconds (the largest over the cameras; None without timestamps).
+    unpaired: per camera k >= 1, the camera-0 stamps inside camera k's time span that found no camera-k pose (its
+        gaps, beyond max_dt); empty without timestamps.
     """
 
     files: list[str]
@@ -74,6 +77,7 @@ class RigPoses:
     time_offsets: list[float | None]
     offset_quality: list = field(default_factory=list)
     max_dt: float | None = None
+    unpaired: list[int] = field(default_factory=list)
 
     @property
     def valid(self) -> np.ndarray:
@@ -168,7 +172,7 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
     """Bring every camera's poses to camera 0's timestamps; keep the frames every camera has."""
     t0 = trajs[0].times
     period = lambda t: float(np.median(np.diff(t))) if len(t) > 1 else 0.0  # noqa: E731
-    resolved, quality, pairs, tolerances = [0.0], [None], [], []
+    resolved, quality, pairs, tolerances, unpaired = [0.0], [None], [], [], []
     for f, t, spec in zip(files[1:], trajs[1:], offsets):
         q = None
         if spec == "auto":
@@ -183,6 +187,8 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
         else:
             tolerances.append(1.25 * period(t.times) if max_dt is None else max_dt)
             pairs.append(interpolate(t0, t.times, t.poses, tolerances[-1], resolved[-1], names=names))
+        span = (t0 >= t.times[0] + resolved[-1]) & (t0 <= t.times[-1] + resolved[-1])
+        unpaired.append(int(span.sum()) - int(np.isin(np.flatnonzero(span), pairs[-1][0]).sum()))
     frames = reduce(np.intersect1d, [i0 for i0, _, _ in pairs])
     if not len(frames):
         raise InputError(
@@ -199,6 +205,7 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
         resolved,
         quality,
         max(tolerances),
+        unpaired,
     )
 
 
@@ -442,6 +449,13 @@ def run_warnings(run: CalibrationRun) -> list[str]:
         if (msg := describe_invalid(f, pose_validity(rig.poses[:, c], POSE_TOLERANCE), rig.lines[:, c]))
     ]
     frames = len(rig.poses)
+    for f, missing in zip(rig.files[1:], rig.unpaired):
+        if missing > UNPAIRED_WARNING * frames:
+            out.append(
+                f"{f}: {missing} of {rig.files[0]}'s stamps inside {f}'s time span found no pose of it (gaps in it "
+                f"beyond max_dt = {rig.max_dt:.6g} s); those frames are left out. Check the time offset "
+                "(--time-offset auto) or raise --max-dt"
+            )
     for k, f in enumerate(rig.files[1:]):
         S = e.rotation_singular_values[0, k].tolist()
         if not bool(e.rotation_observable[0, k]) and not bool(e.planar_motion[0, k]):

@@ -191,6 +191,29 @@ def test_unsynchronised_cameras_are_interpolated(tmp_path, capsys):
     assert error["interpolate"] < 0.01 and error["nearest"] > 5 * error["interpolate"], error
 
 
+@pytest.mark.parametrize("sync", ["interpolate", "nearest"])
+def test_gaps_in_a_camera_are_reported(tmp_path, capsys, sync):
+    """Camera 1 loses 40 % of its poses in runs of 5: camera 0's stamps in those gaps find no pose, and the
+    result says how many (one dropped frame, bridged by interpolation, is not reported)."""
+    poses, X = simulate(frames=400)
+    t = 1000 + np.arange(len(poses)) / 20.0
+    keep = (np.arange(len(poses)) // 5) % 5 >= 2  # 2 runs of 5 frames lost in every 25
+    keep[::7] &= sync == "nearest"  # interpolating: single drops too, which it bridges (not counted)
+    paths = [str(tmp_path / "cam0.tum"), str(tmp_path / "cam1.tum")]
+    write_tum(paths[0], t, poses[:, 0])
+    write_tum(paths[1], t[keep], poses[keep, 1])
+    out = tmp_path / "result.json"
+    code, _, err = calibrate(capsys, *paths, "--sync", sync, "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    warning = [w for w in doc["warnings"] if "found no pose" in w]
+    assert len(warning) == 1 and warning[0] in err
+    kept = doc["settings"]["frames"]
+    first, last = np.flatnonzero(keep)[[0, -1]]
+    assert f" {last - first + 1 - kept} of " in warning[0]  # every camera-0 stamp in the span is kept or counted
+    check_accuracy(doc["extrinsics"][0], X[0], SCALES[0])
+
+
 def test_euroc_csv_end_to_end(tmp_path, capsys):
     """EuRoC / ASL CSV files (ns timestamps, w-first quaternions, extra columns) are read by their header."""
     poses, X = simulate(frames=200)
