@@ -166,10 +166,12 @@ def test_tum_association_and_time_offset(tmp_path, capsys, offset, sync):
 
 def smooth_rig(times: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera-to-world poses (N, 4, 4) of camera 0 and camera 1 (rig extrinsic X) at arbitrary times (s), on a
-    smooth trajectory rotating about all three axes (up to ~40 deg/s)."""
+    smooth trajectory rotating about all three axes (up to ~40 deg/s), with incommensurate frequencies (no
+    repetition for the time-offset search to mistake)."""
     T0 = np.tile(np.eye(4), (len(times), 1, 1))
+    w = (1.1, 0.7 * np.sqrt(2), 0.9 * np.sqrt(3))
     for T, t in zip(T0, times):
-        T[:3, :3] = cv2.Rodrigues(np.array([0.6 * np.sin(1.1 * t), 0.5 * np.sin(0.7 * t + 1), 0.4 * np.sin(0.9 * t + 2)]))[0]
+        T[:3, :3] = cv2.Rodrigues(np.array([0.6 * np.sin(w[0] * t), 0.5 * np.sin(w[1] * t + 1), 0.4 * np.sin(w[2] * t + 2)]))[0]
         T[:3, 3] = [2 * np.sin(0.4 * t), np.cos(0.3 * t), 0.3 * t]
     return T0, T0 @ X
 
@@ -232,6 +234,26 @@ def test_euroc_csv_end_to_end(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["settings"]["frames"] == len(poses)
     check_accuracy(doc["extrinsics"][0], X[0], SCALES[0])
+
+
+def test_unsynchronised_cameras_on_another_clock(tmp_path, capsys):
+    """The whole real-rig case: 20 Hz and 30 Hz, another phase, and camera 1's clock 1234.5678 s behind. The
+    offset comes from the angular speeds (to well under a millisecond), then camera 1 is interpolated there."""
+    X = random_rig(torch.Generator().manual_seed(3)).numpy()
+    t0, t1 = np.arange(0, 40, 1 / 20), np.arange(0.007, 40, 1 / 30)
+    offset = 1234.5678  # t0 = t1 + offset
+    paths = [str(tmp_path / "cam0.tum"), str(tmp_path / "cam1.tum")]
+    write_tum(paths[0], t0, smooth_rig(t0, X)[0])
+    write_tum(paths[1], t1 - offset, smooth_rig(t1, X)[1])
+    error = {}
+    for sync in ("interpolate", "nearest"):
+        out = tmp_path / f"{sync}.json"
+        assert calibrate(capsys, *paths, "--time-offset", "auto", "--sync", sync, "--out", out)[0] == 0
+        cam = json.loads(out.read_text())["extrinsics"][0]
+        assert abs(cam["time_offset"] - offset) < 1e-3
+        R = torch.tensor(cam["rotation"], dtype=torch.float64)
+        error[sync] = math.degrees(float(rotation_angle(R.T @ torch.from_numpy(X[:3, :3]))))
+    assert error["interpolate"] < 0.005 and error["nearest"] > 5 * error["interpolate"], error
 
 
 def test_nan_and_non_orthonormal_poses_are_counted(tmp_path, capsys):

@@ -103,6 +103,21 @@ def test_offset_barely_overlapping_recordings_is_an_error(rig):
         estimate_time_offset(t0[keep0], p0[keep0], t1[keep1], p1[keep1])
 
 
+def test_offset_of_a_repeating_motion_is_ambiguous():
+    """A motion whose rotation vector repeats with a flipped sign every 10 pi s has the same angular speed there:
+    two lags correlate to within 1e-5 of perfect, and the answer is an error, not the better of the two by a hair."""
+    t0, t1 = np.arange(0, 60, 1 / 20), np.arange(0.007, 60, 1 / 30)
+
+    def poses(t):
+        T = np.tile(np.eye(4), (len(t), 1, 1))
+        for P, s in zip(T, t):
+            P[:3, :3] = cv2.Rodrigues(np.array([0.6 * np.sin(1.1 * s), 0.5 * np.sin(0.7 * s + 1), 0.4 * np.sin(0.9 * s + 2)]))[0]
+        return T
+
+    with pytest.raises(InputError, match="ambiguous time offset"):
+        estimate_time_offset(t0, poses(t0), t1 - 1234.5678, poses(t1))
+
+
 def test_offset_flat_angular_speed(rig):
     t0, p0, t1, p1 = rig(0, rotation=0.0)  # pure translation
     with pytest.raises(InputError, match="camera 0: angular speed too flat to estimate a time offset"):
