@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import reduce
 from pathlib import Path
 
@@ -36,7 +36,7 @@ from ocalib.calib.rotation import (
 )
 from ocalib.errors import InputError
 from ocalib.io.poses import describe_invalid, pose_validity, read_poses
-from ocalib.io.timing import associate, estimate_time_offset, interpolate
+from ocalib.io.timing import associate, estimate_time_offset, interpolate, refine_time_offset
 
 MIN_FRAMES = 3  # synchronised frames with every pose valid, below which there is nothing to calibrate
 PROGRESS_EVERY = 100  # frames between progress-bar updates (and between copies of the per-frame estimates)
@@ -175,8 +175,11 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
     resolved, quality, pairs, tolerances, unpaired = [0.0], [None], [], [], []
     for f, t, spec in zip(files[1:], trajs[1:], offsets):
         q = None
-        if spec == "auto":
-            spec, q = estimate_time_offset(t0, trajs[0].poses, t.times, t.poses, names=(files[0], f))
+        if spec == "auto":  # the angular speeds' correlation, then the rig's rotation constraint within 2 frames
+            coarse, q = estimate_time_offset(t0, trajs[0].poses, t.times, t.poses, names=(files[0], f))
+            radius = 2 * max(period(t0), period(t.times))
+            spec = refine_time_offset(t0, trajs[0].poses, t.times, t.poses, coarse, radius)
+            q = replace(q, angular_speed_offset=coarse)
         resolved.append(float(spec or 0.0))
         quality.append(q)
         names = (files[0], f)
@@ -233,7 +236,8 @@ class CalibrationRun:
             extrinsics.append({key: cam.pop(key) for key in CAMERA_KEYS} | cam)
         out = {"reference": self.rig.files[0], "extrinsics": extrinsics, "settings": self.settings}
         estimated = [
-            {"camera": f, "time_offset": o, "correlation": q.correlation, "runner_up": q.runner_up, "overlap_s": q.overlap}
+            {"camera": f, "time_offset": o, "correlation": q.correlation, "runner_up": q.runner_up, "overlap_s": q.overlap,
+             "angular_speed_offset": q.angular_speed_offset}
             for f, o, q in zip(self.rig.files, self.rig.time_offsets, self.rig.offset_quality)
             if q is not None
         ]

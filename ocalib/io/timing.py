@@ -13,7 +13,13 @@ import torch
 
 from ocalib.errors import InputError
 from ocalib.geometry import rotation_angle
-from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+from ocalib.geometry.quaternion import (
+    canonical_quaternion,
+    left_product_matrix,
+    quaternion_to_rotation_matrix,
+    right_product_matrix,
+    rotation_matrix_to_quaternion,
+)
 from ocalib.io.poses import pose_validity
 
 # estimate_time_offset: lags overlapping less than MIN_OVERLAP of the shorter recording are not
@@ -28,6 +34,7 @@ MIN_CORRELATION = 0.5
 MIN_DISTINCTNESS = 2.0
 MIN_SEPARATION = 1e-3
 MIN_MOTIONS = 10
+REFINE_MOTION_SECONDS = 0.5  # refine_time_offset: the length of the motions compared (longer: a lag shows more)
 
 
 def associate(times0, times1, max_dt: float, offset: float = 0.0, names=("camera 0", "camera 1")):
@@ -158,12 +165,14 @@ class OffsetQuality:
     runner_up: the best correlation at any other offset (outside the peak's lobe); periodic motion or
     unrelated recordings bring it close to ``correlation``. overlap: seconds of motion the two cameras
     share at the offset. step: seconds between samples of the coarse correlation grid.
+    angular_speed_offset: set where the offset was then refined (:func:`refine_time_offset`).
     """
 
     correlation: float
     runner_up: float
     overlap: float
     step: float
+    angular_speed_offset: float | None = None  # the correlation's own answer, before a refinement (if any)
 
 
 def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "camera 1")):
@@ -221,6 +230,56 @@ def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "cam
             "give --time-offset SECONDS"
         )
     return float(offset), OffsetQuality(float(peak), runner_up, float(overlap), float(step))
+
+
+def refine_time_offset(times0, poses0, times1, poses1, offset: float, radius: float, steps: int = 21,
+                       motion_seconds: float = REFINE_MOTION_SECONDS) -> float:
+    """Refine a clock offset by the rig's own rotation constraint -> offset (s).
+
+    For each candidate in ``offset +- radius``, camera 1 is interpolated at camera 0's stamps (:func:`interpolate`)
+    and the motions of both cameras over ``motion_seconds`` give the hand-eye rotation blocks
+    ``A = L(q0) - R(q1)``; a rigid rig has a rotation ``dq`` with ``A dq = 0`` for all of them, so the smallest
+    eigenvalue of their mean Gram matrix (the residual of the best ``dq``) is least at the true offset. A lag
+    ``d`` leaves each pair of motions differing by about ``(w(t + T) - w(t)) d`` (angular velocity ``w``,
+    motion length ``T``): unlike the angular speed, this sees the axes too, and is not biased by the noise of
+    short motions. The best candidate is refined by a parabola through its neighbours; with too few motions at
+    every candidate the offset comes back as it was. Convention:
+    ``t0 = t1 + offset``; poses camera-to-world, times strictly increasing seconds.
+    """
+    poses0 = np.asarray(poses0, dtype=np.float64)
+    period = float(np.median(np.diff(times1)))
+    gap = max(1, int(round(motion_seconds / float(np.median(np.diff(times0))))))
+    candidates = offset + np.linspace(-radius, radius, steps)
+    scores = []
+    for candidate in candidates:
+        try:
+            i0, p1, _ = interpolate(times0, times1, poses1, 1.25 * period, candidate)
+        except InputError:
+            scores.append(np.inf)
+            continue
+        p0 = poses0[i0]
+        same = np.flatnonzero(i0[gap:] - i0[:-gap] == gap)  # motions over consecutive camera-0 frames only
+        m0 = np.linalg.inv(p0[same]) @ p0[same + gap]
+        m1 = np.linalg.inv(p1[same]) @ p1[same + gap]
+        ok = pose_validity(m0) & pose_validity(m1)
+        if ok.sum() < MIN_MOTIONS:
+            scores.append(np.inf)
+            continue
+        q0 = canonical_quaternion(rotation_matrix_to_quaternion(torch.from_numpy(m0[ok, :3, :3])))
+        q1 = canonical_quaternion(rotation_matrix_to_quaternion(torch.from_numpy(m1[ok, :3, :3])))
+        A = left_product_matrix(q0) - right_product_matrix(q1)
+        scores.append(float(torch.linalg.eigvalsh((A.mT @ A).mean(0))[0]))
+    scores = np.asarray(scores)
+    if not np.isfinite(scores).any():  # too few motions at every candidate: nothing to refine with
+        return float(offset)
+    k = int(np.argmin(scores))
+    best = float(candidates[k])
+    if 0 < k < steps - 1 and np.isfinite(scores[k - 1 : k + 2]).all():
+        a, b, c = scores[k - 1 : k + 2]
+        curvature = a - 2 * b + c
+        if curvature > 0:
+            best += 0.5 * (a - c) / curvature * (candidates[1] - candidates[0])
+    return best
 
 
 def _speed_signal(times, poses, name: str):

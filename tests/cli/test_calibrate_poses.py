@@ -236,15 +236,20 @@ def test_euroc_csv_end_to_end(tmp_path, capsys):
     check_accuracy(doc["extrinsics"][0], X[0], SCALES[0])
 
 
-def test_unsynchronised_cameras_on_another_clock(tmp_path, capsys):
-    """The whole real-rig case: 20 Hz and 30 Hz, another phase, and camera 1's clock 1234.5678 s behind. The
-    offset comes from the angular speeds (to well under a millisecond), then camera 1 is interpolated there."""
-    X = random_rig(torch.Generator().manual_seed(3)).numpy()
+@pytest.mark.parametrize("noise", [0.0, 0.002])
+def test_unsynchronised_cameras_on_another_clock(tmp_path, capsys, noise):
+    """The whole real-rig case: 20 Hz and 30 Hz, another phase, and camera 1's clock 1234.5678 s behind, with and
+    without pose noise. The offset comes from the angular speeds, refined by the rig constraint (within 1 ms;
+    the angular speeds alone were 7-10 ms off with noise), then camera 1 is interpolated there."""
+    g = torch.Generator().manual_seed(3)
+    X = random_rig(g).numpy()
     t0, t1 = np.arange(0, 40, 1 / 20), np.arange(0.007, 40, 1 / 30)
     offset = 1234.5678  # t0 = t1 + offset
+    poses = [add_noise(torch.from_numpy(p)[:, None], noise, g)[:, 0].numpy()
+             for p in (smooth_rig(t0, X)[0], smooth_rig(t1, X)[1])]
     paths = [str(tmp_path / "cam0.tum"), str(tmp_path / "cam1.tum")]
-    write_tum(paths[0], t0, smooth_rig(t0, X)[0])
-    write_tum(paths[1], t1 - offset, smooth_rig(t1, X)[1])
+    write_tum(paths[0], t0, poses[0])
+    write_tum(paths[1], t1 - offset, poses[1])
     error = {}
     for sync in ("interpolate", "nearest"):
         out = tmp_path / f"{sync}.json"
@@ -253,7 +258,10 @@ def test_unsynchronised_cameras_on_another_clock(tmp_path, capsys):
         assert abs(cam["time_offset"] - offset) < 1e-3
         R = torch.tensor(cam["rotation"], dtype=torch.float64)
         error[sync] = math.degrees(float(rotation_angle(R.T @ torch.from_numpy(X[:3, :3]))))
-    assert error["interpolate"] < 0.005 and error["nearest"] > 5 * error["interpolate"], error
+    if noise == 0:  # the nearest stamps' timing error is the only error left
+        assert error["interpolate"] < 0.005 and error["nearest"] > 5 * error["interpolate"], error
+    else:
+        assert error["interpolate"] < 0.02, error
 
 
 def test_nan_and_non_orthonormal_poses_are_counted(tmp_path, capsys):
