@@ -13,6 +13,7 @@ import torch
 
 from ocalib.errors import InputError
 from ocalib.geometry import rotation_angle
+from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import (
     canonical_quaternion,
     left_product_matrix,
@@ -257,10 +258,10 @@ def refine_time_offset(times0, poses0, times1, poses1, offset: float, radius: fl
         except InputError:
             scores.append(np.inf)
             continue
-        p0 = poses0[i0]
-        same = np.flatnonzero(i0[gap:] - i0[:-gap] == gap)  # motions over consecutive camera-0 frames only
-        m0 = np.linalg.inv(p0[same]) @ p0[same + gap]
-        m1 = np.linalg.inv(p1[same]) @ p1[same + gap]
+        p0, p1 = torch.from_numpy(poses0[i0]), torch.from_numpy(p1)
+        same = torch.from_numpy(np.flatnonzero(i0[gap:] - i0[:-gap] == gap))  # over consecutive camera-0 frames
+        m0 = (invert_pose(p0[same]) @ p0[same + gap]).numpy()  # rigid inverse: garbage poses give garbage, not errors
+        m1 = (invert_pose(p1[same]) @ p1[same + gap]).numpy()
         ok = pose_validity(m0) & pose_validity(m1)
         if ok.sum() < MIN_MOTIONS:
             scores.append(np.inf)

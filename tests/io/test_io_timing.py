@@ -214,3 +214,6 @@ def test_refine_time_offset_by_the_rig_constraint():
     assert abs(refined - offset) < 1e-3
     few = slice(0, 12)  # 0.55 s: no 0.5 s motions to compare at any candidate
     assert refine_time_offset(t0[few], p0[few], t1[few] - offset, p1[few], offset + 0.008, radius=0.1) == offset + 0.008
+    broken = p0.copy()
+    broken[5] = 0  # a zero pose line (singular): counted out, not an error deep in a matrix inverse
+    assert abs(refine_time_offset(t0, broken, t1 - offset, p1, offset + 0.008, radius=0.1) - offset) < 1e-3
