@@ -402,6 +402,8 @@ def trace_rows(e: Calibration) -> dict[str, torch.Tensor]:
         "rotation_std_deg": torch.rad2deg(e.rotation_std),
         "translation_std": e.translation_std,
         "scale_std": e.scale_std[..., None],
+        "rotation_residual_deg": e.residuals["rotation_deg"][..., None],
+        "translation_residual": e.residuals["translation_relative"][..., None],
         "frames_used": e.frames_used[..., None],
         "frames_rejected": e.frames_rejected[..., None],
     }

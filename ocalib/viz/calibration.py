@@ -20,7 +20,7 @@ COLORS = ("tab:red", "tab:green", "tab:blue", "tab:gray")
 
 
 def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Path, truth: np.ndarray | None = None) -> None:
-    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values.
+    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values / residuals.
 
     truth: (K, 4, 4) the true ``T_cam0_camk``, or None. With it the rotation row shows each frame's error against
     the truth (with the reported 1-sigma band: an honest band covers zero about two times in three) and the
@@ -32,7 +32,7 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
     import matplotlib.pyplot as plt
 
     frames, K = trace["frame"], trace["quaternion"].shape[1]
-    fig, axes = plt.subplots(4, K, figsize=(6.5 * K, 11), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(5, K, figsize=(6.5 * K, 13.5), sharex=True, squeeze=False)
     for k in range(K):
         q = trace["quaternion"][:, k]
         rpy = ", ".join(f"{v:.3f}" for v in rpy_deg(q[-1]))
@@ -81,10 +81,19 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
                 ax.fill_between(frames, 0, 1, where=flag, transform=ax.get_xaxis_transform(), color=color,
                                 alpha=0.15, step="mid", label=label)  # fmt: skip
         ax.set_title("observability: rotation singular values", fontsize=9)
+
+        ax = axes[4, k]
+        if "rotation_residual_deg" in trace:
+            ax.plot(frames, trace["rotation_residual_deg"][:, k, 0], color=COLORS[0], lw=1, label="rotation (deg)")
+            ax.plot(frames, 100 * trace["translation_residual"][:, k, 0], color=COLORS[2], lw=1,
+                    label="translation (% of camera 0's motion)")
+            ax.set_yscale("log")
+        ax.set_title("fit residuals, RMS over the motion pairs so far", fontsize=9)
         ax.set_xlabel("frame")
     for ax in axes.flat:
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right" if ax.get_yscale() == "log" else "upper right")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8, loc="lower right" if ax.get_yscale() == "log" else "upper right")
         if ax.get_yscale() == "linear":
             ax.ticklabel_format(axis="y", useOffset=False)
     fig.tight_layout()

@@ -31,6 +31,7 @@ def test_plot_with_truth_writes_a_png(tmp_path):
         "translation_std": np.full((F, K, 3), 0.01), "scale": np.ones((F, K, 1)), "scale_std": np.full((F, K, 1), 0.01),
         "rotation_singular_values": np.tile([1.0, 0.8, 0.5, 0.01], (F, K, 1)),
         "rotation_observable": np.ones((F, K, 1)), "planar_motion": np.zeros((F, K, 1)),
+        "rotation_residual_deg": np.full((F, K, 1), 0.2), "translation_residual": np.full((F, K, 1), 0.01),
     }  # fmt: skip
     for truth in (None, X[None]):
         path = tmp_path / f"trace_{truth is None}.png"
