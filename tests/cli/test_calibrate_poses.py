@@ -92,6 +92,8 @@ def test_kitti_end_to_end(tmp_path, capsys):
     assert len(rows) == FRAMES
     assert [int(r["frame"]) for r in rows] == list(range(FRAMES))
     assert np.allclose([float(rows[-1][k]) for k in ("tx", "ty", "tz")], cam["translation"])
+    assert np.isclose(float(rows[-1]["translation_residual"]), cam["residuals"]["translation_relative"])
+    assert np.isclose(float(rows[-1]["rotation_residual_deg"]), cam["residuals"]["rotation_deg"])
     used = [int(r["frames_used"]) for r in rows]
     assert used == sorted(used) and used[-1] == cam["frames_used"]  # every frame's own estimate
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
