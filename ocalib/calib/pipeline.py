@@ -36,7 +36,13 @@ from ocalib.calib.rotation import (
 )
 from ocalib.errors import InputError
 from ocalib.io.poses import describe_invalid, pose_validity, read_poses
-from ocalib.io.timing import associate, estimate_time_offset, interpolate, refine_time_offset
+from ocalib.io.timing import (
+    INTERPOLATION_MAX_DT_PERIODS,
+    associate,
+    estimate_time_offset,
+    interpolate,
+    refine_time_offset,
+)
 
 MIN_FRAMES = 3  # synchronised frames with every pose valid, below which there is nothing to calibrate
 PROGRESS_EVERY = 100  # frames between progress-bar updates (and between copies of the per-frame estimates)
@@ -188,7 +194,7 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
             i0, i1 = associate(t0, t.times, tolerances[-1], resolved[-1], names=names)
             pairs.append((i0, t.poses[i1], i1))
         else:
-            tolerances.append(1.25 * period(t.times) if max_dt is None else max_dt)
+            tolerances.append(INTERPOLATION_MAX_DT_PERIODS * period(t.times) if max_dt is None else max_dt)
             pairs.append(interpolate(t0, t.times, t.poses, tolerances[-1], resolved[-1], names=names))
         span = (t0 >= t.times[0] + resolved[-1]) & (t0 <= t.times[-1] + resolved[-1])
         unpaired.append(int(span.sum()) - int(np.isin(np.flatnonzero(span), pairs[-1][0]).sum()))

@@ -35,6 +35,8 @@ MIN_CORRELATION = 0.5
 MIN_DISTINCTNESS = 2.0
 MIN_SEPARATION = 1e-3
 MIN_MOTIONS = 10
+# interpolate's default max_dt, in camera-k frame periods: a gap of one dropped frame (2 periods) is bridged, two are not
+INTERPOLATION_MAX_DT_PERIODS = 1.25
 REFINE_MOTION_SECONDS = 0.5  # refine_time_offset: the length of the motions compared (longer: a lag shows more)
 
 
@@ -254,7 +256,7 @@ def refine_time_offset(times0, poses0, times1, poses1, offset: float, radius: fl
     scores = []
     for candidate in candidates:
         try:
-            i0, p1, _ = interpolate(times0, times1, poses1, 1.25 * period, candidate)
+            i0, p1, _ = interpolate(times0, times1, poses1, INTERPOLATION_MAX_DT_PERIODS * period, candidate)
         except InputError:
             scores.append(np.inf)
             continue
