@@ -1,8 +1,9 @@
 """Per-frame latency of the on-line calibration net (pose network + head on one graph), and its parts.
 
 Measures, side by side in one run, the median wall time per frame of: the whole graph
-(:class:`OnlineCalibrationNet`), the pose network alone on the same (previous, current) batch, and the
-head alone, for a rig of C cameras at the model's resolution; frames per second follow. CPU always; CUDA
+(:class:`OnlineCalibrationNet`) without and with photometric alignment (``align``, the default of
+``ocalib calibrate``), the pose network alone on the same (previous, current) batch, and the head alone, for a
+rig of C cameras at the model's resolution, on a rendered handheld sequence; frames per second follow. CPU always; CUDA
 when available. Prints a table and writes ``bench/results/calibnet.json``.
 
     python bench/bench_calibnet.py [--checkpoint CKPT] [--cameras 2] [--frames 60] [--threads 2]
@@ -14,12 +15,14 @@ import argparse
 import statistics
 import time
 
+import numpy as np
 import torch
 
 from common import write_json
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.models import EgoMotionModel, load_model
+from ocalib.synth import preset, render_rig
 
 
 def timed(fn, frames: int, device: torch.device) -> list[float]:
@@ -39,14 +42,19 @@ def timed(fn, frames: int, device: torch.device) -> list[float]:
 def bench(model: EgoMotionModel, device: torch.device, cameras: int, frames: int, warmup: int = 5) -> dict:
     model = model.to(device).eval()
     H, W = model.height, model.width
-    images = torch.rand(frames + warmup, cameras, 3, H, W, device=device)
+    seq = render_rig(preset("handheld").with_overrides(frames=frames + warmup, height=H, width=W, seed=1001))
+    pick = [c % seq.images.shape[0] for c in range(cameras)]  # the rig's cameras, repeated for C > 2
+    images = seq.images[pick].transpose(0, 1).to(device)  # (T, C, 3, H, W)
+    K = torch.from_numpy(np.stack([seq.rig.cameras[c].K for c in pick])).float()
     net = OnlineCalibrationNet(model, cameras).to(device)
+    aligned = OnlineCalibrationNet(model, cameras, intrinsics=K, align=True).to(device)
     head = OnlineCalibrator(cameras, device=device)
     poses = torch.eye(4, dtype=torch.float64, device=device).repeat(frames + warmup, cameras, 1, 1)
     poses[:, :, :3, 3] = torch.randn(frames + warmup, cameras, 3, dtype=torch.float64, device=device).cumsum(0)
     with torch.inference_mode():
         cases = {
             "whole graph": lambda t: net(images[t]),
+            "aligned graph": lambda t: aligned(images[t]),
             "pose network": lambda t: model.pose(images[t - 1], images[t]),
             "head": lambda t: head(poses[t]),
         }

@@ -2,12 +2,12 @@
 
 For each sequence (rendered by ``ocalib synth`` with a seed never used in training; rendered here when
 missing), calibrates camera 1 against camera 0 with: the pose network (``--checkpoint``, default the
-shipped one, with each ``--scale`` mode), OpenCV monocular VO, and the true poses with VO-like drift noise
+shipped one, with each ``--scale`` mode, and with ``--align``), OpenCV monocular VO, and the true poses with VO-like drift noise
 of a few sizes (the reference of what the head makes of a front end of known quality). Reports the final
 rotation error, translation direction error (in the ground plane on planar motion) and translation error
 relative to the baseline after scaling camera 0's trajectory to metres. Prints a table, writes JSON.
 
-    python bench/bench_calibnet_accuracy.py [--sequences DIR ...] [--frames 300] [--skip-opencv]
+    python bench/bench_calibnet_accuracy.py [--sequences DIR ...] [--frames 300] [--skip-opencv] [--skip-align]
 """
 
 from __future__ import annotations
@@ -66,13 +66,16 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--checkpoint")
     p.add_argument("--skip-opencv", action="store_true")
+    p.add_argument("--skip-align", action="store_true", help="leave out the network with photometric alignment")
     p.add_argument("--out", default="bench/results/calibnet_accuracy.json")
     args = p.parse_args()
     results = {}
     for name in args.sequences:
         path = ensure(Path(args.root), name, args.frames) if name in DEFAULT else Path(name)
         res = results[path.name] = {}
-        runs = [(f"network ({scale})", dict(frontend="network", scale=scale)) for scale in ("head", "normalise")]
+        runs = [(f"network ({scale})", dict(frontend="network", scale=scale, align=False)) for scale in ("head", "normalise")]
+        if not args.skip_align:
+            runs.append(("network (normalise), aligned", dict(frontend="network", scale="normalise", align=True)))
         if not args.skip_opencv:
             runs.append(("opencv", dict(frontend="opencv")))
         for label, kw in runs:

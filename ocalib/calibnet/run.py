@@ -64,6 +64,7 @@ def calibrate_sequence(
     refine: bool | str = "unobservable",
     max_frames: int | None = None,
     intrinsics: str | None = None,
+    align: bool | None = None,
     progress: bool | None = None,
     on_frame=None,
 ) -> ImageCalibration:
@@ -73,12 +74,17 @@ def calibrate_sequence(
     motion, solver, forgetting, refine: the head's (see :class:`OnlineCalibrator`; ``refine`` defaults to
     ``"unobservable"``: a monocular front end's translation directions must not move an observable rotation, see
     :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet` (the default,
-    ``normalise``, was measured better on the held-out rigs: README, issue 5). max_frames: use only the first
+    ``normalise``, was measured better on the held-out rigs: README, issue 5). align: refine the rotations of the
+    network's motions by direct photometric alignment (:func:`~ocalib.frontend.align.align_motion`; None: with the
+    network front end, measured better on every held-out rig: README, issue 5). max_frames: use only the first
     frames. on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the
     current estimate (None: on a terminal).
     """
     if frontend not in FRONTENDS:
         raise InputError(f"unknown front end {frontend!r}: {', '.join(FRONTENDS)}")
+    align = frontend == "network" if align is None else align
+    if align and frontend != "network":
+        raise InputError("align refines the pose network's motions; the OpenCV front end has its own bundle adjustment")
     sequence = open_sequence(path, cameras, intrinsics)
     if len(sequence.cameras) < 2:
         raise InputError(f"{path}: calibration needs at least two cameras, the sequence has "
@@ -93,8 +99,9 @@ def calibrate_sequence(
         model = load_model(checkpoint).to(device)
         views = [model_view(c, model.height, model.width) for c in sequence.cameras]
         frames_in = FrameImages(sequence, views)
-        net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver,
-                                   forgetting=forgetting, refine=refine, scale=scale).to(device)
+        net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting,
+                                   refine=refine, scale=scale, intrinsics=np.stack([v.K for v in views]),
+                                   align=align).to(device)
         step = _network_step(net, device)
     else:
         frames_in = RigStream(sequence, size=sequence.cameras[0].size)
@@ -109,8 +116,10 @@ def calibrate_sequence(
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
     settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
-                "motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine, "scale": scale,
-                "frames": frames, "max_dt": None, "sequence": str(path)}
+                "align": align, "motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine,
+                "scale": scale, "frames": frames, "max_dt": None, "sequence": str(path)}
+    if align:  # motions whose photometric correction was accepted, per camera (frame 0 has none)
+        settings["aligned_frames"] = dict(zip(sequence.names, net.aligned[0].tolist()))
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = run_warnings(run)
     errors = None

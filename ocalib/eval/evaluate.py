@@ -109,12 +109,13 @@ def evaluate_stream(sequence: Sequence, frames: Iterable[FramePrediction], views
 
 
 def evaluate_model(model, sequence: Sequence, device="cpu", batch_size: int = 8, workers: int = 0,
-                   progress: bool | None = False, **options) -> list[CameraEvaluation]:
-    """Predict with ``model`` and evaluate (``options``: those of :func:`evaluate_stream`)."""
+                   progress: bool | None = False, align: bool = False, **options) -> list[CameraEvaluation]:
+    """Predict with ``model`` (``align``: see :func:`predict_frames`) and evaluate (``options``: those of
+    :func:`evaluate_stream`)."""
     missing = ground_truth_available(sequence)
     depth = any("depth" not in m for m in missing.values())
     views = [model_view(cam, model.height, model.width) for cam in sequence.cameras]
-    frames = predict_frames(model, sequence, device, batch_size, depth, workers, progress)
+    frames = predict_frames(model, sequence, device, batch_size, depth, workers, progress, align)
     return evaluate_stream(sequence, frames, views, **options)
 
 

@@ -26,6 +26,8 @@ from ocalib.data.intrinsics import crop_intrinsics, resize_intrinsics
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.data.static import thumbnails
 from ocalib.errors import InputError
+from ocalib.frontend.align import align_motion
+from ocalib.geometry.pose import invert_pose
 
 MAX_UPSAMPLE = 4.0  # a camera whose (cropped) images are this much smaller than the model's resolution is refused
 STATIC_THRESHOLD = 1e-3  # mean absolute grey difference below which two frames count as identical
@@ -119,7 +121,8 @@ class FramePrediction:
 
 
 def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu", batch_size: int = 8,
-                   depth: bool = True, workers: int = 0, progress: bool | None = False) -> Iterator[FramePrediction]:
+                   depth: bool = True, workers: int = 0, progress: bool | None = False,
+                   align: bool = False) -> Iterator[FramePrediction]:
     """Run ``model`` (an :class:`ocalib.models.EgoMotionModel`) over every frame of every camera.
 
     Each forward pass takes ``batch_size`` frames of all C cameras: C x batch_size pose pairs (t-1, t) and
@@ -132,14 +135,15 @@ def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu"
     views = [model_view(cam, model.height, model.width) for cam in sequence.cameras]
     check_motion(sequence)
     loader = DataLoader(FrameImages(sequence, views), batch_size=batch_size, num_workers=workers)
-    return _generate(model.to(device).eval(), loader, len(sequence), device, depth, progress)
+    K = torch.from_numpy(np.stack([v.K for v in views])).float().to(device) if align else None
+    return _generate(model.to(device).eval(), loader, len(sequence), device, depth, progress, K)
 
 
-def _generate(model, loader, frames: int, device, depth: bool, progress) -> Iterator[FramePrediction]:
+def _generate(model, loader, frames: int, device, depth: bool, progress, K) -> Iterator[FramePrediction]:
     previous, t = None, 0
     with tqdm(total=frames, unit="frame", desc="predicting", disable=None if progress is None else not progress) as bar:
         for images in loader:  # (b, C, 3, H, W)
-            motion, depth_maps = _predict_batch(model, images.to(device), previous, depth)
+            motion, depth_maps = _predict_batch(model, images.to(device), previous, depth, K)
             previous = images[-1].to(device)
             for i in range(len(images)):
                 yield FramePrediction(t, motion[i], None if depth_maps is None else depth_maps[i])
@@ -147,8 +151,9 @@ def _generate(model, loader, frames: int, device, depth: bool, progress) -> Iter
             bar.update(len(images))
 
 
-def _predict_batch(model, images: torch.Tensor, previous: torch.Tensor | None, depth: bool):
-    """images (b, C, 3, H, W), previous (C, 3, H, W) or None -> motions (b, C, 4, 4) float64, depth (b, C, H, W) or None."""
+def _predict_batch(model, images: torch.Tensor, previous: torch.Tensor | None, depth: bool, K: torch.Tensor | None):
+    """images (b, C, 3, H, W), previous (C, 3, H, W) or None -> motions (b, C, 4, 4) float64, depth (b, C, H, W) or
+    None; K (C, 3, 3) at the model's resolution: align the motions (None: the network's as they are)."""
     b, C = images.shape[:2]
     with torch.inference_mode():
         targets = images[:-1] if previous is None else torch.cat([previous[None], images[:-1]])
@@ -156,6 +161,11 @@ def _predict_batch(model, images: torch.Tensor, previous: torch.Tensor | None, d
         motion = torch.eye(4, dtype=torch.float64).repeat(b, C, 1, 1)
         if len(targets):
             T = model.pose(targets.flatten(0, 1), sources.flatten(0, 1))
+            if K is not None:
+                target_images, source_images = targets.flatten(0, 1), sources.flatten(0, 1)
+                aligned, _ = align_motion(target_images, source_images, model.depth(target_images),
+                                          K.repeat(len(targets), 1, 1), invert_pose(T))
+                T = invert_pose(aligned)
             motion[b - len(targets):] = T.view(-1, C, 4, 4).double().cpu()
         depth_maps = model.depth(images.flatten(0, 1)).view(b, C, *images.shape[-2:]).float().cpu() if depth else None
     return motion.numpy(), None if depth_maps is None else depth_maps.numpy()

@@ -49,6 +49,18 @@ def test_calibrate_writes_json_trace_plot_and_errors(tiny, tmp_path, capsys):
     assert "errors against the ground truth" in capsys.readouterr().out
 
 
+def test_calibrate_with_alignment(tiny, tmp_path):
+    """``--align`` end to end: recorded in the settings with the number of accepted corrections per camera."""
+    root, seq, model = tiny
+    out = tmp_path / "r.json"
+    assert main(["calibrate", "--sequence", str(seq), "--checkpoint", str(model), "--out", str(out), "--align"]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["settings"]["align"] is True
+    assert set(doc["settings"]["aligned_frames"]) == {"cam0", "cam1"}
+    assert all(0 <= n <= 11 for n in doc["settings"]["aligned_frames"].values())
+    assert np.isfinite(doc["extrinsics"][0]["rotation"]).all()
+
+
 def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     """truth.extrinsic_errors on the true extrinsics as the estimate and the true trajectories: zero errors,
     metric scale 1 (an independent check of the error conventions)."""
@@ -90,6 +102,7 @@ def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     ("unequal counts", "frame is missing"),
     ("wrong checkpoint", "not an ocalib ego-motion model"),
     ("corrupt frame", "000007.png: cannot read the image"),
+    ("align with opencv", "align refines the pose network's motions"),
 ])
 def test_clear_errors(tiny, tmp_path, capsys, case, message):
     root, seq, model = tiny
@@ -103,6 +116,8 @@ def test_clear_errors(tiny, tmp_path, capsys, case, message):
         shutil.copytree(seq, broken)
         next(iter(sorted((broken / "cam1" / "images").iterdir()))).unlink()
         args[2] = str(broken)
+    elif case == "align with opencv":
+        args += ["--frontend", "opencv", "--align"]
     elif case == "corrupt frame":  # read in a DataLoader worker: still one line naming the file
         broken = tmp_path / "seq"
         shutil.copytree(seq, broken)

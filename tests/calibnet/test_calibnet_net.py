@@ -7,14 +7,17 @@ down the chaining convention (``pose(prev, cur) = T_prev_cur``).
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
 
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
+from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.models import EgoMotionModel
 from ocalib.sim.trajectory import lds_trajectory, random_rig, rig_trajectories
+from ocalib.synth import preset, render_rig
 
 H, W = 8, 12
 
@@ -141,3 +144,58 @@ def test_wrong_image_shape_is_a_clear_error():
     net = OnlineCalibrationNet(model, num_cameras=2)
     with pytest.raises(ValueError, match=r"\(1, 2, 3, 32, 64\)"):
         net(torch.rand(2, 3, 32, 48))
+
+
+class PerturbedTruth(nn.Module):
+    """A model whose pose 'network' is 1 degree off the true motion every frame and whose depth is the truth."""
+
+    def __init__(self, seq):
+        super().__init__()
+        self.seq, self.height, self.width = seq, *seq.images.shape[-2:]
+        self.error = make_pose(torch.linalg.matrix_exp(torch.tensor([[0, -1.0, 0.3], [1.0, 0, -0.5], [-0.3, 0.5, 0]],
+                                                                    dtype=torch.float64) * math.radians(0.8))[None],
+                               torch.zeros(1, 3, dtype=torch.float64))
+
+    def _lookup(self, images):
+        """(frame, camera) of each image, found by equality with the rendered frames."""
+        flat = self.seq.images.transpose(0, 1).flatten(0, 1)  # (T * C, 3, H, W), frame-major
+        index = [next(i for i in range(len(flat)) if torch.equal(flat[i], img)) for img in images]
+        C = self.seq.images.shape[0]
+        return [(i // C, i % C) for i in index]
+
+    def pose(self, target, source):
+        poses = self.seq.poses  # (C, T, 4, 4)
+        true = [invert_pose(poses[c, t]) @ poses[c2, s]
+                for (t, c), (s, c2) in zip(self._lookup(target), self._lookup(source))]
+        return (self.error @ torch.stack(true)).float()
+
+    def depth(self, images):
+        d = torch.stack([self.seq.depth[c, t] for t, c in self._lookup(images)])[:, None]
+        return torch.where(d > 0, d, torch.full_like(d, 100.0))
+
+
+def test_align_brings_a_biased_network_back_to_the_true_motion():
+    """With the true depth, aligned rotations are far closer to the truth than the network's, and the translations
+    stay the network's; without ``align`` the net keeps the network's error; ``aligned`` counts the accepted
+    corrections."""
+    torch.set_num_threads(1)
+    seq = render_rig(preset("handheld").with_overrides(frames=3, height=64, width=208))
+    K = torch.from_numpy(np.stack([c.K for c in seq.rig.cameras])).float()
+    errors = {}
+    for align in (False, True):
+        net = OnlineCalibrationNet(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=align)
+        for t in range(3):
+            net(seq.images[:, t])
+            if t == 1:  # the trajectory is the first step: its translation is the network's
+                network = net.model.pose(seq.images[:, 0], seq.images[:, 1]).double()
+                torch.testing.assert_close(net.trajectory[0, :, :3, 3], network[:, :3, 3], rtol=0, atol=1e-6)
+        true = invert_pose(seq.poses[:, :1]) @ seq.poses[:, 2:3]  # camera-to-first-frame at frame 2, (C, 1, 4, 4)
+        R = net.trajectory[0, :, :3, :3].mT @ true[:, 0, :3, :3]
+        errors[align] = torch.rad2deg(torch.arccos(((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)))
+        assert net.aligned.tolist() == ([[2, 2]] if align else [[0, 0]])
+    assert (errors[False] > 1.2).all() and (errors[True] < 0.3).all()
+
+
+def test_align_needs_intrinsics():
+    with pytest.raises(ValueError, match="intrinsics"):
+        OnlineCalibrationNet(EgoMotionModel("small", height=32, width=64), num_cameras=2, align=True)

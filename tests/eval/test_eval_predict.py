@@ -219,3 +219,23 @@ def test_predict_frames_on_device(seq, ckpt, device):
     out = list(predict_frames(model, sequence, device=device, batch_size=4))
     np.testing.assert_allclose(np.stack([f.motion for f in out]), np.stack([f.motion for f in ref]), atol=1e-4)
     np.testing.assert_allclose(np.stack([f.depth for f in out]), np.stack([f.depth for f in ref]), rtol=1e-3)
+
+
+def test_align_in_predict_is_the_pairwise_alignment(seq, ckpt):
+    """``align``: each motion is the network's T_{t-1,t} aligned on the depth of frame t-1, whatever the batching."""
+    from ocalib.eval.predict import FrameImages
+    from ocalib.frontend.align import align_motion
+    from ocalib.geometry.pose import invert_pose
+
+    model, sequence = load_model(ckpt), open_sequence(seq)
+    frames = [f.motion for f in predict_frames(model, sequence, batch_size=3, depth=False, align=True)]
+    views = [model_view(c, model.height, model.width) for c in sequence.cameras]
+    images = FrameImages(sequence, views)
+    K = torch.from_numpy(np.stack([v.K for v in views])).float()
+    for t in (1, 4):
+        with torch.no_grad():
+            previous, current = images[t - 1], images[t]
+            T = model.pose(previous, current)
+            expected, _ = align_motion(previous, current, model.depth(previous), K, invert_pose(T))
+        np.testing.assert_allclose(frames[t], invert_pose(expected).double().numpy(), atol=1e-4)
+        assert not np.allclose(frames[t], T.double().numpy(), atol=1e-4)  # the alignment changed the motion
