@@ -19,7 +19,7 @@ from torch import Tensor, nn
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.result import Calibration
 from ocalib.frontend.align import align_motion
-from ocalib.geometry.pose import invert_pose
+from ocalib.geometry.pose import invert_pose, make_pose
 
 SCALE_MODES = ("head", "normalise")
 
@@ -99,7 +99,7 @@ class OnlineCalibrationNet(nn.Module):
         depth = self.model.depth(previous)
         T, accepted = align_motion(previous, images, depth, K, invert_pose(step.flatten(0, 1)))
         self.aligned = self.aligned + (accepted.view_as(self.aligned) & self.started[..., 0, 0])
-        return torch.cat([torch.cat([invert_pose(T).view_as(step)[..., :3, :3], step[..., :3, 3:]], -1), step[..., 3:, :]], -2)
+        return make_pose(invert_pose(T).view_as(step)[..., :3, :3], step[..., :3, 3])
 
     def _normalise(self, step: Tensor) -> Tensor:
         """Express each step's translation in units of that camera's running mean step length."""

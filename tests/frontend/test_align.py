@@ -36,12 +36,12 @@ def pair():
     return target, source, depth, K, T
 
 
-def test_align_recovers_the_true_motion(pair):
-    target, source, depth, K, T = pair
-    start = PERTURBATION @ T
+def test_align_recovers_the_true_motion(pair, device):
+    target, source, depth, K, T = (x.to(device) for x in pair)
+    start = PERTURBATION.to(device) @ T
     assert float(rotation_error_deg(start, T)) == pytest.approx(1.0, abs=1e-6)
     aligned, accepted = align_motion(target, source, depth, K, start)
-    assert bool(accepted[0]) and aligned.dtype == torch.float64
+    assert bool(accepted[0]) and aligned.dtype == torch.float64 and aligned.device.type == device.type
     assert float(rotation_error_deg(aligned, T)) < 0.05
     assert float((aligned[0, :3, 3] - T[0, :3, 3]).norm()) < 0.25 * float((start[0, :3, 3] - T[0, :3, 3]).norm())
     costs = [float(photometric_cost(target, source, depth, K, M.float())) for M in (start, aligned, T)]
