@@ -33,6 +33,7 @@ from ocalib.io.jsonable import finite_or_null
 
 FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
+ALIGNED_WARNING = 0.5  # share of frames with an accepted alignment below which a camera is reported (held-out rigs: 95 %)
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 
 
@@ -121,7 +122,10 @@ def calibrate_sequence(
     if align:  # motions whose photometric correction was accepted, per camera (frame 0 has none)
         settings["aligned_frames"] = dict(zip(sequence.names, net.aligned[0].tolist()))
     run = CalibrationRun(rig, final, trace, settings, [])
-    run.warnings = run_warnings(run)
+    run.warnings = run_warnings(run) + [
+        f"{name}: the photometric alignment kept the network's motion on {frames - 1 - n} of {frames - 1} frames "
+        "(textureless images, wrong intrinsics or a poor depth network?)"
+        for name, n in settings.get("aligned_frames", {}).items() if n < ALIGNED_WARNING * (frames - 1)]
     errors = None
     extrinsics = [cam.T_cam0_cam for cam in sequence.cameras]
     if all(T is not None for T in extrinsics):
