@@ -42,16 +42,19 @@ def photometric_cost(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T
 
 
 def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor,
-                 iterations: int = ALIGN_ITERATIONS, max_rotation_deg: float = MAX_ROTATION_DEG) -> tuple[Tensor, Tensor]:
+                 iterations: int = ALIGN_ITERATIONS,
+                 max_rotation_deg: float = MAX_ROTATION_DEG) -> tuple[Tensor, Tensor]:
     """Refine ``T_source_target`` (B, 4, 4) photometrically; returns the motions (B, 4, 4), in the input's dtype,
     and ``accepted`` (B,) bool (False: the input motion is returned). Each of the B problems is solved on its own;
     gradients flow to ``T_source_target`` through the correction held fixed."""
-    if not (target.shape == source.shape and target.dim() == 4 and depth.shape == (target.shape[0], 1, *target.shape[2:])):
+    B = target.shape[0]
+    if not (target.shape == source.shape and target.dim() == 4 and depth.shape == (B, 1, *target.shape[2:])):
         raise ValueError(f"align_motion: expected target and source (B, C, H, W) and depth (B, 1, H, W), got "
                          f"{tuple(target.shape)}, {tuple(source.shape)}, {tuple(depth.shape)}")
     with torch.inference_mode(False), torch.enable_grad():  # the caller may stream under inference mode
-        corrections = [_solve(*[x[b : b + 1].detach().clone().float() for x in (target, source, depth, K, T_source_target)],
-                              iterations) for b in range(len(target))]  # fmt: skip
+        problems = [[x[b : b + 1].detach().clone().float() for x in (target, source, depth, K, T_source_target)]
+                    for b in range(B)]
+        corrections = [_solve(*problem, iterations) for problem in problems]
     limit = math.radians(max_rotation_deg)
     accepted = [c is not None and float(c[0, :3].norm()) <= limit for c in corrections]
     xi = torch.cat([c if ok else torch.zeros(1, 6, device=target.device) for c, ok in zip(corrections, accepted)])
