@@ -30,7 +30,9 @@ from ocalib.losses.photometric import photometric_error
 from ocalib.losses.warp import inverse_warp
 from ocalib.models.pose import motion_to_pose
 
-ALIGN_ITERATIONS = 30  # L-BFGS iterations (measured: 100 changed the median rotation error by under 0.001 deg)
+# L-BFGS iterations. Measured on 60 held-out handheld frames (2 cameras, 2 threads): the sideways camera's median
+# rotation error is 0.58 / 0.36 / 0.29 / 0.27 deg at 10 / 15 / 30 / 100 iterations, for 0.14 / 0.19 / 0.37 / 0.50 s.
+ALIGN_ITERATIONS = 30
 MAX_ROTATION_DEG = 2.0  # largest accepted rotation correction (the network's per-frame errors stay below ~2.5 deg)
 
 
