@@ -15,6 +15,7 @@ from torch import nn
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.geometry.pose import invert_pose, make_pose
+from ocalib.geometry.quaternion import rotation_angle
 from ocalib.models import EgoMotionModel
 from ocalib.sim.trajectory import lds_trajectory, random_rig, rig_trajectories
 from ocalib.synth import preset, render_rig
@@ -191,7 +192,7 @@ def test_align_brings_a_biased_network_back_to_the_true_motion():
                 torch.testing.assert_close(net.trajectory[0, :, :3, 3], network[:, :3, 3], rtol=0, atol=1e-6)
         true = invert_pose(seq.poses[:, :1]) @ seq.poses[:, 2:3]  # camera-to-first-frame at frame 2, (C, 1, 4, 4)
         R = net.trajectory[0, :, :3, :3].mT @ true[:, 0, :3, :3]
-        errors[align] = torch.rad2deg(torch.arccos(((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)))
+        errors[align] = torch.rad2deg(rotation_angle(R))
         assert net.aligned.tolist() == ([[2, 2]] if align else [[0, 0]])
     assert (errors[False] > 1.2).all() and (errors[True] < 0.3).all()
 

@@ -8,6 +8,7 @@ import torch
 
 from ocalib.frontend.align import align_motion, photometric_cost
 from ocalib.geometry.pose import invert_pose, make_pose
+from ocalib.geometry.quaternion import rotation_angle
 from ocalib.synth import preset, render_rig
 
 # 1 degree about a tilted axis and 3 cm: a typical error of the pose network on one frame (README, issue 4)
@@ -18,8 +19,7 @@ PERTURBATION = make_pose(torch.linalg.matrix_exp(torch.cross(torch.eye(3, dtype=
 
 
 def rotation_error_deg(A, B):
-    c = ((A[..., :3, :3].mT @ B[..., :3, :3]).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
-    return torch.rad2deg(torch.arccos(c.clamp(-1, 1)))
+    return torch.rad2deg(rotation_angle(A[..., :3, :3].mT @ B[..., :3, :3]))
 
 
 @pytest.fixture(scope="module")
