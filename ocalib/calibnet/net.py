@@ -53,7 +53,11 @@ class OnlineCalibrationNet(nn.Module):
             raise ValueError("align needs the cameras' intrinsics at the model's resolution")
         self.model, self.scale, self.scale_momentum, self.align = model, scale, scale_momentum, align
         if intrinsics is not None:
-            intrinsics = torch.as_tensor(intrinsics, dtype=torch.float32).expand(batch_size, num_cameras, 3, 3).clone()
+            intrinsics = torch.as_tensor(intrinsics, dtype=torch.float32)
+            if intrinsics.shape not in ((num_cameras, 3, 3), (batch_size, num_cameras, 3, 3)):
+                raise ValueError(f"intrinsics must be ({num_cameras}, 3, 3) or ({batch_size}, {num_cameras}, 3, 3), "
+                                 f"got {tuple(intrinsics.shape)}")
+            intrinsics = intrinsics.expand(batch_size, num_cameras, 3, 3).clone()
         self.register_buffer("intrinsics", intrinsics)
         self.head = OnlineCalibrator(num_cameras, batch_size, **head_options)
         self.num_cameras, self.batch_size = num_cameras, batch_size

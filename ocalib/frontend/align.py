@@ -50,9 +50,11 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     and ``accepted`` (B,) bool (False: the input motion is returned). Each of the B problems is solved on its own;
     gradients flow to ``T_source_target`` through the correction held fixed."""
     B = target.shape[0]
-    if not (target.shape == source.shape and target.dim() == 4 and depth.shape == (B, 1, *target.shape[2:])):
-        raise ValueError(f"align_motion: expected target and source (B, C, H, W) and depth (B, 1, H, W), got "
-                         f"{tuple(target.shape)}, {tuple(source.shape)}, {tuple(depth.shape)}")
+    if not (target.dim() == 4 and target.shape == source.shape and depth.shape == (B, 1, *target.shape[2:])
+            and K.shape == (B, 3, 3) and T_source_target.shape == (B, 4, 4)):
+        raise ValueError(f"align_motion: expected target and source (B, C, H, W), depth (B, 1, H, W), K (B, 3, 3) and "
+                         f"T_source_target (B, 4, 4), got {tuple(target.shape)}, {tuple(source.shape)}, "
+                         f"{tuple(depth.shape)}, {tuple(K.shape)}, {tuple(T_source_target.shape)}")
     with torch.inference_mode(False), torch.enable_grad():  # the caller may stream under inference mode
         problems = [[x[b : b + 1].detach().clone().float() for x in (target, source, depth, K, T_source_target)]
                     for b in range(B)]

@@ -197,6 +197,9 @@ def test_align_brings_a_biased_network_back_to_the_true_motion():
     assert (errors[False] > 1.2).all() and (errors[True] < 0.3).all()
 
 
-def test_align_needs_intrinsics():
+def test_align_needs_intrinsics_of_the_right_shape():
+    model = EgoMotionModel("small", height=32, width=64)
     with pytest.raises(ValueError, match="intrinsics"):
-        OnlineCalibrationNet(EgoMotionModel("small", height=32, width=64), num_cameras=2, align=True)
+        OnlineCalibrationNet(model, num_cameras=2, align=True)
+    with pytest.raises(ValueError, match=r"intrinsics must be \(2, 3, 3\)"):
+        OnlineCalibrationNet(model, num_cameras=2, intrinsics=torch.eye(3).repeat(3, 1, 1), align=True)

@@ -70,3 +70,15 @@ def test_align_refuses_mismatched_shapes(pair):
     target, source, depth, K, T = pair
     with pytest.raises(ValueError, match="depth"):
         align_motion(target, source, depth[..., :-1], K, T)
+    with pytest.raises(ValueError, match="K"):
+        align_motion(target, source, depth, K[0], T)
+    with pytest.raises(ValueError, match="T_source_target"):
+        align_motion(target, source, depth, K, T.expand(2, 4, 4))
+
+
+def test_align_refuses_a_depth_without_valid_pixels(pair):
+    """NaN or zero depth leaves no pixel to compare: the input motion is kept, flagged, finite."""
+    target, source, depth, K, T = pair
+    for bad in (depth * float("nan"), depth * 0):
+        aligned, accepted = align_motion(target, source, bad, K, T)
+        assert not bool(accepted[0]) and torch.equal(aligned, T)
