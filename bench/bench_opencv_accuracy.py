@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from common import write_json
+from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.sim.trajectory import add_noise, car_trajectory, random_rig, rig_trajectories
@@ -104,6 +105,17 @@ def online(poses, **kwargs):
     return T.numpy()
 
 
+def absolute(poses):
+    """Final on-line estimates (B, 4, 4) of the absolute-pose (AX = YB) calibrator, rigs (B, n, 2, 4, 4)."""
+    cal = AbsoluteCalibrator(batch_size=poses.shape[0])
+    with torch.no_grad():
+        for t in range(poses.shape[1]):
+            out = cal(poses[:, t])
+    T = torch.eye(4, dtype=torch.float64).repeat(poses.shape[0], 1, 1)
+    T[:, :3, :3], T[:, :3, 3] = out.rotation[:, 0], out.translation[:, 0]
+    return T.numpy()
+
+
 def batch(poses, motion):
     """Batch (Esquivel) estimates (B, 4, 4)."""
     out = []
@@ -168,6 +180,7 @@ def run_protocol(trials=100, seed=0, clean_check=True):
         res["ocalib on-line, closed form (refine=False)"] = stats(errors(online(poses, refine=False), X))
         res["ocalib on-line, all pairs"] = stats(errors(online(poses, motion=ALL_PAIRS), X))
         res["ocalib batch, all pairs"] = stats(errors(batch(poses, ALL_PAIRS), X))
+        res["ocalib on-line, absolute poses (AX = YB)"] = stats(errors(absolute(poses), X))
         results[label] = res
     return results
 
@@ -193,6 +206,7 @@ def run_planar(trials=20, frames=128, sigma=0.001, pitch_roll=0.0):
         est = np.stack([opencv_calibrate(g, c, flag) for g, c in zip(g2b, t2c)])
         res[f"OpenCV {name}"] = stats(errors(est, X, vertical))
     res["ocalib on-line (default)"] = stats(errors(online(poses), X, vertical))
+    res["ocalib on-line, absolute poses (AX = YB)"] = stats(errors(absolute(poses), X, vertical))
     cal = OnlineCalibrator(num_cameras=2, batch_size=trials)
     with torch.no_grad():
         for t in range(frames):

@@ -209,6 +209,10 @@ def solve_absolute(K: Tensor, M: Tensor, n: Tensor, sigma: Tensor | None = None,
 class AbsoluteCalibration:
     """Extrinsics of cameras 1..K against camera 0 for B rigs from absolute poses. Shapes lead with (B, K).
 
+    It answers the attributes of :class:`~ocalib.calib.result.Calibration` that the command line reads (the
+    result JSON, the trace, the warnings). Absolute poses have no planar route: rotation about one axis leaves
+    the rotation unobservable and every estimate NaN.
+
     Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``), ``scale`` multiplies camera-k units into camera-0
     units, ``world_*`` is ``T_world0_worldk``; quaternions (w, x, y, z), w >= 0; rotation std in radians about
     camera k's axes, translation std along camera 0's.
@@ -219,11 +223,12 @@ class AbsoluteCalibration:
     scale: Tensor  # (B, K)
     world_rotation: Tensor  # (B, K, 3, 3)
     world_translation: Tensor  # (B, K, 3)
-    singular_values: Tensor  # (B, K, 9) of the rotation sum K, descending
+    rotation_singular_values: Tensor  # (B, K, 9) of the rotation sum K, descending
     rotation_observable: Tensor  # (B, K) bool
-    covariance: Tensor  # (B, K, 13, 13), inf where not refined
+    covariance: Tensor  # (B, K, 13, 13) in the order of UNKNOWNS, inf where not refined
     rotation_cost: Tensor  # (B, K)
     translation_cost: Tensor  # (B, K)
+    camera0_spread: Tensor  # (B, K) RMS distance of camera 0's world-to-camera translations from their mean
     frames: Tensor  # (B, K) weighted frames in the sums
     frames_used: Tensor  # (B, K) long
     frames_rejected: Tensor  # (B, K) long
@@ -231,6 +236,11 @@ class AbsoluteCalibration:
     @cached_property
     def quaternion(self) -> Tensor:
         return rotation_matrix_to_quaternion(self.rotation)
+
+    @property
+    def planar_motion(self) -> Tensor:
+        """(B, K) all False: there is no planar route (see the class docstring)."""
+        return torch.zeros_like(self.rotation_observable)
 
     @cached_property
     def _std(self) -> Tensor:
@@ -251,18 +261,37 @@ class AbsoluteCalibration:
         return self._std[..., 7:10]
 
     @cached_property
+    def _translation_eigen(self) -> tuple[Tensor, Tensor, Tensor]:
+        cov = self.covariance[..., 7:10, 7:10]
+        finite = cov.isfinite().all(-1).all(-1)
+        variance, directions = torch.linalg.eigh(torch.where(finite[..., None, None], cov, torch.eye(3).to(cov)))
+        return variance.flip(-1), directions.flip(-1), finite
+
+    @property
+    def translation_directions(self) -> Tensor:
+        """(B, K, 3, 3) principal directions (columns, camera 0's frame) of the translation error, weakest first."""
+        return self._translation_eigen[1]
+
+    @property
+    def translation_unobservable(self) -> Tensor:
+        """(B, K, 3) bool: every direction where there is no covariance (rotation unobservable, or < 3 frames)."""
+        return ~self._translation_eigen[2].unsqueeze(-1).expand(*self.rotation_observable.shape, 3)
+
+    @cached_property
     def residuals(self) -> dict[str, Tensor]:
-        """RMS residuals per frame, (B, K): ``rotation_deg`` (angle between ``R Rk`` and ``R0 Ry``) and
-        ``translation`` (camera-0 units)."""
+        """RMS residuals per frame, (B, K): ``rotation_deg``, the angle between ``R Rk`` and ``R0 Ry``, and
+        ``translation_relative``, the translation residual over ``camera0_spread`` (0: explained; about 1: no
+        better than no translation)."""
         n = self.frames.clamp_min(1e-300)
         return {"rotation_deg": torch.rad2deg((self.rotation_cost.clamp_min(0) / n).sqrt()),
-                "translation": (self.translation_cost.clamp_min(0) / n).sqrt()}
+                "translation_relative": (self.translation_cost.clamp_min(0) / n).sqrt() / self.camera0_spread}
 
     def camera_json(self, b: int, k: int) -> dict:
         """The JSON object of camera k+1 of rig b, in the schema of :class:`~ocalib.calib.result.Calibration`'s,
         with the world pose ``T_world0_worldk`` added."""
         get = lambda name: getattr(self, name)[b, k].detach().cpu().double()  # noqa: E731
-        return {
+        unobservable, directions = get("translation_unobservable").bool(), get("translation_directions")
+        return finite_or_null({
             "rotation": get("rotation").tolist(),
             "quaternion_wxyz": get("quaternion").tolist(),
             "translation": get("translation").tolist(),
@@ -271,15 +300,18 @@ class AbsoluteCalibration:
             "world_translation": get("world_translation").tolist(),
             "frames_used": int(get("frames_used")),
             "frames_rejected": int(get("frames_rejected")),
-            "rotation_std_deg": finite_or_null(torch.rad2deg(get("rotation_std")).tolist()),
-            "translation_std": finite_or_null(get("translation_std").tolist()),
-            "scale_std": finite_or_null(float(get("scale_std"))),
-            "residuals": finite_or_null({name: float(v[b, k]) for name, v in self.residuals.items()}),
+            "rotation_std_deg": torch.rad2deg(get("rotation_std")).tolist(),
+            "translation_std": get("translation_std").tolist(),
+            "scale_std": float(get("scale_std")),
+            "residuals": {name: float(v[b, k]) for name, v in self.residuals.items()},
             "observability": {
-                "rotation_singular_values": get("singular_values").tolist(),
+                "rotation_singular_values": get("rotation_singular_values").tolist(),
                 "rotation_observable": bool(get("rotation_observable")),
+                "planar_motion": False,
+                "unobservable_translation_directions": [directions[:, j].tolist() for j in range(3) if unobservable[j]],
+                "weakest_translation_direction": directions[:, 0].tolist(),
             },
-        }
+        })
 
 
 class AbsoluteCalibrator(nn.Module):
@@ -338,10 +370,12 @@ class AbsoluteCalibrator(nn.Module):
         self.frames_used = self.frames_used + used
         self.frames_rejected = self.frames_rejected + ~used
         est = solve_absolute(self.K, self.M, self.frames)
+        n = self.frames.clamp_min(1e-300)
         return AbsoluteCalibration(
             rotation=est["rotation"], translation=est["translation"], scale=est["scale"],
             world_rotation=est["world_rotation"], world_translation=est["world_translation"],
-            singular_values=est["singular_values"], rotation_observable=est["rotation_observable"],
+            rotation_singular_values=est["singular_values"], rotation_observable=est["rotation_observable"],
             covariance=est["covariance"], rotation_cost=est["rotation_cost"], translation_cost=est["translation_cost"],
+            camera0_spread=((self.M[..., 15, 15] - self.M[..., 9:12, 15].square().sum(-1) / n) / n).clamp_min(0).sqrt(),
             frames=self.frames, frames_used=self.frames_used, frames_rejected=self.frames_rejected,
         )  # fmt: skip

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from ocalib.calib.absolute import ROTATION_GAP_MIN, AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.planar import planar_axis
@@ -258,7 +259,7 @@ class CalibrationRun:
         F, K = tr["quaternion"].shape[:2]
         names = {
             "quaternion": ["qw", "qx", "qy", "qz"], "translation": ["tx", "ty", "tz"],
-            "rotation_singular_values": [f"rotation_sv{i}" for i in range(4)],
+            "rotation_singular_values": [f"rotation_sv{i}" for i in range(tr["rotation_singular_values"].shape[-1])],
             "rotation_std_deg": ["rotation_std_x_deg", "rotation_std_y_deg", "rotation_std_z_deg"],
             "translation_std": ["translation_std_x", "translation_std_y", "translation_std_z"],
         }  # fmt: skip
@@ -290,6 +291,8 @@ def calibrate_rig(
 ) -> CalibrationRun:
     """Calibrate cameras 1..K of ``rig`` against camera 0.
 
+    motion: the head's motion pairing, or ``absolute``: every pose on its own, for poses with independent errors
+    (:class:`~ocalib.calib.absolute.AbsoluteCalibrator`; ``refine`` does not apply).
     solver: ``exact`` or ``rls``: the on-line head's estimate at every frame (``exact`` through the
     whole-sequence path of :mod:`ocalib.calib.sequence`, which equals streaming the frames; ``rls`` streams
     them); ``batch`` solves all frames with every pose valid at once (one estimate). refine: the head's (see
@@ -301,7 +304,12 @@ def calibrate_rig(
     if not 0 < forgetting <= 1:
         raise InputError(f"forgetting must be in (0, 1], got {forgetting}")
     poses = torch.from_numpy(rig.poses)
-    if solver == "batch":
+    if motion == "absolute" and solver != "exact":
+        raise InputError(f"motion 'absolute' has its own solver (on-line AX = YB); leave --solver at exact, not {solver!r}")
+    if motion == "absolute":
+        head = AbsoluteCalibrator(rig.poses.shape[1], forgetting=forgetting, pose_tolerance=POSE_TOLERANCE)
+        (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
+    elif solver == "batch":
         final = _batch(poses, rig.valid.all(1), motion, refine is True)
         trace, frames = trace_rows(final), np.array([len(poses) - 1])
     elif solver == "exact":
@@ -368,7 +376,7 @@ def _sequence(poses: torch.Tensor, motion: str, forgetting: float, refine: bool 
     return last, {k: torch.cat([c[k] for c in chunks]) for k in chunks[0]}
 
 
-def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) -> tuple[Calibration, dict]:
+def _stream(head: OnlineCalibrator | AbsoluteCalibrator, poses: torch.Tensor, progress: bool | None) -> tuple[Calibration, dict]:
     """Every frame (T, C, 4, 4) through the head -> (the last estimate, the trace of every frame).
 
     The head's outputs are gathered ``PROGRESS_EVERY`` frames at a time into one Calibration with the
@@ -390,8 +398,9 @@ def _stream(head: OnlineCalibrator, poses: torch.Tensor, progress: bool | None) 
 
 def stack_estimates(estimates: list[Calibration]) -> Calibration:
     """Per-frame estimates (each (B, K, ...)) -> one Calibration with the frames concatenated on the batch axis."""
-    names = [f.name for f in fields(Calibration)]
-    return Calibration(**{n: None if getattr(estimates[0], n) is None else torch.cat([getattr(e, n) for e in estimates])
+    kind = type(estimates[0])  # Calibration or AbsoluteCalibration
+    names = [f.name for f in fields(kind)]
+    return kind(**{n: None if getattr(estimates[0], n) is None else torch.cat([getattr(e, n) for e in estimates])
                           for n in names})
 
 
@@ -470,7 +479,13 @@ def run_warnings(run: CalibrationRun) -> list[str]:
             )
     for k, f in enumerate(rig.files[1:]):
         S = e.rotation_singular_values[0, k].tolist()
-        if not bool(e.rotation_observable[0, k]) and not bool(e.planar_motion[0, k]):
+        if not bool(e.rotation_observable[0, k]) and run.settings["motion"] == "absolute":
+            out.append(
+                f"{f}: rotation not observable: the top two singular values of the rotation sum {_fmt(S[:3])} are less "
+                f"than {ROTATION_GAP_MIN:g} per frame apart: the poses rotate about one axis or not at all; absolute "
+                "poses cannot calibrate that (no estimate). The motion pairs (--motion multi) recover a planar rotation"
+            )
+        elif not bool(e.rotation_observable[0, k]) and not bool(e.planar_motion[0, k]):
             out.append(
                 f"{f}: rotation not observable: rotation singular values {_fmt(S)}, the third must exceed "
                 f"{ROTATION_OBSERVABLE_MIN_SV} and stand out of the fourth (the noise floor; significance "

@@ -34,8 +34,11 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="JSON", help="write the result JSON here")
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
-    p.add_argument("--motion", choices=("first", "consecutive", "multi"), default="multi",
-                   help="motion pairs: against frame 0, consecutive frames, or gaps of 1, 2, 4, 8 and 16 frames weighted by their noise (default)")
+    p.add_argument("--motion", choices=("first", "consecutive", "multi", "absolute"), default="multi",
+                   help="motion pairs: against frame 0, consecutive frames, or gaps of 1, 2, 4, 8 and 16 frames weighted by "
+                   "their noise (default, for VO / SLAM trajectories); absolute: every pose on its own (AX = YB), for poses "
+                   "measured from a calibration target by each camera (independent errors, the translation error in the "
+                   "camera frame, as PnP gives)")
     p.add_argument("--solver", choices=("exact", "rls", "batch"), default="exact",
                    help="exact on-line least squares (default), the paper's RLS, or one batch solve")
     p.add_argument("--forgetting", type=float, default=1.0, metavar="L",
@@ -100,11 +103,15 @@ def summary(doc: dict) -> str:
     s = doc["settings"]
     lines = [f"reference: {doc['reference']}  ({s['frames']} frames, solver {s['solver']}, motion {s['motion']})"]
     for e in doc["extrinsics"]:
+        obs = e["observability"]
+        if None in e["quaternion_wxyz"]:  # absolute poses, rotation unobservable: no estimate
+            lines += [f"{e['camera']}: {e['frames_used']} frames used, {e['frames_rejected']} rejected",
+                      "  no estimate: ROTATION UNOBSERVABLE (see the warnings)"]
+            continue
         q = np.array(e["quaternion_wxyz"])
         rv = np.rad2deg(rotation_vector(q))
         angle = float(np.linalg.norm(rv))
         axis = rv / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
-        obs = e["observability"]
         rstd = e["rotation_std_deg"] or [None] * 3
         flags = [name for name, on in (
             ("ROTATION UNOBSERVABLE", not obs["rotation_observable"] and not obs["planar_motion"]),
@@ -121,7 +128,7 @@ def summary(doc: dict) -> str:
             + "; std about x/y/z (deg): " + ", ".join("?" if v is None else f"{v:.2g}" for v in rstd),
             "  translation: " + ", ".join(pm(v, sd) for v, sd in zip(e["translation"], e["translation_std"] or [None] * 3)),
             f"  scale: {pm(e['scale'], e['scale_std'])}",
-            "  residuals (RMS over motion pairs): " + residual_text(e["residuals"]),
+            "  residuals (RMS): " + residual_text(e["residuals"]),
             f"  flags: {', '.join(flags) if flags else 'none'}",
         ]
     return "\n".join(lines)

@@ -416,3 +416,59 @@ def test_refine_option_reaches_the_head(tmp_path, capsys, refine):
     ref = batch_calibrate(torch.from_numpy(poses), "multi", refine=refine == "always")
     np.testing.assert_allclose(doc["extrinsics"][0]["quaternion_wxyz"], ref["quaternion"][0].numpy(), atol=1e-9)
     assert bool(ref["refined"][0]) == (refine == "always")
+
+
+def target_poses(frames=60, noise=0.003, seed=5, cameras=3):
+    """Camera-to-world poses of cameras that each see a calibration target from random viewpoints: each camera in
+    its own world (its target) and units, independent errors on the world-to-camera poses (as PnP makes them)
+    -> poses (frames, cameras, 4, 4), true T_cam0_camk (K, 4, 4)."""
+    from ocalib.geometry import invert_pose, make_pose
+    from ocalib.sim.trajectory import random_rotation
+
+    g = torch.Generator().manual_seed(seed)
+    X = torch.stack([random_rig(g) for _ in range(cameras - 1)])
+    P0 = make_pose(random_rotation(g, frames), 2 * torch.randn(frames, 3, generator=g, dtype=torch.float64))
+    cams = [P0]
+    for x, s in zip(X, SCALES):
+        P = invert_pose(random_rig(g, baseline=3.0)) @ P0 @ x  # camera k's own world
+        P[:, :3, 3] /= s
+        cams.append(P)
+    return invert_pose(add_noise(invert_pose(torch.stack(cams, 1)), noise, g)).numpy(), X
+
+
+def test_absolute_poses_end_to_end(tmp_path, capsys):
+    """--motion absolute on target poses: accurate, the result JSON in the usual schema plus the world pose, and a
+    trace with the nine singular values."""
+    poses, X = target_poses()
+    files = write_files(tmp_path, poses)
+    out, trace = tmp_path / "result.json", tmp_path / "trace.csv"
+    code, stdout, err = calibrate(capsys, *files, "--motion", "absolute", "--out", out, "--trace", trace)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["warnings"] == [] and doc["settings"]["motion"] == "absolute"
+    for cam, x, s in zip(doc["extrinsics"], X, SCALES):
+        assert list(cam)[: len(CAMERA_KEYS)] == CAMERA_KEYS and {"world_rotation", "world_translation"} <= set(cam)
+        assert OBSERVABILITY_KEYS <= set(cam["observability"]) and cam["observability"]["rotation_observable"]
+        check_accuracy(cam, x, s, rot_deg=0.2, trans=0.01)
+        assert all(0 < v < 0.1 for v in cam["rotation_std_deg"] + cam["translation_std"])
+    with open(trace) as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 * len(poses) and "rotation_sv8" in rows[0]
+    assert files[1] in stdout and "scale" in stdout
+
+
+def test_absolute_poses_flag_one_axis_rotation(tmp_path, capsys):
+    poses, _ = simulate(trajectory="car", frames=60, noise=1e-3)
+    out = tmp_path / "result.json"
+    code, stdout, err = calibrate(capsys, *write_files(tmp_path, poses), "--motion", "absolute", "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    cam = doc["extrinsics"][0]
+    assert not cam["observability"]["rotation_observable"] and cam["translation"] == [None] * 3
+    assert any("absolute poses cannot calibrate" in w for w in doc["warnings"]) and "ROTATION UNOBSERVABLE" in stdout
+
+
+def test_absolute_poses_take_no_other_solver(tmp_path, capsys):
+    poses, _ = target_poses(frames=10)
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--motion", "absolute", "--solver", "rls")
+    assert code != 0 and "absolute" in err
