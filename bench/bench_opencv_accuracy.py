@@ -30,6 +30,7 @@ from common import write_json
 from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
+from ocalib.sim.opencv_protocol import simulate_opencv
 from ocalib.sim.trajectory import add_noise, car_trajectory, random_rig, rig_trajectories
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,40 +42,6 @@ OPENCV = {
     "DANIILIDIS": cv2.CALIB_HAND_EYE_DANIILIDIS,
 }
 ALL_PAIRS = tuple(range(1, 10))  # with 10 poses: every pair, as OpenCV uses
-
-
-def generate_pose(rng, theta, t):
-    """OpenCV's ``generatePose`` with random signs: (4, 4). theta, t: (min, max) ranges."""
-    axis = rng.uniform(-1, 1, 3)
-    rvec = rng.uniform(*theta) * np.sign(rng.uniform(-1, 1)) * axis
-    T = np.eye(4)
-    T[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T[:3, 3] = rng.uniform(*t, 3) * np.sign(rng.uniform(-1, 1, 3))
-    return T
-
-
-def perturb(rng, T, sigma_r, sigma_t):
-    """OpenCV's noise: Gaussian on the rotation vector and on the translation."""
-    out = T.copy()
-    out[:3, :3] = cv2.Rodrigues(cv2.Rodrigues(T[:3, :3])[0].ravel() + rng.normal(0, sigma_r, 3))[0]
-    out[:3, 3] += rng.normal(0, sigma_t, 3)
-    return out
-
-
-def simulate_opencv(rng, n_poses=10, noise=True):
-    """One trial of OpenCV's ``simulateData``: (gripper2base (n, 4, 4), target2cam (n, 4, 4), X (4, 4))."""
-    deg = math.pi / 180
-    X = generate_pose(rng, (10 * deg, 50 * deg), (0.05, 0.5))
-    target2base = generate_pose(rng, (5 * deg, 85 * deg), (0.5, 3.5))
-    g2b, t2c = [], []
-    for _ in range(n_poses):
-        G = generate_pose(rng, (5 * deg, 45 * deg), (0.5, 1.5))
-        C = np.linalg.inv(X) @ np.linalg.inv(G) @ target2base
-        if noise:
-            C, G = perturb(rng, C, 0.002, 0.005), perturb(rng, G, 0.001, 0.001)
-        g2b.append(G)
-        t2c.append(C)
-    return np.stack(g2b), np.stack(t2c), X
 
 
 def opencv_calibrate(g2b, t2c, method):
@@ -94,26 +61,24 @@ def rig_poses(g2b, t2c):
     return torch.from_numpy(np.stack([g2b, np.linalg.inv(t2c)], 1))
 
 
-def online(poses, **kwargs):
-    """Final on-line estimates (B, 4, 4) of rigs (B, n, 2, 4, 4)."""
-    cal = OnlineCalibrator(num_cameras=2, batch_size=poses.shape[0], **kwargs)
+def final(head, poses):
+    """The last on-line estimates (B, 4, 4) of ``head`` (B rigs) streaming rigs (B, n, 2, 4, 4)."""
     with torch.no_grad():
         for t in range(poses.shape[1]):
-            out = cal(poses[:, t])
+            out = head(poses[:, t])
     T = torch.eye(4, dtype=torch.float64).repeat(poses.shape[0], 1, 1)
     T[:, :3, :3], T[:, :3, 3] = out.rotation[:, 0], out.translation[:, 0]
     return T.numpy()
+
+
+def online(poses, **kwargs):
+    """Final estimates of the pair head (:class:`OnlineCalibrator`) on rigs (B, n, 2, 4, 4)."""
+    return final(OnlineCalibrator(num_cameras=2, batch_size=poses.shape[0], **kwargs), poses)
 
 
 def absolute(poses):
-    """Final on-line estimates (B, 4, 4) of the absolute-pose (AX = YB) calibrator, rigs (B, n, 2, 4, 4)."""
-    cal = AbsoluteCalibrator(batch_size=poses.shape[0])
-    with torch.no_grad():
-        for t in range(poses.shape[1]):
-            out = cal(poses[:, t])
-    T = torch.eye(4, dtype=torch.float64).repeat(poses.shape[0], 1, 1)
-    T[:, :3, :3], T[:, :3, 3] = out.rotation[:, 0], out.translation[:, 0]
-    return T.numpy()
+    """Final estimates of the absolute-pose (AX = YB) head on rigs (B, n, 2, 4, 4)."""
+    return final(AbsoluteCalibrator(batch_size=poses.shape[0]), poses)
 
 
 def batch(poses, motion):
