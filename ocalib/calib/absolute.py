@@ -189,15 +189,16 @@ def solve_absolute(K: Tensor, M: Tensor, n: Tensor, sigma: Tensor | None = None,
             if bool((small | ~take).all()):
                 break
     g, H = local_derivatives(K, M, R, Ry, x, wr, wt)
+    eye = torch.eye(UNKNOWNS, dtype=K.dtype, device=K.device)
+    H = torch.where(active[:, None, None], H, eye)  # elsewhere no step, and no 0 * inf in its gradient
     if torch.is_grad_enabled() and (K.requires_grad or M.requires_grad):
-        step = torch.where(active[:, None], -torch.linalg.solve_ex(H, g.unsqueeze(-1))[0].squeeze(-1), 0)
+        step = torch.where(active[:, None], -torch.linalg.solve(H, g.unsqueeze(-1)).squeeze(-1), 0)
         R, Ry, x = _apply(R, Ry, x, step)
     Er, Et = _costs(K, M, n, R, Ry, x)
     nan = torch.tensor(math.nan, dtype=K.dtype, device=K.device)  # no answer where the rotation is unobservable
     R, Ry, x = (torch.where(observable.view(-1, *[1] * (v.dim() - 1)), v, nan) for v in (R, Ry, x))
     # chi-square form: sum r^2 / sigma^2 = (wr Er + wt Et) / scale, whose Hessian is H / scale: cov = 2 (H / scale)^-1
-    eye = torch.eye(UNKNOWNS, dtype=K.dtype, device=K.device)
-    cov = 2 * torch.linalg.inv_ex(torch.where(active[:, None, None], H.detach() / scale[:, None, None], eye))[0]
+    cov = 2 * torch.linalg.inv_ex(H.detach() / scale[:, None, None])[0]
     cov = torch.where(active[:, None, None] & cov.isfinite(), cov, math.inf)
     out = {"sigma": sigma, "rotation": R, "scale": x[:, 0], "translation": x[:, 1:4], "world_rotation": Ry, "world_translation": x[:, 4:],
            "singular_values": S, "rotation_observable": observable, "refined": active, "covariance": cov,

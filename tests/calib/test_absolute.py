@@ -219,3 +219,17 @@ def test_more_accurate_than_the_motion_pairs_on_target_poses():
         errors[name] = ((out.translation[:, 0] - X[:, :3, 3]).norm(dim=-1).median(),
                         rotation_angle(out.rotation[:, 0].mT @ X[:, :3, :3]).median())
     assert errors["absolute"][0] < 0.95 * errors["pairs"][0] and errors["absolute"][1] < 0.95 * errors["pairs"][1], errors
+
+
+def test_gradients_through_a_stream_stay_finite(generator):
+    """Backward through every frame's estimate, the first ones (too few frames to refine) included."""
+    poses, _, _ = target_rig(generator, frames=8, noise=0.01)
+    poses.requires_grad_(True)
+    cal = AbsoluteCalibrator()
+    loss = 0
+    for t in range(8):
+        out = cal(poses[t])
+        if t >= 3:
+            loss = loss + out.translation.sum() + out.scale.sum()
+    loss.backward()
+    assert poses.grad.isfinite().all() and poses.grad.abs().max() > 0
