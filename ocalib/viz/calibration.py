@@ -80,7 +80,8 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
             if flag.any():
                 ax.fill_between(frames, 0, 1, where=flag, transform=ax.get_xaxis_transform(), color=color,
                                 alpha=0.15, step="mid", label=label)  # fmt: skip
-        ax.set_title("observability: rotation singular values", fontsize=9)
+        more = f" (first 4 of {sv.shape[-1]})" if sv.shape[-1] > 4 else ""  # absolute poses: 9
+        ax.set_title(f"observability: rotation singular values{more}", fontsize=9)
 
         ax = axes[4, k]
         if "rotation_residual_deg" in trace:
@@ -88,7 +89,7 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
             ax.plot(frames, 100 * trace["translation_residual"][:, k, 0], color=COLORS[2], lw=1,
                     label="translation (% of camera 0's motion)")
             ax.set_yscale("log")
-        ax.set_title("fit residuals, RMS over the motion pairs so far", fontsize=9)
+        ax.set_title("fit residuals, RMS over the motion pairs (absolute poses: frames) so far", fontsize=9)
         ax.set_xlabel("frame")
     for ax in axes.flat:
         ax.grid(alpha=0.3)
