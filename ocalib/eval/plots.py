@@ -13,6 +13,7 @@ import numpy as np
 
 from ocalib.eval.evaluate import CameraEvaluation
 from ocalib.eval.pose_metrics import frame_motions, rotation_matrix_to_axis_angle
+from ocalib.viz.figure import save_figure
 
 
 def plot_camera(result: CameraEvaluation, path: str | Path, title: str = "") -> Path:
@@ -95,12 +96,7 @@ def plot_camera(result: CameraEvaluation, path: str | Path, title: str = "") -> 
         _empty(axes[0, 2], "no ground-truth poses")
         _empty(axes[1, 2], "no ground-truth poses")
     fig.suptitle(f"{title} camera {result.name}".strip(), fontsize=11)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _empty(ax, text: str) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ocalib.sim.experiment import ERROR_LABELS, ERRORS, SimulationResult
+from ocalib.viz.figure import save_figure
 
 
 def plot_errors(result: SimulationResult, path: str | Path, methods: list[str] | None = None) -> Path:
@@ -34,9 +35,4 @@ def plot_errors(result: SimulationResult, path: str | Path, methods: list[str] |
         ax.set_xlabel("iteration (frame)")
     axes[0, -1].legend(fontsize=7, loc="upper right")
     fig.suptitle(f"{result.trajectory} trajectory, {result.noise_model} noise, median of {result.seeds} seeds", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

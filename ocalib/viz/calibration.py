@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
+from ocalib.viz.figure import save_figure
 
 AXES = "xyz"
 COLORS = ("tab:red", "tab:green", "tab:blue", "tab:gray")
@@ -97,9 +98,7 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
             ax.legend(fontsize=8, loc="lower right" if ax.get_yscale() == "log" else "upper right")
         if ax.get_yscale() == "linear":
             ax.ticklabel_format(axis="y", useOffset=False)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str]) -> None:
