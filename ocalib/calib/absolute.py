@@ -21,6 +21,10 @@ The closed form takes ``vec(R)`` and ``vec(Ry)`` from the top singular pair of `
 ``E_r / sr^2 + E_t / st^2`` over all 13 unknowns, with ``sr^2``, ``st^2`` the closed form's residual variances:
 the result equals a batch nonlinear least-squares solve of all frames' residuals, every frame.
 
+That residual suits poses whose translation error is in the camera frame (PnP on a target). For poses whose
+error is in the camera's position (motion capture), :class:`AbsoluteCalibrator` with ``pose_error="world"``
+solves the same equations with camera and world exchanged (``P0_i X = Y Pk_i``, residual in camera 0's world).
+
 Convention: poses in are camera-to-world (..., C, 4, 4), camera 0 the reference; ``(R, t)`` is ``T_cam0_camk``
 (``p_cam0 = R p_camk + t``), ``s`` multiplies camera-k units into camera-0 units, ``(Ry, ty)`` is
 ``T_world0_worldk``; matrices are vectorised row by row.
@@ -43,6 +47,8 @@ from ocalib.io.jsonable import finite_or_null
 
 UNKNOWNS = 13  # rotation (3, about camera k's axes), world rotation (3), scale, translation (3), world translation (3)
 ROTATION_GAP_MIN = 1e-3  # rotation observable: top two singular values of K at least this far apart, per frame
+SWAP = [3, 4, 5, 0, 1, 2, 6, 10, 11, 12, 7, 8, 9]  # the order of UNKNOWNS with X and Y exchanged
+POSE_ERRORS = ("camera", "world")  # where the poses' translation error lives (see AbsoluteCalibrator)
 NEWTON_STEPS = 10
 CONVERGED = 1e-9  # Newton steps (radians, units) this small are taken without comparing costs
 
@@ -229,7 +235,7 @@ class AbsoluteCalibration:
     covariance: Tensor  # (B, K, 13, 13) in the order of UNKNOWNS, inf where not refined
     rotation_cost: Tensor  # (B, K)
     translation_cost: Tensor  # (B, K)
-    camera0_spread: Tensor  # (B, K) RMS distance of camera 0's world-to-camera translations from their mean
+    camera0_spread: Tensor  # (B, K) RMS spread of camera 0's world-to-camera translations (pose_error world: positions)
     frames: Tensor  # (B, K) weighted frames in the sums
     frames_used: Tensor  # (B, K) long
     frames_rejected: Tensor  # (B, K) long
@@ -323,16 +329,25 @@ class AbsoluteCalibrator(nn.Module):
 
     Args:
         num_cameras: C, camera 0 the reference. batch_size: B.
+        pose_error: where the poses' translation error lives, which decides the frame of the translation residual:
+            ``camera`` (the world-to-camera translation, as PnP on a calibration target gives it: the module
+            docstring's equations) or ``world`` (the camera's position, as motion capture gives it). ``world``
+            solves the same equations with the roles of camera and world exchanged: the poses go in as they are
+            (camera-to-world read as world-to-camera), so that the residual lies in camera 0's world, and ``X``
+            and ``Y`` swap places in the result. The wrong choice costs about 2x in translation error (tested).
         forgetting: ``lam`` in (0, 1]; old frames weigh ``lam`` per frame.
         pose_tolerance: poses with a non-finite entry or a rotation further than this from orthonormal are
             skipped and counted in ``frames_rejected``.
     """
 
-    def __init__(self, num_cameras: int = 2, batch_size: int = 1, forgetting: float = 1.0, pose_tolerance: float = 1e-3,
-                 dtype: torch.dtype = torch.float64, device: torch.device | str | None = None):  # fmt: skip
+    def __init__(self, num_cameras: int = 2, batch_size: int = 1, pose_error: str = "camera", forgetting: float = 1.0,
+                 pose_tolerance: float = 1e-3, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None):  # fmt: skip
         super().__init__()
         if num_cameras < 2:
             raise ValueError(f"a rig needs at least 2 cameras, got num_cameras={num_cameras}")
+        if pose_error not in POSE_ERRORS:
+            raise ValueError(f"pose_error must be one of {POSE_ERRORS}, got {pose_error!r}")
+        self.pose_error = pose_error
         if not 0 < forgetting <= 1:
             raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
         self.num_cameras, self.batch_size, self.forgetting, self.pose_tolerance = num_cameras, batch_size, forgetting, pose_tolerance
@@ -359,7 +374,8 @@ class AbsoluteCalibrator(nn.Module):
         valid = poses.isfinite().flatten(-2).all(-1)
         poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
         valid = valid & (orthonormality_error(poses[..., :3, :3]) < self.pose_tolerance)
-        C = invert_pose(torch.where(valid[..., None, None], poses, eye))  # world-to-camera
+        C = torch.where(valid[..., None, None], poses, eye)
+        C = invert_pose(C) if self.pose_error == "camera" else C  # world-to-camera (world: roles exchanged)
         kron, D = absolute_rows(C[:, :1, :3, :3].expand_as(C[:, 1:, :3, :3]), C[:, 1:, :3, :3],
                                 C[:, :1, :3, 3].expand_as(C[:, 1:, :3, 3]), C[:, 1:, :3, 3])  # fmt: skip
         used = valid[:, :1] & valid[:, 1:]  # (B, K)
@@ -371,12 +387,17 @@ class AbsoluteCalibrator(nn.Module):
         self.frames_used = self.frames_used + used
         self.frames_rejected = self.frames_rejected + ~used
         est = solve_absolute(self.K, self.M, self.frames)
+        rig, world = ("rotation", "translation"), ("world_rotation", "world_translation")
+        cov = est["covariance"]
+        if self.pose_error == "world":  # X and Y exchanged (see the class docstring)
+            rig, world = world, rig
+            cov = cov[..., SWAP, :][..., :, SWAP]
         n = self.frames.clamp_min(1e-300)
         return AbsoluteCalibration(
-            rotation=est["rotation"], translation=est["translation"], scale=est["scale"],
-            world_rotation=est["world_rotation"], world_translation=est["world_translation"],
+            rotation=est[rig[0]], translation=est[rig[1]], scale=est["scale"],
+            world_rotation=est[world[0]], world_translation=est[world[1]],
             rotation_singular_values=est["singular_values"], rotation_observable=est["rotation_observable"],
-            covariance=est["covariance"], rotation_cost=est["rotation_cost"], translation_cost=est["translation_cost"],
+            covariance=cov, rotation_cost=est["rotation_cost"], translation_cost=est["translation_cost"],
             camera0_spread=((self.M[..., 15, 15] - self.M[..., 9:12, 15].square().sum(-1) / n) / n).clamp_min(0).sqrt(),
             frames=self.frames, frames_used=self.frames_used, frames_rejected=self.frames_rejected,
         )  # fmt: skip
