@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ocalib.calib.absolute import ROTATION_GAP_MIN, AbsoluteCalibrator
+from ocalib.calib.absolute import POSE_ERRORS, ROTATION_GAP_MIN, AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.planar import planar_axis
@@ -288,11 +288,13 @@ def calibrate_rig(
     forgetting: float = 1.0,
     refine: bool | str = True,
     progress: bool | None = False,
+    pose_error: str | None = None,
 ) -> CalibrationRun:
     """Calibrate cameras 1..K of ``rig`` against camera 0.
 
     motion: the head's motion pairing, or ``absolute``: every pose on its own, for poses with independent errors
-    (:class:`~ocalib.calib.absolute.AbsoluteCalibrator`; ``refine`` does not apply).
+    (:class:`~ocalib.calib.absolute.AbsoluteCalibrator`; ``refine`` does not apply; ``pose_error``, only with it:
+    ``camera`` (default) or ``world``, where the poses' translation error lives).
     solver: ``exact`` or ``rls``: the on-line head's estimate at every frame (``exact`` through the
     whole-sequence path of :mod:`ocalib.calib.sequence`, which equals streaming the frames; ``rls`` streams
     them); ``batch`` solves all frames with every pose valid at once (one estimate). refine: the head's (see
@@ -306,8 +308,13 @@ def calibrate_rig(
     poses = torch.from_numpy(rig.poses)
     if motion == "absolute" and solver != "exact":
         raise InputError(f"motion 'absolute' has its own solver (on-line AX = YB); leave --solver at exact, not {solver!r}")
+    if pose_error is not None and motion != "absolute":
+        raise InputError(f"--pose-error describes absolute poses; it needs --motion absolute, not {motion!r}")
     if motion == "absolute":
-        head = AbsoluteCalibrator(rig.poses.shape[1], forgetting=forgetting, pose_tolerance=POSE_TOLERANCE)
+        pose_error = pose_error or "camera"
+        if pose_error not in POSE_ERRORS:
+            raise InputError(f"unknown pose error {pose_error!r}: {', '.join(POSE_ERRORS)}")
+        head = AbsoluteCalibrator(rig.poses.shape[1], pose_error=pose_error, forgetting=forgetting, pose_tolerance=POSE_TOLERANCE)
         (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
     elif solver == "batch":
         final = _batch(poses, rig.valid.all(1), motion, refine is True)
@@ -321,7 +328,7 @@ def calibrate_rig(
     times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
     trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
     settings = {"motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine, "frames": len(poses),
-                "max_dt": rig.max_dt}
+                "max_dt": rig.max_dt, "pose_error": pose_error}
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = run_warnings(run)
     return run
@@ -339,10 +346,11 @@ def calibrate_files(
     refine: bool | str = True,
     progress: bool | None = False,
     sync: str = "interpolate",
+    pose_error: str | None = None,
 ) -> CalibrationRun:
     """:func:`load_rig` then :func:`calibrate_rig`; see both for the arguments."""
     rig = load_rig(files, format, times, time_offset, max_dt, sync)
-    run = calibrate_rig(rig, motion, solver, forgetting, refine, progress)
+    run = calibrate_rig(rig, motion, solver, forgetting, refine, progress, pose_error)
     run.settings.update(format=format, sync=sync if rig.times is not None else None)
     return run
 

@@ -37,8 +37,12 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--motion", choices=("first", "consecutive", "multi", "absolute"), default="multi",
                    help="motion pairs: against frame 0, consecutive frames, or gaps of 1, 2, 4, 8 and 16 frames weighted by "
                    "their noise (default, for VO / SLAM trajectories); absolute: every pose on its own (AX = YB), for poses "
-                   "measured from a calibration target by each camera (independent errors, the translation error in the "
-                   "camera frame, as PnP gives)")
+                   "whose errors are independent from pose to pose (a calibration target seen by each camera, motion "
+                   "capture; see --pose-error)")
+    p.add_argument("--pose-error", choices=("camera", "world"),
+                   help="with --motion absolute: where the poses' translation error lives: camera (default: the "
+                   "target's position in the camera, as PnP gives it) or world (the camera's position, as motion "
+                   "capture gives it); the wrong one costs about 2x in translation")
     p.add_argument("--solver", choices=("exact", "rls", "batch"), default="exact",
                    help="exact on-line least squares (default), the paper's RLS, or one batch solve")
     p.add_argument("--forgetting", type=float, default=1.0, metavar="L",
@@ -69,6 +73,7 @@ def run(args) -> int:
     result = calibrate_files(
         args.files, args.format, args.times, args.time_offset, args.max_dt,
         args.motion, args.solver, args.forgetting, REFINE_CHOICES[args.refine], progress=None, sync=args.sync,
+        pose_error=args.pose_error,
     )  # fmt: skip
     doc = result.result_json()
     if args.out:

@@ -418,10 +418,11 @@ def test_refine_option_reaches_the_head(tmp_path, capsys, refine):
     assert bool(ref["refined"][0]) == (refine == "always")
 
 
-def target_poses(frames=60, noise=0.003, seed=5, cameras=3):
+def target_poses(frames=60, noise=0.003, seed=5, cameras=3, pose_error="camera"):
     """Camera-to-world poses of cameras that each see a calibration target from random viewpoints: each camera in
-    its own world (its target) and units, independent errors on the world-to-camera poses (as PnP makes them)
-    -> poses (frames, cameras, 4, 4), true T_cam0_camk (K, 4, 4)."""
+    its own world (its target) and units, independent errors on the world-to-camera poses (``camera``, as PnP
+    makes them) or on the camera-to-world ones (``world``) -> poses (frames, cameras, 4, 4), true T_cam0_camk
+    (K, 4, 4)."""
     from ocalib.geometry import invert_pose, make_pose
     from ocalib.sim.trajectory import random_rotation
 
@@ -433,6 +434,8 @@ def target_poses(frames=60, noise=0.003, seed=5, cameras=3):
         P = invert_pose(random_rig(g, baseline=3.0)) @ P0 @ x  # camera k's own world
         P[:, :3, 3] /= s
         cams.append(P)
+    if pose_error == "world":
+        return add_noise(torch.stack(cams, 1), noise, g).numpy(), X
     return invert_pose(add_noise(invert_pose(torch.stack(cams, 1)), noise, g)).numpy(), X
 
 
@@ -445,7 +448,7 @@ def test_absolute_poses_end_to_end(tmp_path, capsys):
     code, stdout, err = calibrate(capsys, *files, "--motion", "absolute", "--out", out, "--trace", trace)
     assert code == 0, err
     doc = json.loads(out.read_text())
-    assert doc["warnings"] == [] and doc["settings"]["motion"] == "absolute"
+    assert doc["warnings"] == [] and doc["settings"]["motion"] == "absolute" and doc["settings"]["pose_error"] == "camera"
     for cam, x, s in zip(doc["extrinsics"], X, SCALES):
         assert list(cam)[: len(CAMERA_KEYS)] == CAMERA_KEYS and {"world_rotation", "world_translation"} <= set(cam)
         assert OBSERVABILITY_KEYS <= set(cam["observability"]) and cam["observability"]["rotation_observable"]
@@ -455,6 +458,24 @@ def test_absolute_poses_end_to_end(tmp_path, capsys):
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 * len(poses) and "rotation_sv8" in rows[0]
     assert files[1] in stdout and "scale" in stdout
+
+
+def test_absolute_poses_with_position_errors(tmp_path, capsys):
+    """--pose-error world on poses whose positions carry the error: accurate, and recorded in the settings."""
+    poses, X = target_poses(pose_error="world", seed=6)
+    out = tmp_path / "result.json"
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--motion", "absolute", "--pose-error", "world", "--out", out)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["settings"]["pose_error"] == "world" and doc["warnings"] == []
+    for cam, x, s in zip(doc["extrinsics"], X, SCALES):
+        check_accuracy(cam, x, s, rot_deg=0.2, trans=0.01)
+
+
+def test_pose_error_needs_absolute_motion(tmp_path, capsys):
+    poses, _ = target_poses(frames=10)
+    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--pose-error", "world")
+    assert code != 0 and "--motion absolute" in err
 
 
 def test_absolute_poses_flag_one_axis_rotation(tmp_path, capsys):
