@@ -40,6 +40,7 @@ import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from torch import Tensor, nn
 
+from ocalib.calib.planar import skew
 from ocalib.geometry.constants import constant_cache
 from ocalib.geometry.pose import invert_pose, orthonormality_error
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
@@ -63,11 +64,6 @@ def absolute_rows(R0: Tensor, Rk: Tensor, t0: Tensor, tk: Tensor) -> tuple[Tenso
     eye = torch.eye(3, dtype=R0.dtype, device=R0.device).expand_as(R0)
     D = torch.cat([(eye[..., :, :, None] * tk[..., None, None, :]).flatten(-2), eye, -R0, -t0.unsqueeze(-1)], -1)
     return kron, D
-
-
-def _skew(v: Tensor) -> Tensor:
-    z = torch.zeros_like(v[..., 0])
-    return torch.stack([z, -v[..., 2], v[..., 1], v[..., 2], z, -v[..., 0], -v[..., 1], v[..., 0], z], -1).unflatten(-1, (3, 3))
 
 
 def _project(A: Tensor) -> Tensor:
@@ -99,7 +95,7 @@ def _costs(K: Tensor, M: Tensor, n: Tensor, R: Tensor, Ry: Tensor, x: Tensor) ->
 def _generators(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor]:
     """so(3) generators ``G_i = [e_i]x`` (3, 3, 3) and their symmetrised products ``(G_i G_j + G_j G_i) / 2``
     (3, 3, 3, 3): ``R exp(a) = R (I + sum a_i G_i + sum a_i a_j S_ij / 2 + ...)``."""
-    G = _skew(torch.eye(3, dtype=dtype, device=device))
+    G = skew(torch.eye(3, dtype=dtype, device=device))
     GG = G[:, None] @ G[None, :]
     return G, (GG + GG.transpose(0, 1)) / 2
 
