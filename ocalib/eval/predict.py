@@ -143,32 +143,41 @@ def _generate(model, loader, frames: int, device, depth: bool, progress, K) -> I
     previous, t = None, 0
     with tqdm(total=frames, unit="frame", desc="predicting", disable=None if progress is None else not progress) as bar:
         for images in loader:  # (b, C, 3, H, W)
-            motion, depth_maps = _predict_batch(model, images.to(device), previous, depth, K)
-            previous = images[-1].to(device)
+            motion, depth_maps, previous = _predict_batch(model, images.to(device), previous, depth, K)
             for i in range(len(images)):
                 yield FramePrediction(t, motion[i], None if depth_maps is None else depth_maps[i])
                 t += 1
             bar.update(len(images))
 
 
-def _predict_batch(model, images: torch.Tensor, previous: torch.Tensor | None, depth: bool, K: torch.Tensor | None):
-    """images (b, C, 3, H, W), previous (C, 3, H, W) or None -> motions (b, C, 4, 4) float64, depth (b, C, H, W) or
-    None; K (C, 3, 3) at the model's resolution: align the motions (None: the network's as they are)."""
+def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: bool, K: torch.Tensor | None):
+    """One batch of frames.
+
+    Args:
+        images: (b, C, 3, H, W). previous: the frame before the batch, ``(images (C, 3, H, W), depth (C, 1, H, W)
+            or None)``, or None at the start. depth: return the depth maps. K: (C, 3, 3) at the model's
+            resolution: align the motions on the network's depth of each pair's first frame (None: the network's
+            motions as they are).
+
+    Returns motions (b, C, 4, 4) float64, depth (b, C, H, W) float32 or None, and the batch's last frame as the
+    next call's ``previous``. Each frame's depth is computed once, whether for the output or for the alignment.
+    """
     b, C = images.shape[:2]
     with torch.inference_mode():
-        targets = images[:-1] if previous is None else torch.cat([previous[None], images[:-1]])
+        maps = model.depth(images.flatten(0, 1)).unflatten(0, (b, C)) if depth or K is not None else None
+        targets = images[:-1] if previous is None else torch.cat([previous[0][None], images[:-1]])
         sources = images[b - len(targets):]
         motion = torch.eye(4, dtype=torch.float64).repeat(b, C, 1, 1)
         if len(targets):
             T = model.pose(targets.flatten(0, 1), sources.flatten(0, 1))
             if K is not None:
-                target_images, source_images = targets.flatten(0, 1), sources.flatten(0, 1)
-                aligned, _ = align_motion(target_images, source_images, model.depth(target_images),
+                target_depth = maps[:-1] if previous is None else torch.cat([previous[1][None], maps[:-1]])
+                aligned, _ = align_motion(targets.flatten(0, 1), sources.flatten(0, 1), target_depth.flatten(0, 1),
                                           K.repeat(len(targets), 1, 1), invert_pose(T))
                 T = invert_pose(aligned)
             motion[b - len(targets):] = T.view(-1, C, 4, 4).double().cpu()
-        depth_maps = model.depth(images.flatten(0, 1)).view(b, C, *images.shape[-2:]).float().cpu() if depth else None
-    return motion.numpy(), None if depth_maps is None else depth_maps.numpy()
+    depth_maps = maps.squeeze(2).float().cpu().numpy() if depth else None
+    return motion.numpy(), depth_maps, (images[-1], None if maps is None else maps[-1])
 
 
 def chain(motions: np.ndarray) -> np.ndarray:

@@ -221,21 +221,26 @@ def test_predict_frames_on_device(seq, ckpt, device):
     np.testing.assert_allclose(np.stack([f.depth for f in out]), np.stack([f.depth for f in ref]), rtol=1e-3)
 
 
-def test_align_in_predict_is_the_pairwise_alignment(seq, ckpt):
-    """``align``: each motion is the network's T_{t-1,t} aligned on the depth of frame t-1, whatever the batching."""
+@pytest.mark.parametrize("depth", [False, True])
+def test_align_in_predict_is_the_pairwise_alignment(seq, ckpt, depth):
+    """``align``: each motion is the network's T_{t-1,t} aligned on the depth of frame t-1, whatever the batching
+    (frame 3 pairs with the previous batch's last frame), with or without the depth output (which shares the maps)."""
     from ocalib.eval.predict import FrameImages
     from ocalib.frontend.align import align_motion
     from ocalib.geometry.pose import invert_pose
 
     model, sequence = load_model(ckpt), open_sequence(seq)
-    frames = [f.motion for f in predict_frames(model, sequence, batch_size=3, depth=False, align=True)]
+    predictions = list(predict_frames(model, sequence, batch_size=3, depth=depth, align=True))
+    frames = [f.motion for f in predictions]
     views = [model_view(c, model.height, model.width) for c in sequence.cameras]
     images = FrameImages(sequence, views)
     K = torch.from_numpy(np.stack([v.K for v in views])).float()
-    for t in (1, 4):
+    for t in (1, 3, 4):
         with torch.no_grad():
             previous, current = images[t - 1], images[t]
             T = model.pose(previous, current)
             expected, _ = align_motion(previous, current, model.depth(previous), K, invert_pose(T))
+            if depth:
+                np.testing.assert_allclose(predictions[t].depth, model.depth(current)[:, 0].numpy(), rtol=1e-4)
         np.testing.assert_allclose(frames[t], invert_pose(expected).double().numpy(), atol=1e-4)
         assert not np.allclose(frames[t], T.double().numpy(), atol=1e-4)  # the alignment changed the motion
