@@ -7,6 +7,9 @@ Measures, in one run on this machine (one intra-op thread: on this shared 2-core
 * the same through ``torch.compile`` (one graph, C++ wrapper) for 1 and 4096 rigs, and for 1 rig in the leanest
   configuration (frame-0 pairing, one direction, closed form): the floor of a compiled head on this CPU;
 * the whole-sequence path (``calibrate_sequence``: the same estimates for a recorded sequence), per frame;
+* the floor: the paper's algorithm alone (frame-0 motions, one incremental-SVD step, one RLS step), composed from
+  the library's pure functions with none of the head's bookkeeping (no pose checks, gating, robust weights,
+  observability, history), eager and compiled, for 1 and 4096 rigs;
 * re-solving the batch problem (``batch_calibrate``, closed form) on all N frames so far, which is what a
   non-recursive method pays per frame, and one ``cv2.calibrateHandEye`` call on N poses (OpenCV builds
   motions from all pose pairs), both at N = 128 and 1000.
@@ -32,8 +35,13 @@ import torch
 
 from common import write_json
 from ocalib.calib.batch import batch_calibrate
+from ocalib.calib.handeye import rotation_block, translation_rows
 from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.rotation import incremental_svd_update, rotation_solution
+from ocalib.calib.translation import rls_update
 from ocalib.calib.sequence import calibrate_sequence
+from ocalib.geometry.pose import relative_pose
+from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 
 OUT = Path(__file__).parent / "results" / "online.json"
@@ -62,6 +70,36 @@ def time_stream(poses: torch.Tensor, warmup: int = 20, compiled: bool = False, *
             start = time.perf_counter()
             cal(poses[t]).rotation.sum()
             if t >= warmup:
+                times.append(time.perf_counter() - start)
+    return times
+
+
+def paper_step(first, S2, V, x, C, poses):
+    """One frame of the paper's algorithm alone on poses (B, 2, 4, 4): the motions from frame 0, one incremental-SVD
+    step, one RLS step. No pose checks, gating, robust weights, observability or history: the floor under any head
+    that runs the paper's equations with torch operations."""
+    motion = relative_pose(first, poses)
+    q = rotation_matrix_to_quaternion(motion[..., :3, :3])
+    S2, V = incremental_svd_update(S2, V, rotation_block(q[:, 0], q[:, 1]))
+    dR = quaternion_to_rotation_matrix(rotation_solution(V))
+    B, b = translation_rows(motion[:, 0, :3, :3], motion[:, 0, :3, 3], motion[:, 1, :3, 3], dR)
+    x, C = rls_update(x, C, B, b)
+    return S2, V, x, C, dR
+
+
+def time_paper_floor(poses: torch.Tensor, warmup: int = 20, compiled: bool = False) -> list[float]:
+    """Seconds per frame of :func:`paper_step` on poses (T, B, 2, 4, 4), eager or compiled (as :func:`time_stream`)."""
+    rigs, f = poses.shape[1], dict(dtype=poses.dtype)
+    state = (torch.zeros(rigs, 4, **f), torch.eye(4, **f).expand(rigs, 4, 4), torch.zeros(rigs, 4, **f),
+             1e4 * torch.eye(4, **f).expand(rigs, 4, 4))  # fmt: skip
+    step = torch.compile(paper_step, fullgraph=True, dynamic=False) if compiled else paper_step
+    times = []
+    with torch.inference_mode():
+        for t in range(1, len(poses)):
+            start = time.perf_counter()
+            *state, dR = step(poses[0], *state, poses[t])
+            dR.sum()
+            if t > warmup:
                 times.append(time.perf_counter() - start)
     return times
 
@@ -114,6 +152,7 @@ def main() -> None:
         for rigs, poses in data.items():
             for refine in (True, False):
                 samples.setdefault(("stream", rigs, refine), []).extend(time_stream(poses, refine=refine))
+            samples.setdefault(("floor", rigs, False), []).extend(time_paper_floor(poses, warmup=min(20, len(poses) // 4)))
         for rigs, poses in sequences.items():
             samples.setdefault(("sequence", rigs, True), []).append(time_sequence(poses))
     for rigs in (1, 4096):  # compiled once (each compile takes about a minute on this CPU)
@@ -121,6 +160,8 @@ def main() -> None:
         samples[("compiled", rigs, True)] = time_stream(data[rigs], warmup=min(20, len(data[rigs]) // 4), compiled=True)
         print(f"compiled {rigs} rig(s) in {time.perf_counter() - compiled_start:.0f} s (with the timed frames)")
     samples[("compiled-lean", 1, False)] = time_stream(data[1], compiled=True, **LEAN)
+    for rigs in (1, 4096):
+        samples[("floor-compiled", rigs, False)] = time_paper_floor(data[rigs], min(20, len(data[rigs]) // 4), True)
     rows = []
 
     def add(name, per, samples, note=""):
@@ -138,6 +179,9 @@ def main() -> None:
             add(f"on-line head, {rigs} rig(s), {label}, torch.compile", "frame", times, "one graph, C++ wrapper")
         elif kind == "compiled-lean":
             add(f"on-line head, {rigs} rig(s), leanest, torch.compile", "frame", times, f"{LEAN}")
+        elif kind.startswith("floor"):
+            how = ", torch.compile" if kind == "floor-compiled" else ""
+            add(f"floor: paper's algorithm alone, {rigs} rig(s){how}", "frame", times, "no checks, gating, observability")
         else:
             add(f"whole-sequence path, {rigs} rig(s)", "frame", times, f"{len(sequences[rigs])} frames at once")
     for n in (128, 1000):
@@ -155,6 +199,10 @@ def main() -> None:
         "one_rig_compiled_us": ms["on-line head, 1 rig(s), refined, torch.compile"] * 1e3,
         "rigs_4096_compiled_ms": ms["on-line head, 4096 rig(s), refined, torch.compile"],
         "one_rig_compiled_leanest_us": ms["on-line head, 1 rig(s), leanest, torch.compile"] * 1e3,
+        "floor_one_rig_us": ms["floor: paper's algorithm alone, 1 rig(s)"] * 1e3,
+        "floor_one_rig_compiled_us": ms["floor: paper's algorithm alone, 1 rig(s), torch.compile"] * 1e3,
+        "floor_4096_rigs_ms": ms["floor: paper's algorithm alone, 4096 rig(s)"],
+        "floor_4096_rigs_compiled_ms": ms["floor: paper's algorithm alone, 4096 rig(s), torch.compile"],
         "sequence_1_rig_us_per_frame": ms["whole-sequence path, 1 rig(s)"] * 1e3,
         "sequence_4096_rigs_ms_per_frame": ms["whole-sequence path, 4096 rig(s)"],
         "speedup_vs_batch_resolve_N1000": ms["batch re-solve on N=1000 frames"] / one,
