@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ocalib.calib import kernel
 from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
 from ocalib.calib.result import Calibration
 from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
@@ -54,6 +56,9 @@ class OnlineCalibrator(nn.Module):
         robust_deg: rotation rows whose residual exceeds this are down-weighted by ``robust_deg / residual``.
         pose_tolerance: poses with a non-finite entry or a rotation further than this from orthonormal are
             skipped (and counted in ``frames_rejected``).
+        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`, the same
+            equations, 10-100x faster) where it applies -- CPU, float64, ``solver="exact"``, no gradients -- and in
+            PyTorch elsewhere; ``"torch"`` always in PyTorch.
     """
 
     def __init__(
@@ -72,6 +77,7 @@ class OnlineCalibrator(nn.Module):
         screw_gate_sigma: float = 4.0,
         robust_deg: float = 5.0,
         pose_tolerance: float = 1e-3,
+        backend: str = "auto",
         dtype: torch.dtype = torch.float64,
         device: torch.device | str | None = None,
     ):
@@ -84,6 +90,8 @@ class OnlineCalibrator(nn.Module):
             raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
         if refine not in REFINE_MODES:
             raise ValueError(f"refine must be one of {REFINE_MODES}, got {refine!r}")
+        if backend not in ("auto", "torch"):
+            raise ValueError(f"backend must be 'auto' or 'torch', got {backend!r}")
         gaps = MOTIONS[motion] if isinstance(motion, str) else tuple(int(g) for g in motion)
         if not gaps or min(gaps) < 0:
             raise ValueError(f"motion gaps must be non-negative frame counts, got {gaps}")
@@ -95,6 +103,8 @@ class OnlineCalibrator(nn.Module):
         self.robust = math.radians(robust_deg)
         self.pose_tolerance = pose_tolerance
         self.history_size = max(max(gaps), 1)
+        self.backend = backend
+        self._kernel_gaps = np.array([g for g in gaps if g > 0], dtype=np.int64)
         self._dtype, self._device = dtype, device
         self.reset()
 
@@ -140,6 +150,8 @@ class OnlineCalibrator(nn.Module):
             )
         st = self._buffers  # the state, read and replaced directly (nn.Module attribute access is slow)
         differentiable = torch.is_grad_enabled() and (poses.requires_grad or st["gap_Z"].requires_grad)
+        if self._kernel_applies(poses, differentiable):
+            return Calibration(**kernel.step(self, poses))
         poses = poses.to(st["S2"].dtype)
         valid = poses.isfinite().flatten(-2).all(-1)
         eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
@@ -239,3 +251,9 @@ class OnlineCalibrator(nn.Module):
             translation_rows=trans_rows,
             refined=est["refined"],
         )
+
+    def _kernel_applies(self, poses: Tensor, differentiable: bool) -> bool:
+        """Whether this frame runs in the compiled CPU kernel (see ``backend``)."""
+        return (self.backend == "auto" and self.solver == "exact" and not differentiable and kernel.available()
+                and poses.device.type == "cpu" and self._buffers["S2"].dtype == torch.float64
+                and self._buffers["S2"].device.type == "cpu" and not torch.compiler.is_compiling())  # fmt: skip

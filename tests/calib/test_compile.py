@@ -10,7 +10,7 @@ from ocalib.calib.online import OnlineCalibrator
 
 def test_head_compiles_to_one_graph_with_the_eager_result(generator):
     poses, _, _ = lds_rig(generator, frames=24, noise=0.01)
-    eager, compiled = OnlineCalibrator(2), OnlineCalibrator(2)
+    eager, compiled = OnlineCalibrator(2, backend="torch"), OnlineCalibrator(2)  # the compiled graph is PyTorch
     step = torch.compile(compiled, fullgraph=True, dynamic=False)  # raises on any graph break
     with torch.inference_mode(), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
