@@ -124,3 +124,19 @@ def test_pytorch_runs_where_the_kernel_does_not_apply(generator):
     assert OnlineCalibrator(2)._kernel_applies(poses[0], False)
     with pytest.raises(ValueError, match="backend"):
         OnlineCalibrator(2, backend="numpy")
+
+
+def test_results_held_by_the_caller_are_not_overwritten(generator):
+    """The kernel reuses its output memory only once no result (or view of one) is alive."""
+    poses, _, _ = lds_rig(generator, frames=20, noise=0.01)
+    head = OnlineCalibrator(2)
+    for t in range(10):
+        head(poses[t])
+    kept = head(poses[10])
+    moment, rotation = kept.translation_moment[0, 0], kept.rotation
+    snapshot = (moment.clone(), rotation.clone())
+    del kept
+    for t in range(11, 20):
+        out = head(poses[t])
+    assert torch.equal(moment, snapshot[0]) and torch.equal(rotation, snapshot[1])
+    assert not torch.equal(out.translation_moment[0, 0], moment)  # the stream went on
