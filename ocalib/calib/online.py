@@ -7,13 +7,13 @@ the output is ``T_cam0_camk`` for k = 1..C-1 and the scale of camera k's units i
 
 from __future__ import annotations
 
+import importlib.util
 import math
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ocalib.calib import kernel
 from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
 from ocalib.calib.result import Calibration
 from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
@@ -23,6 +23,9 @@ from ocalib.calib.solve import REFINE_MODES, estimate
 from ocalib.calib.translation import rls_update
 from ocalib.geometry.pose import invert_pose, orthonormality_error
 from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
+
+
+HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU kernel's compiler
 
 
 class OnlineCalibrator(nn.Module):
@@ -151,6 +154,8 @@ class OnlineCalibrator(nn.Module):
         st = self._buffers  # the state, read and replaced directly (nn.Module attribute access is slow)
         differentiable = torch.is_grad_enabled() and (poses.requires_grad or st["gap_Z"].requires_grad)
         if self._kernel_applies(poses, differentiable):
+            from ocalib.calib import kernel  # numba loads on first use (~0.3 s): not for every import of ocalib
+
             return Calibration(**kernel.step(self, poses))
         poses = poses.to(st["S2"].dtype)
         valid = poses.isfinite().flatten(-2).all(-1)
@@ -254,6 +259,6 @@ class OnlineCalibrator(nn.Module):
 
     def _kernel_applies(self, poses: Tensor, differentiable: bool) -> bool:
         """Whether this frame runs in the compiled CPU kernel (see ``backend``)."""
-        return (self.backend == "auto" and self.solver == "exact" and not differentiable and kernel.available()
+        return (self.backend == "auto" and self.solver == "exact" and not differentiable and HAVE_NUMBA
                 and poses.device.type == "cpu" and self._buffers["S2"].dtype == torch.float64
                 and self._buffers["S2"].device.type == "cpu" and not torch.compiler.is_compiling())  # fmt: skip
