@@ -6,7 +6,8 @@ a frame (about 2 us each), not computing: the paper's equations alone take 200 u
 module runs one frame of the head -- pose checks, motion pairing, screw gate, robust weights, incremental SVD of
 each gap, the gaps' noise weights, the closed-form estimate (planar route included), the exact translation solve
 and the joint refinement -- for every rig in compiled loops over 4x4 to 15x15 matrices, in float64, updating the
-module's buffers in place (``state_dict`` is unchanged). Rigs run in parallel over numba's threads.
+module's buffers in place (``state_dict`` is unchanged). From ``PARALLEL_MIN_RIGS`` rigs up, rigs run in parallel over
+numba's threads.
 
 It is a second implementation of :mod:`ocalib.calib.online` and its helpers (``gating``, ``pairing``,
 ``handeye``, ``rotation``, ``translation``, ``planar``, ``solve``, ``refine``) and follows them line by line; the
@@ -14,7 +15,9 @@ tests hold the two equal frame by frame. Small symmetric eigenproblems are solve
 ascending, as ``torch.linalg.eigh``), the refinement's 7x7 systems by LU with partial pivoting. Where an
 eigenvalue is repeated (a rotation system that is not yet excited) the eigenvectors differ from LAPACK's by a
 rotation within the repeated space; everything the head reports is invariant to that except the null vector of
-an unobservable rotation and the sign of the planar axis.
+an unobservable rotation and the sign of the planar axis. Where a system is rank-deficient (the planar route on
+fewer than 3 motion pairs), rounding can decide which eigenvalues the pseudo-inverse cuts, and the two minimum-norm
+solutions differ.
 
 Scope: CPU, float64, ``solver="exact"``, no gradients. Everything else runs the PyTorch head.
 
