@@ -6,10 +6,9 @@ import pytest
 import torch
 from calib_helpers import car_rig, lds_rig
 
-from ocalib.calib import kernel
 from ocalib.calib.online import OnlineCalibrator
 
-pytestmark = pytest.mark.skipif(not kernel.available(), reason="numba is not installed")
+kernel = pytest.importorskip("ocalib.calib.kernel", reason="numba is not installed")
 
 TOL = dict(atol=1e-8, rtol=1e-8)
 
