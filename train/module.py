@@ -17,8 +17,10 @@ from torch import Tensor
 
 from ocalib.eval.depth_metrics import depth_errors
 from ocalib.eval.pose_metrics import rotation_angle_deg, rotation_gain
+from ocalib.frontend.align import align_motion
 from ocalib.geometry.pose import invert_pose
 from ocalib.losses import LossOutput, SelfSupervisedLoss
+from ocalib.losses.selfsup import self_supervised_loss
 from ocalib.models import EgoMotionModel, disp_to_depth
 from train.visuals import colorize, trajectory_figure
 
@@ -41,14 +43,17 @@ class EgoMotionModule(pl.LightningModule):
     Loss: ``automask``, ``smoothness``, ``geometry`` (0 disables SC-SfMLearner's consistency loss and mask)
     as :class:`~ocalib.losses.SelfSupervisedLoss`, over the first ``scales`` disparity scales. Adam with
     ``lr``, ``weight_decay``, linear warm-up over ``warmup_steps`` then cosine decay to ``min_lr_ratio x lr``
-    at the last step. Images go to TensorBoard every ``image_interval`` steps; ``trajectory_frames``: length
-    of the validation trajectory plotted.
+    at the last step. ``align``: Gauss-Newton steps per pyramid level, coarsest first
+    (:func:`~ocalib.frontend.align.align_motion`, no rotation limit; empty: off): in training, the depth network
+    learns from the pose network's motions refined on its own depth, and the pose network from its own motions
+    with the depth detached, so that the depth does not absorb the pose network's errors. Images go to TensorBoard
+    every ``image_interval`` steps; ``trajectory_frames``: length of the validation trajectory plotted.
     """
 
     def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
                  weight_decay: float = 0.0, warmup_steps: int = 200, min_lr_ratio: float = 0.05,
                  automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.1, scales: int = 4,
-                 image_interval: int = 250, trajectory_frames: int = 200):
+                 align: tuple[int, ...] = (), image_interval: int = 250, trajectory_frames: int = 200):
         super().__init__()
         self.save_hyperparameters()
         self.model = EgoMotionModel(size, height, width)
@@ -69,7 +74,17 @@ class EgoMotionModule(pl.LightningModule):
             disps = [d.unflatten(0, (B, S))[:, 0] for d in disps]
         targets = images[:, :1].expand(-1, S - 1, -1, -1, -1).flatten(0, 1)
         T = self.model.pose(targets, images[:, 1:].flatten(0, 1)).unflatten(0, (B, S - 1))
-        out = self.loss(images, K, disps[: self.hparams.scales], invert_pose(T), source_depths)
+        disps = disps[: self.hparams.scales]
+        if not (self.hparams.align and self.training):
+            return self.loss(images, K, disps, invert_pose(T), source_depths), disps[0], T
+        depth = disp_to_depth(disps[0]).repeat_interleave(S - 1, 0)
+        refined, _ = align_motion(targets, images[:, 1:].flatten(0, 1), depth, K.repeat_interleave(S - 1, 0),
+                                  invert_pose(T.detach()).flatten(0, 1), tuple(self.hparams.align), math.inf)
+        out = self.loss(images, K, disps, refined.unflatten(0, (B, S - 1)), source_depths)
+        pose = self_supervised_loss(images, K, [disps[0].detach()], invert_pose(T), automask=self.loss.automask,
+                                    smoothness=0.0, ssim=self.loss.ssim)
+        out.terms["pose_photometric"] = pose.terms["photometric"]
+        out.total = out.total + pose.total
         return out, disps[0], T
 
     def training_step(self, batch: dict, batch_idx: int) -> Tensor | None:
