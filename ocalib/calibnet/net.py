@@ -19,7 +19,7 @@ from torch import Tensor, nn
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.result import Calibration
 from ocalib.frontend.align import align_motion
-from ocalib.geometry.pose import invert_pose, make_pose
+from ocalib.geometry.pose import invert_pose
 
 SCALE_MODES = ("head", "normalise")
 
@@ -36,11 +36,9 @@ class OnlineCalibrationNet(nn.Module):
             ``normalise``: divide every step by a running mean of that camera's step lengths (momentum
             ``scale_momentum``), for networks whose scale drifts slowly.
         intrinsics: (C, 3, 3) or (B, C, 3, 3) pixels at the model's resolution; needed by ``align``.
-        align: refine the rotation of every motion of the network by direct photometric alignment on the network's
-            depth of the previous frame (:func:`~ocalib.frontend.align.align_motion`; accepted corrections counted in
-            ``aligned``). The translation stays the network's: the aligned translations of sideways-moving cameras
-            trade lateral motion against yaw through the depth's errors, and the planar route of a car, which takes
-            its angle about the vertical from them, lost 1.5 -> 7.3 deg with them (README, issue 5).
+        align: refine every motion of the network by direct photometric alignment on the network's depth of the
+            previous frame (:func:`~ocalib.frontend.align.align_motion`; accepted corrections counted in
+            ``aligned``); rotation and translation both (README, issue 5).
         head_options: passed to :class:`OnlineCalibrator` (``motion``, ``solver``, ``forgetting``, ...).
     """
 
@@ -97,13 +95,12 @@ class OnlineCalibrationNet(nn.Module):
         return self.head(self.trajectory)
 
     def _align(self, previous: Tensor, images: Tensor, step: Tensor) -> Tensor:
-        """``step`` (B, C, 4, 4) = ``T_prev_cur`` with its rotation refined photometrically on the previous frames'
-        depth; the translation stays the network's (see the class docstring)."""
+        """``step`` (B, C, 4, 4) = ``T_prev_cur`` refined photometrically on the previous frames' depth."""
         K = self.intrinsics.flatten(0, 1)
         depth = self.model.depth(previous)
         T, accepted = align_motion(previous, images, depth, K, invert_pose(step.flatten(0, 1)))
         self.aligned = self.aligned + (accepted.view_as(self.aligned) & self.started[..., 0, 0])
-        return make_pose(invert_pose(T).view_as(step)[..., :3, :3], step[..., :3, 3])
+        return invert_pose(T).view_as(step)
 
     def _normalise(self, step: Tensor) -> Tensor:
         """Express each step's translation in units of that camera's running mean step length."""
