@@ -3,8 +3,9 @@ depth-net frames per second, at the default resolution, on CPU (and CUDA when av
 
     python bench/bench_train.py [--size small] [--height 64 --width 208] [--batch 4] [--steps 10] [--threads 1,2]
 
-Training: a full step (depth of every frame, pose of every source, the 4-scale loss, backward, Adam) on random
-3-frame snippets, with and without the geometry-consistency loss; a training image is a target frame.
+Training: a full step (depth of every frame, pose of every source, the loss, backward, Adam) on random 3-frame
+snippets: the 4-scale loss with and without the geometry-consistency loss, and the shipped recipe (one scale, the
+motions refined by Gauss-Newton photometric alignment for the depth's loss); a training image is a target frame.
 Inference: ``model.pose`` on (target, source) pairs and ``model.depth`` on frames, batch 16, no gradients.
 Also times the 3x3 box SSIM of :mod:`ocalib.losses.photometric` against kornia's ``ssim_loss`` (forward +
 backward). Medians over the repeats. Prints a table and writes ``bench/results/train.json``.
@@ -45,8 +46,15 @@ def snippet_batch(batch: int, height: int, width: int, device: str) -> dict:
     return {"image": torch.rand(batch, 3, 3, height, width, device=device), "K": K.expand(batch, 3, 3).to(device)}
 
 
-def bench_training(size, height, width, batch, steps, geometry, device) -> dict:
-    module = EgoMotionModule(size=size, height=height, width=width, geometry=geometry).to(device)
+TRAINING_CASES = {  # label -> EgoMotionModule options
+    "SC loss, 4 scales": dict(geometry=0.1),
+    "no SC, 4 scales": dict(geometry=0.0),
+    "shipped recipe (1 scale, align 3+3)": dict(geometry=0.0, scales=1, automask=False, align=(3, 3)),
+}
+
+
+def bench_training(size, height, width, batch, steps, label, device) -> dict:
+    module = EgoMotionModule(size=size, height=height, width=width, **TRAINING_CASES[label]).to(device)
     optimizer = torch.optim.Adam(module.parameters(), lr=1e-4)
     data = snippet_batch(batch, height, width, device)
 
@@ -57,7 +65,7 @@ def bench_training(size, height, width, batch, steps, geometry, device) -> dict:
         optimizer.step()
 
     seconds = timed(step, steps, device)
-    return {"case": f"train step (geometry {geometry})", "batch": batch, "ms": seconds * 1e3,
+    return {"case": f"train step, {label}", "batch": batch, "ms": seconds * 1e3,
             "snippets_per_s": batch / seconds, "images_per_s": batch / seconds}
 
 
@@ -101,18 +109,18 @@ def main(argv=None) -> int:
         for device in devices:
             torch.manual_seed(0)
             part = []
-            for geometry in (0.1, 0.0):
-                part.append(bench_training(args.size, args.height, args.width, args.batch, args.steps, geometry, device))
+            for label in TRAINING_CASES:
+                part.append(bench_training(args.size, args.height, args.width, args.batch, args.steps, label, device))
             part += bench_inference(args.size, args.height, args.width, args.steps, device)
             part += bench_ssim(args.height, args.width, args.steps, device)
             rows += [{**r, "device": device, "threads": threads} for r in part]
     print(f"{args.size} model, {args.height}x{args.width} (median of {args.steps})")
-    print(f"{'case':<34} {'device':>6} {'threads':>7} {'batch':>5} {'ms':>8} {'per second':>15}")
+    print(f"{'case':<48} {'device':>6} {'threads':>7} {'batch':>5} {'ms':>8} {'per second':>15}")
     for r in rows:
         rate = r.get("snippets_per_s") or r.get("frames_per_s")
         unit = "snippets" if "snippets_per_s" in r else "frames" if rate else ""
         text = f"{rate:.1f} {unit}" if rate else ""
-        print(f"{r['case']:<34} {r['device']:>6} {r['threads']:>7} {r['batch']:>5} {r['ms']:>8.1f} {text:>15}")
+        print(f"{r['case']:<48} {r['device']:>6} {r['threads']:>7} {r['batch']:>5} {r['ms']:>8.1f} {text:>15}")
     write_json(args.out, {"benchmark": "ego-motion training", "size": args.size, "height": args.height,
                           "width": args.width,
                           "results": [{k: round(v, 2) if isinstance(v, float) else v for k, v in r.items()} for r in rows]})

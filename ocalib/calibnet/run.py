@@ -75,8 +75,8 @@ def calibrate_sequence(
     motion, solver, forgetting, refine: the head's (see :class:`OnlineCalibrator`; ``refine`` defaults to
     ``"unobservable"``: a monocular front end's translation directions must not move an observable rotation, see
     :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet` (the default,
-    ``normalise``, was measured better on the held-out rigs: README, issue 5). align: refine the rotations of the
-    network's motions by direct photometric alignment (:func:`~ocalib.frontend.align.align_motion`; None: with the
+    ``normalise``, was measured better on the held-out rigs: README, issue 5). align: refine the network's motions
+    by direct photometric alignment (:func:`~ocalib.frontend.align.align_motion`; None: with the
     network front end, measured better on every held-out rig: README, issue 5). max_frames: use only the first
     frames. on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the
     current estimate (None: on a terminal).

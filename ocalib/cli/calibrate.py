@@ -47,9 +47,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    "held-out cars it keeps the rotation 1.6-4.5 deg off where head gives 6.2-10.5), or trust it per "
                    "camera and let the head solve the ratio (head)")
     p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
-                   help="refine the rotation of each network motion by direct photometric alignment on the network's "
-                   "depth (default with the network front end: on the held-out rigs 1.3-4.3 deg where the network "
-                   "alone gives 1.5-10.8; about 0.15 s a camera and frame on 2 CPU cores)")
+                   help="refine each network motion by direct photometric alignment on the network's depth (default "
+                   "with the network front end: on the held-out handheld rigs 0.09-1.4 deg where the network alone "
+                   "gives 4.4-11.7; about 20 ms a camera and frame on 2 CPU cores)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     return p
