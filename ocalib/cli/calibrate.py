@@ -94,9 +94,14 @@ def run(args) -> int:
     print(summary(doc))
     if result.errors:
         print(errors_table(result.errors, result.run.rig.files))
+    print_warnings(doc)
+    return 0
+
+
+def print_warnings(doc: dict) -> None:
+    """The result's warnings (translation not supported, rejected frames, ...) on stderr, one line each."""
     for w in doc["warnings"]:
         print(f"warning: {w}", file=sys.stderr)
-    return 0
 
 
 def errors_table(errors: list[dict], cameras: list[str]) -> str:

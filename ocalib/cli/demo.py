@@ -33,7 +33,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ocalib.calibnet.run import calibrate_sequence
-    from ocalib.cli.calibrate import errors_table
+    from ocalib.cli.calibrate import errors_table, print_warnings
     from ocalib.cli.calibrate_poses import summary
     from ocalib.synth import preset, render_sequence
     from ocalib.viz.calibration import plot_trace
@@ -57,6 +57,7 @@ def run(args) -> int:
     print(summary(doc))
     print(truth_table(sequence, doc))
     print(errors_table(result.errors, result.run.rig.files))
+    print_warnings(doc)
     print(f"wrote {out / 'result.json'}, {out / 'trace.csv'} and {out / 'trace.png'}")
     return 0
 
