@@ -33,7 +33,7 @@ from ocalib.io.jsonable import finite_or_null
 
 FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
-ALIGNED_WARNING = 0.5  # share of frames with an accepted alignment below which a camera is reported (demo, session 12: 99-100 %)
+ALIGNED_WARNING = 0.5  # share of frames with an accepted alignment below which a camera is reported (demo: 99-100 %)
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 
 
