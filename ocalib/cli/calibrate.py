@@ -44,8 +44,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    "biased and would pull an observable rotation off), always, or never")
     p.add_argument("--scale", choices=("head", "normalise"), default="normalise",
                    help="network scale: normalise each camera's steps by their running mean length (default: on the "
-                   "held-out cars it keeps the rotation 1.6-4.5 deg off where head gives 6.2-10.5), or trust it per "
-                   "camera and let the head solve the ratio (head)")
+                   "held-out cars, session 5's checkpoint, it kept the rotation 1.6-4.5 deg off where head gave "
+                   "6.2-10.5), or trust it per camera and let the head solve the ratio (head)")
     p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
                    help="refine each network motion by direct photometric alignment on the network's depth (default "
                    "with the network front end: on the held-out handheld rigs 0.09-1.4 deg where the network alone "
