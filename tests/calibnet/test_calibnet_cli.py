@@ -138,6 +138,7 @@ def test_demo_prints_the_estimate_beside_the_truth_and_its_warnings(tmp_path, ca
     """``ocalib demo`` (the README's main job) on 12 frames with the shipped checkpoint: its files, and its reported
     rotation error equals the one computed here from result.json and the rendered rig's true extrinsic."""
     from ocalib.data.layout import open_sequence
+    from ocalib.eval.pose_metrics import rotation_angle_deg
 
     out = tmp_path / "demo"
     assert main(["demo", "--frames", "12", "--out", str(out)]) == 0
@@ -146,7 +147,7 @@ def test_demo_prints_the_estimate_beside_the_truth_and_its_warnings(tmp_path, ca
     doc = json.loads((out / "result.json").read_text())
     truth = open_sequence(out / "sequence").cameras[1].T_cam0_cam
     R = np.array(doc["extrinsics"][0]["rotation"])
-    angle = np.degrees(np.arccos(np.clip((np.trace(truth[:3, :3].T @ R) - 1) / 2, -1, 1)))
+    angle = float(rotation_angle_deg(truth[:3, :3].T @ R))
     assert doc["ground_truth_errors"][0]["rotation_error_deg"] == pytest.approx(angle, abs=1e-6)
     assert "errors against the ground truth" in captured.out and f"rotation {angle:.3f} deg" in captured.out
     assert [line[len("warning: "):] for line in captured.err.splitlines() if line.startswith("warning: ")] \
