@@ -79,7 +79,8 @@ class EgoMotionModule(pl.LightningModule):
             return self.loss(images, K, disps, invert_pose(T), source_depths), disps[0], T
         depth = disp_to_depth(disps[0]).repeat_interleave(S - 1, 0)
         refined, _ = align_motion(targets, images[:, 1:].flatten(0, 1), depth, K.repeat_interleave(S - 1, 0),
-                                  invert_pose(T.detach()).flatten(0, 1), tuple(self.hparams.align), math.inf)
+                                  invert_pose(T.detach()).flatten(0, 1), iterations=tuple(self.hparams.align),
+                                  max_rotation_deg=math.inf)
         out = self.loss(images, K, disps, refined.unflatten(0, (B, S - 1)), source_depths)
         pose = self_supervised_loss(images, K, [disps[0].detach()], invert_pose(T), automask=self.loss.automask,
                                     smoothness=0.0, ssim=self.loss.ssim)

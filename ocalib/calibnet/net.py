@@ -18,7 +18,7 @@ from torch import Tensor, nn
 
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.result import Calibration
-from ocalib.frontend.align import align_motion
+from ocalib.frontend.align import StreamAligner
 from ocalib.geometry.pose import invert_pose
 
 SCALE_MODES = ("head", "normalise")
@@ -37,8 +37,9 @@ class OnlineCalibrationNet(nn.Module):
             ``scale_momentum``), for networks whose scale drifts slowly.
         intrinsics: (C, 3, 3) or (B, C, 3, 3) pixels at the model's resolution; needed by ``align``.
         align: refine every motion of the network by direct photometric alignment on the network's depth of the
-            previous frame (:func:`~ocalib.frontend.align.align_motion`; accepted corrections counted in
-            ``aligned``); rotation and translation both (README, issue 5).
+            previous frame, started from the network's motion and from the camera's previous refined motion
+            (:class:`~ocalib.frontend.align.StreamAligner`; accepted corrections counted in ``aligned``); rotation
+            and translation both (README, issue 5).
         head_options: passed to :class:`OnlineCalibrator` (``motion``, ``solver``, ``forgetting``, ...).
     """
 
@@ -58,6 +59,7 @@ class OnlineCalibrationNet(nn.Module):
             intrinsics = intrinsics.expand(batch_size, num_cameras, 3, 3).clone()
         self.register_buffer("intrinsics", intrinsics)
         self.head = OnlineCalibrator(num_cameras, batch_size, **head_options)
+        self.aligner = StreamAligner()
         self.num_cameras, self.batch_size = num_cameras, batch_size
         self.reset()
 
@@ -66,6 +68,7 @@ class OnlineCalibrationNet(nn.Module):
         B, C = self.batch_size, self.num_cameras
         f = dict(dtype=torch.float64, device=self.head.S2.device)
         self.head.reset()
+        self.aligner.reset()
         self.head.to(f["device"])  # the head re-creates its state on the device it was built for
         self.register_buffer("previous", torch.zeros(B, C, 3, self.model.height, self.model.width, device=f["device"]))
         self.register_buffer("started", torch.zeros(B, C, 1, 1, dtype=torch.bool, device=f["device"]))
@@ -98,7 +101,7 @@ class OnlineCalibrationNet(nn.Module):
         """``step`` (B, C, 4, 4) = ``T_prev_cur`` refined photometrically on the previous frames' depth."""
         K = self.intrinsics.flatten(0, 1)
         depth = self.model.depth(previous)
-        T, accepted = align_motion(previous, images, depth, K, invert_pose(step.flatten(0, 1)))
+        T, accepted = self.aligner(previous, images, depth, K, invert_pose(step.flatten(0, 1)))
         self.aligned = self.aligned + (accepted.view_as(self.aligned) & self.started[..., 0, 0])
         return invert_pose(T).view_as(step)
 

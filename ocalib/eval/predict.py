@@ -26,7 +26,7 @@ from ocalib.data.intrinsics import crop_intrinsics, resize_intrinsics
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.data.static import thumbnails
 from ocalib.errors import InputError
-from ocalib.frontend.align import align_motion
+from ocalib.frontend.align import StreamAligner
 from ocalib.geometry.pose import invert_pose
 
 MAX_UPSAMPLE = 4.0  # a camera whose (cropped) images are this much smaller than the model's resolution is refused
@@ -141,23 +141,25 @@ def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu"
 
 def _generate(model, loader, frames: int, device, depth: bool, progress, K) -> Iterator[FramePrediction]:
     previous, t = None, 0
+    aligner = StreamAligner() if K is not None else None
     with tqdm(total=frames, unit="frame", desc="predicting", disable=None if progress is None else not progress) as bar:
         for images in loader:  # (b, C, 3, H, W)
-            motion, depth_maps, previous = _predict_batch(model, images.to(device), previous, depth, K)
+            motion, depth_maps, previous = _predict_batch(model, images.to(device), previous, depth, K, aligner)
             for i in range(len(images)):
                 yield FramePrediction(t, motion[i], None if depth_maps is None else depth_maps[i])
                 t += 1
             bar.update(len(images))
 
 
-def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: bool, K: torch.Tensor | None):
+def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: bool, K: torch.Tensor | None,
+                   aligner: StreamAligner | None):
     """One batch of frames.
 
     Args:
         images: (b, C, 3, H, W). previous: the frame before the batch, ``(images (C, 3, H, W), depth (C, 1, H, W)
             or None)``, or None at the start. depth: return the depth maps. K: (C, 3, 3) at the model's
-            resolution: align the motions on the network's depth of each pair's first frame (None: the network's
-            motions as they are).
+            resolution: align the motions on the network's depth of each pair's first frame, frame after frame
+            with ``aligner`` (its state carries over between batches; None: the network's motions as they are).
 
     Returns motions (b, C, 4, 4) float64, depth (b, C, H, W) float32 or None, and the batch's last frame as the
     next call's ``previous``. Each frame's depth is computed once, whether for the output or for the alignment.
@@ -172,9 +174,8 @@ def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: b
             T = model.pose(targets.flatten(0, 1), sources.flatten(0, 1))
             if K is not None:
                 target_depth = maps[:-1] if previous is None else torch.cat([previous[1][None], maps[:-1]])
-                aligned, _ = align_motion(targets.flatten(0, 1), sources.flatten(0, 1), target_depth.flatten(0, 1),
-                                          K.repeat(len(targets), 1, 1), invert_pose(T))
-                T = invert_pose(aligned)
+                T = torch.stack([invert_pose(aligner(*pair, K, invert_pose(net))[0])
+                                 for *pair, net in zip(targets, sources, target_depth, T.view(-1, C, 4, 4))])
             motion[b - len(targets):] = T.view(-1, C, 4, 4).double().cpu()
     depth_maps = maps.squeeze(2).float().cpu().numpy() if depth else None
     return motion.numpy(), depth_maps, (images[-1], None if maps is None else maps[-1])

@@ -222,12 +222,13 @@ def test_predict_frames_on_device(seq, ckpt, device):
 
 
 @pytest.mark.parametrize("depth", [False, True])
-def test_align_in_predict_is_the_pairwise_alignment(seq, depth):
-    """``align``: each motion is the network's T_{t-1,t} aligned on the depth of frame t-1, whatever the batching
-    (frame 3 pairs with the previous batch's last frame), with or without the depth output (which shares the maps).
-    The shipped checkpoint: an untrained network's corrections exceed the accepted rotation."""
+def test_align_in_predict_is_the_stream_alignment(seq, depth):
+    """``align``: each motion is the network's T_{t-1,t} aligned on the depth of frame t-1, frame after frame with
+    the previous aligned motion as a prior, whatever the batching (frame 3 pairs with the previous batch's last
+    frame), with or without the depth output (which shares the maps). The shipped checkpoint: an untrained
+    network's corrections exceed the accepted rotation."""
     from ocalib.eval.predict import FrameImages
-    from ocalib.frontend.align import align_motion
+    from ocalib.frontend.align import StreamAligner
     from ocalib.geometry.pose import invert_pose
 
     model, sequence = load_model(None), open_sequence(seq)
@@ -236,11 +237,12 @@ def test_align_in_predict_is_the_pairwise_alignment(seq, depth):
     views = [model_view(c, model.height, model.width) for c in sequence.cameras]
     images = FrameImages(sequence, views)
     K = torch.from_numpy(np.stack([v.K for v in views])).float()
-    for t in (1, 3, 4):
+    reference = StreamAligner()
+    for t in range(1, 5):
         with torch.no_grad():
             previous, current = images[t - 1], images[t]
             T = model.pose(previous, current)
-            expected, accepted = align_motion(previous, current, model.depth(previous), K, invert_pose(T))
+            expected, accepted = reference(previous, current, model.depth(previous), K, invert_pose(T))
             assert accepted.any()
             if depth:
                 np.testing.assert_allclose(predictions[t].depth, model.depth(current)[:, 0].numpy(), rtol=1e-4)

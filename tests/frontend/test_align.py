@@ -1,12 +1,13 @@
 """Direct photometric alignment against the renderer's ground truth: from a perturbed motion and the true depth it
-returns the true motion; a correction beyond its limit is refused and the input kept."""
+returns the true motion; a correction beyond its limit is refused and the input kept; a start outside the basin is
+rescued by a prior inside it (the stream aligner's previous motion)."""
 
 import math
 
 import pytest
 import torch
 
-from ocalib.frontend.align import align_motion, photometric_cost
+from ocalib.frontend.align import StreamAligner, align_motion, photometric_cost
 from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.geometry.quaternion import rotation_angle
 from ocalib.synth import preset, render_rig
@@ -16,6 +17,10 @@ AXIS = torch.tensor([0.3, 1.0, 0.2], dtype=torch.float64)
 PERTURBATION = make_pose(torch.linalg.matrix_exp(torch.cross(torch.eye(3, dtype=torch.float64),
                                                              (math.radians(1) * AXIS / AXIS.norm()).expand(3, 3),
                                                              dim=-1))[None], torch.tensor([[0.03, -0.01, 0.02]]))
+
+YAW_8_DEG = make_pose(torch.linalg.matrix_exp(torch.tensor([[[0.0, 0, 1], [0, 0, 0], [-1, 0, 0]]],
+                                                           dtype=torch.float64) * math.radians(8)),
+                      torch.zeros(1, 3, dtype=torch.float64))  # 8 deg about the camera's y axis: outside the basin
 
 
 def rotation_error_deg(A, B):
@@ -66,6 +71,32 @@ def test_align_solves_a_batch_as_separate_problems(pair):
     assert (rotation_error_deg(aligned, T) < 0.05).all()
 
 
+def test_a_prior_inside_the_basin_rescues_a_start_outside_it(pair):
+    """From 8 deg off in yaw Gauss-Newton stops far from the truth; with a close prior beside it, the better of the
+    two is kept (accepted: it beats the input motion); a prior that is the start itself changes nothing."""
+    target, source, depth, K, T = pair
+    far = YAW_8_DEG @ T
+    alone, _ = align_motion(target, source, depth, K, far, max_rotation_deg=20)
+    assert float(rotation_error_deg(alone, T)) > 2
+    rescued, accepted = align_motion(target, source, depth, K, far, prior=PERTURBATION @ T, max_rotation_deg=20)
+    assert bool(accepted[0]) and float(rotation_error_deg(rescued, T)) < 0.05
+    same, _ = align_motion(target, source, depth, K, far, prior=far, max_rotation_deg=20)
+    torch.testing.assert_close(same, alone, rtol=0, atol=1e-5)
+
+
+def test_stream_aligner_starts_each_problem_from_its_previous_motion(pair):
+    """The previous call's refined motion is the next call's prior (constant velocity); reset() forgets it."""
+    target, source, depth, K, T = pair
+    aligner = StreamAligner(max_rotation_deg=20)
+    first, _ = aligner(target, source, depth, K, PERTURBATION @ T)
+    assert float(rotation_error_deg(first, T)) < 0.05
+    second, _ = aligner(target, source, depth, K, YAW_8_DEG @ T)
+    assert float(rotation_error_deg(second, T)) < 0.05
+    aligner.reset()
+    third, _ = aligner(target, source, depth, K, YAW_8_DEG @ T)
+    assert float(rotation_error_deg(third, T)) > 2
+
+
 def test_align_refuses_mismatched_shapes(pair):
     target, source, depth, K, T = pair
     with pytest.raises(ValueError, match="depth"):
@@ -74,6 +105,8 @@ def test_align_refuses_mismatched_shapes(pair):
         align_motion(target, source, depth, K[0], T)
     with pytest.raises(ValueError, match="T_source_target"):
         align_motion(target, source, depth, K, T.expand(2, 4, 4))
+    with pytest.raises(ValueError, match="prior"):
+        align_motion(target, source, depth, K, T, prior=T[0])
 
 
 def test_align_refuses_a_depth_without_valid_pixels(pair):
