@@ -74,16 +74,8 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
                          f"{None if prior is None else tuple(prior.shape)}")
     with torch.no_grad():
         start = T_source_target.detach().float()
-        if prior is None:
-            refined, improved, _ = _coarse_to_fine(target, source, depth, K, start, start, iterations)
-        else:  # both starts in one batch, each compared with the input motion at full resolution
-            two = lambda x: torch.cat([x, x]).detach()  # noqa: E731
-            refined, improved, cost = _coarse_to_fine(two(target), two(source), two(depth), two(K),
-                                                      torch.cat([start, prior.detach().float()]), two(start),
-                                                      iterations)
-            second = cost[B:] < cost[:B]
-            refined = torch.where(second[:, None, None], refined[B:], refined[:B])
-            improved = torch.where(second, improved[B:], improved[:B])
+        starts = [start] if prior is None else [start, prior.detach().float()]
+        refined, improved = _coarse_to_fine(target, source, depth, K, starts, iterations)
         correction = refined @ invert_pose(start)
         angle = rotation_angle(correction[:, :3, :3].double())
         accepted = improved & (angle <= math.radians(max_rotation_deg)) & torch.isfinite(correction).all((1, 2))
@@ -92,33 +84,32 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     return correction @ T_source_target, accepted
 
 
-def _coarse_to_fine(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T: Tensor, start: Tensor,
-                    iterations: tuple[int, ...], huber: float = HUBER,
-                    damping: float = DAMPING) -> tuple[Tensor, Tensor, Tensor]:
-    """Gauss-Newton over the pyramid from ``T`` -> the motion of lowest residual at full resolution (B, 4, 4)
-    float32, whether it beats ``start``'s (B,) bool, and that residual (B,)."""
+def _coarse_to_fine(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, starts: list[Tensor],
+                    iterations: tuple[int, ...], huber: float = HUBER, damping: float = DAMPING) -> tuple[Tensor, Tensor]:
+    """Gauss-Newton over the pyramid from each of the ``starts`` (B, 4, 4) (the first: the input motion) ->
+    the motion of lowest residual at full resolution (B, 4, 4) float32 and whether it beats the input's (B,) bool.
+
+    Every start descends the coarse levels (in one batch); at full resolution the best of them and the input
+    compete, and only the winner is refined further."""
     target, source = (x.detach().float().mean(1, keepdim=True) for x in (target, source))  # grey
     depth, K = depth.detach().float(), K.detach().float()
-    H, W = target.shape[-2:]
-    improved = torch.zeros(len(T), dtype=torch.bool, device=T.device)
-    for level in reversed(range(len(iterations))):
+    H, W, S = *target.shape[-2:], len(starts)
+    T = torch.cat(starts)  # (S B, 4, 4)
+    for level in reversed(range(1, len(iterations))):
         size = (max(1, H >> level), max(1, W >> level))
-        if level:
-            pyramid = [F.interpolate(x, size, mode="area") for x in (target, source)]
-            pyramid.append(1 / F.interpolate(1 / depth.clamp(min=MIN_Z), size, mode="area"))
-            pyramid.append(resize_intrinsics(K, (H, W), size))
-        else:
-            pyramid = [target, source, depth, K]
-        candidates = [T] if level else [start, T]  # at full resolution the input competes too
-        T, best, cost = _gauss_newton(*pyramid, candidates, iterations[len(iterations) - 1 - level], huber, damping)
-        improved = best > 0
-    return T, improved, cost
+        pyramid = [F.interpolate(x, size, mode="area") for x in (target, source)]
+        pyramid.append(1 / F.interpolate(1 / depth.clamp(min=MIN_Z), size, mode="area"))
+        pyramid.append(resize_intrinsics(K, (H, W), size))
+        pyramid = [x.repeat(S, *[1] * (x.dim() - 1)) for x in pyramid]
+        T, _ = _gauss_newton(*pyramid, [T], iterations[len(iterations) - 1 - level], huber, damping)
+    T, best = _gauss_newton(target, source, depth, K, [starts[0], *T.chunk(S)], iterations[-1], huber, damping)
+    return T, best > 0
 
 
 def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, candidates: list[Tensor],
-                  iterations: int, huber: float, damping: float) -> tuple[Tensor, Tensor, Tensor]:
-    """Gauss-Newton from ``candidates[-1]`` -> the motion (B, 4, 4) of lowest mean absolute residual among the
-    candidates and the iterates, its index (B,) in that order (0: the first candidate) and that residual (B,)."""
+                  iterations: int, huber: float, damping: float) -> tuple[Tensor, Tensor]:
+    """Gauss-Newton from the best of the ``candidates`` -> the motion (B, 4, 4) of lowest mean absolute residual
+    among the candidates and the iterates, and its index (B,) in that order (0: the first candidate)."""
     B, C, H, W = target.shape
     points = depth_to_3d_v2(depth[:, 0], K).reshape(B, -1, 3)  # target camera
     # source intensity, then its derivatives along u and along v (per pixel), sampled together
@@ -126,8 +117,8 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
     fx, fy, cx, cy = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 2, None], K[:, 1, 2, None]
     best, best_cost = candidates[-1], torch.full((B,), math.inf, device=target.device)
     index = torch.zeros(B, dtype=torch.long, device=target.device)
-    queue = list(candidates)
-    for it in range(len(candidates) + iterations):
+    queue, evaluations = list(candidates), len(candidates) + (len(candidates) > 1) + iterations
+    for it in range(evaluations):
         T = queue.pop(0)
         X = points @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]  # (B, N, 3) in the source camera
         z = X[..., 2].clamp(min=MIN_Z)
@@ -141,7 +132,10 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         best = torch.where(improved[:, None, None], T, best)
         best_cost = torch.where(improved, cost, best_cost)
         index = torch.where(improved, it, index)
-        if queue or it == len(candidates) + iterations - 1:
+        if queue or it == evaluations - 1:
+            continue
+        if it == len(candidates) - 1 and len(candidates) > 1:  # descend from the best candidate
+            queue.append(best)
             continue
         x, y, iz = X[..., 0], X[..., 1], 1 / z
         gu, gv = sampled[:, C : 2 * C] * fx[:, None], sampled[:, 2 * C :] * fy[:, None]  # per unit of x/z, y/z
@@ -157,7 +151,7 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         step = -torch.linalg.solve(A, g)[..., 0]
         step = torch.where(torch.isfinite(step).all(-1, keepdim=True), step, torch.zeros_like(step))
         queue.append(motion_to_pose(step) @ T)
-    return best, index, best_cost
+    return best, index
 
 
 class StreamAligner(torch.nn.Module):
