@@ -59,7 +59,8 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     and ``accepted`` (B,) bool (False: the input motion is returned).
 
     ``prior`` (B, 4, 4), optional: a second start, e.g. the previous frame's refined motion (a constant-velocity
-    model, :class:`StreamAligner`); both starts are refined in one batch and the one of lower residual is kept.
+    model, :class:`StreamAligner`); both starts descend the coarse levels in one batch, and at full resolution only
+    the better of them (or the input, if better still) is refined further.
     ``iterations[k]``: Gauss-Newton steps at pyramid level ``len(iterations) - 1 - k`` (level l at 1/2^l of the
     input resolution, coarsest first). Each of the B problems is solved on its own, all in one batch; gradients
     flow to ``T_source_target`` through the correction held fixed.
