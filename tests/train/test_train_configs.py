@@ -15,7 +15,7 @@ CPU = ["--trainer.accelerator=cpu", "--trainer.devices=1", "--trainer.strategy=a
 
 def test_all_configs_are_there():
     names = {p.stem for p in CONFIGS}
-    assert {"synthetic-cpu", "synthetic-cpu-sc", "shipped-default", "kitti-raw", "kitti-odometry", "sfmlearner", "folder", "gpu"} <= names
+    assert {"synthetic-cpu", "synthetic-cpu-sc", "kitti-raw", "kitti-odometry", "sfmlearner", "folder", "gpu"} <= names
 
 
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
