@@ -51,9 +51,9 @@ TRACE_CHUNK = 4096  # frames whose uncertainty is computed at once
 POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
 SOLVERS = ("exact", "rls", "batch")
 # A translation residual above this share of camera 0's motion (RMS) is reported. Measured on the held-out rigs
-# (docs/calibnet.md): true poses with VO-like drift 0.002-0.005 leave 1-12 %, OpenCV VO 11-60 %, the pose network
-# 81-98 %; the translations of the last two are 0.5-25 baselines off.
-TRANSLATION_RESIDUAL_WARNING = 0.3
+# (docs/calibnet.md): true poses with VO-like drift 0.002-0.005 leave 1-12 %, OpenCV VO 11-60 %, the aligned pose
+# network 26-49 % (session 13; 81-98 % before alignment); the translations of the last two are 0.4-25 baselines off.
+TRANSLATION_RESIDUAL_WARNING = 0.15
 UNPAIRED_WARNING = 0.1  # camera-0 stamps left without a camera-k pose inside its span, as a share of the frames kept
 SYNC_MODES = ("interpolate", "nearest")  # how timestamped cameras meet camera 0's stamps (see load_rig)
 
