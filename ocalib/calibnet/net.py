@@ -59,7 +59,7 @@ class OnlineCalibrationNet(nn.Module):
             intrinsics = intrinsics.expand(batch_size, num_cameras, 3, 3).clone()
         self.register_buffer("intrinsics", intrinsics)
         self.head = OnlineCalibrator(num_cameras, batch_size, **head_options)
-        self.aligner = StreamAligner()
+        self.aligner = StreamAligner(batch_size * num_cameras)
         self.num_cameras, self.batch_size = num_cameras, batch_size
         self.reset()
 

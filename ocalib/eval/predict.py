@@ -141,7 +141,7 @@ def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu"
 
 def _generate(model, loader, frames: int, device, depth: bool, progress, K) -> Iterator[FramePrediction]:
     previous, t = None, 0
-    aligner = StreamAligner() if K is not None else None
+    aligner = StreamAligner(len(K)).to(K.device) if K is not None else None
     with tqdm(total=frames, unit="frame", desc="predicting", disable=None if progress is None else not progress) as bar:
         for images in loader:  # (b, C, 3, H, W)
             motion, depth_maps, previous = _predict_batch(model, images.to(device), previous, depth, K, aligner)

@@ -156,26 +156,29 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
 
 
 class StreamAligner(torch.nn.Module):
-    """:func:`align_motion` over a stream of frame pairs: each problem also starts from its own previous refined
-    motion (a constant-velocity model).
+    """:func:`align_motion` over ``streams`` streams of frame pairs: each problem also starts from its own previous
+    refined motion (a constant-velocity model; the identity, no motion, before the first call and after
+    :meth:`reset`).
 
     The pose network's translation can be far off on a camera moving sideways (tens of degrees), outside the
-    Gauss-Newton basin; the previous frame's refined motion is usually close. Call :meth:`reset` when a stream
-    starts; the B problems of every call are the same B streams, in the same order.
+    Gauss-Newton basin; the previous frame's refined motion is usually close. The B = ``streams`` problems of every
+    call are the same streams, in the same order. The previous motions are a buffer: ``state_dict`` and ``.to``
+    carry them.
     """
 
-    def __init__(self, iterations: tuple[int, ...] = GN_ITERATIONS, max_rotation_deg: float = MAX_ROTATION_DEG):
+    def __init__(self, streams: int, iterations: tuple[int, ...] = GN_ITERATIONS,
+                 max_rotation_deg: float = MAX_ROTATION_DEG):
         super().__init__()
         self.iterations, self.max_rotation_deg = iterations, max_rotation_deg
-        self.previous: Tensor | None = None
+        self.register_buffer("previous", torch.eye(4).expand(streams, 4, 4).clone())
 
     def reset(self) -> None:
-        self.previous = None
+        self.previous = torch.eye(4, device=self.previous.device).expand_as(self.previous).clone()
 
     def forward(self, target: Tensor, source: Tensor, depth: Tensor, K: Tensor,
                 T_source_target: Tensor) -> tuple[Tensor, Tensor]:
-        """As :func:`align_motion`, with the previous call's refined motions as the prior."""
+        """As :func:`align_motion`, with the previous call's refined motions (B, 4, 4) as the prior."""
         refined, accepted = align_motion(target, source, depth, K, T_source_target, self.previous, self.iterations,
                                          self.max_rotation_deg)
-        self.previous = refined.detach()
+        self.previous = refined.detach().float()
         return refined, accepted

@@ -186,7 +186,7 @@ def test_align_brings_a_biased_network_back_to_the_true_motion():
     errors = {}
     for align in (False, True):
         net = OnlineCalibrationNet(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=align)
-        reference = StreamAligner()  # frame 0 is aligned on itself: its motion is frame 1's prior
+        reference = StreamAligner(2)  # frame 0 is aligned on itself: its motion is frame 1's prior
         for t in range(3):
             net(seq.images[:, t])
             previous, current = seq.images[:, max(t - 1, 0)], seq.images[:, t]
@@ -201,6 +201,23 @@ def test_align_brings_a_biased_network_back_to_the_true_motion():
         errors[align] = torch.rad2deg(rotation_angle(R))
         assert net.aligned.tolist() == ([[2, 2]] if align else [[0, 0]])
     assert (errors[False] > 1.2).all() and (errors[True] < 0.3).all()
+
+
+def test_state_dict_resumes_an_aligned_stream_mid_way():
+    """The alignment's previous motions (its constant-velocity prior) are state too: a net restored after frame 2
+    continues exactly as the original."""
+    torch.set_num_threads(1)
+    seq = render_rig(preset("handheld").with_overrides(frames=4, height=64, width=208))
+    K = torch.from_numpy(np.stack([c.K for c in seq.rig.cameras])).float()
+    a = OnlineCalibrationNet(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=True)
+    for t in range(3):
+        a(seq.images[:, t])
+    assert not torch.equal(a.aligner.previous, torch.eye(4).expand(2, 4, 4))
+    b = OnlineCalibrationNet(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=True)
+    b.load_state_dict(a.state_dict())
+    out_a, out_b = a(seq.images[:, 3]), b(seq.images[:, 3])
+    torch.testing.assert_close(a.trajectory, b.trajectory, rtol=0, atol=0)
+    torch.testing.assert_close(out_a.rotation, out_b.rotation, rtol=0, atol=0)
 
 
 def test_align_needs_intrinsics_of_the_right_shape():

@@ -237,7 +237,7 @@ def test_align_in_predict_is_the_stream_alignment(seq, depth):
     views = [model_view(c, model.height, model.width) for c in sequence.cameras]
     images = FrameImages(sequence, views)
     K = torch.from_numpy(np.stack([v.K for v in views])).float()
-    reference = StreamAligner()
+    reference = StreamAligner(len(sequence.cameras))
     for t in range(1, 5):
         with torch.no_grad():
             previous, current = images[t - 1], images[t]

@@ -85,16 +85,17 @@ def test_a_prior_inside_the_basin_rescues_a_start_outside_it(pair):
 
 
 def test_stream_aligner_starts_each_problem_from_its_previous_motion(pair):
-    """The previous call's refined motion is the next call's prior (constant velocity); reset() forgets it."""
+    """The previous call's refined motion is the next call's prior (constant velocity), held in a buffer;
+    reset() forgets it (the identity again)."""
     target, source, depth, K, T = pair
-    aligner = StreamAligner(max_rotation_deg=20)
+    aligner = StreamAligner(1, max_rotation_deg=20)
+    assert torch.equal(aligner.previous, torch.eye(4)[None]) and "previous" in aligner.state_dict()
     first, _ = aligner(target, source, depth, K, PERTURBATION @ T)
     assert float(rotation_error_deg(first, T)) < 0.05
     second, _ = aligner(target, source, depth, K, YAW_8_DEG @ T)
     assert float(rotation_error_deg(second, T)) < 0.05
     aligner.reset()
-    third, _ = aligner(target, source, depth, K, YAW_8_DEG @ T)
-    assert float(rotation_error_deg(third, T)) > 2
+    assert torch.equal(aligner.previous, torch.eye(4)[None])
 
 
 def test_align_refuses_mismatched_shapes(pair):
