@@ -48,8 +48,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    "6.2-10.5), or trust it per camera and let the head solve the ratio (head)")
     p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
                    help="refine each network motion by direct photometric alignment on the network's depth (default "
-                   "with the network front end: on the held-out handheld rigs 0.09-1.4 deg where the network alone "
-                   "gives 4.4-11.7; about 20 ms a camera and frame on 2 CPU cores)")
+                   "with the network front end: on the held-out rigs 0.24-2.8 deg where the network alone gives "
+                   "3.6-66; about 25 ms a camera and frame on 2 CPU cores)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     return p

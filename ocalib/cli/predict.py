@@ -38,7 +38,7 @@ def add_model_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=1, metavar="N", help="image-reading processes (default 1; 0: none)")
     p.add_argument("--align", action="store_true",
                    help="refine each motion by direct photometric alignment on the network's depth of the previous "
-                   "frame (about 20 ms a camera and frame on 2 CPU cores)")
+                   "frame (about 25 ms a camera and frame on 2 CPU cores)")
 
 
 def open_inputs(args):
