@@ -76,7 +76,7 @@ def calibrate_sequence(
     ``"unobservable"``: a monocular front end's translation directions must not move an observable rotation, see
     :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet` (the default,
     ``normalise``, was measured better on the held-out rigs: README, issue 5). align: refine the network's motions
-    by direct photometric alignment (:func:`~ocalib.frontend.align.align_motion`; None: with the
+    by direct photometric alignment (:class:`~ocalib.frontend.align.StreamAligner`; None: with the
     network front end, measured better on every held-out rig: README, issue 5). max_frames: use only the first
     frames. on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the
     current estimate (None: on a terminal).

@@ -98,6 +98,18 @@ def test_stream_aligner_starts_each_problem_from_its_previous_motion(pair):
     assert torch.equal(aligner.previous, torch.eye(4)[None])
 
 
+def test_a_non_finite_motion_does_not_poison_the_stream(pair):
+    """A NaN network motion is returned flagged; stored as the next prior, it never wins over a finite start, so
+    the next frame aligns as if it had no prior."""
+    target, source, depth, K, T = pair
+    aligner = StreamAligner(1)
+    bad, accepted = aligner(target, source, depth, K, torch.full_like(T, math.nan))
+    assert not bool(accepted[0]) and torch.isnan(bad).all()
+    after, accepted = aligner(target, source, depth, K, PERTURBATION @ T)
+    alone, _ = align_motion(target, source, depth, K, PERTURBATION @ T)
+    assert bool(accepted[0]) and torch.equal(after, alone)
+
+
 def test_align_refuses_mismatched_shapes(pair):
     target, source, depth, K, T = pair
     with pytest.raises(ValueError, match="depth"):
