@@ -43,7 +43,6 @@ GN_ITERATIONS = (5, 5, 5)  # Gauss-Newton steps at a quarter, half, then full re
 HUBER = 0.05  # grey levels: residuals beyond it are down-weighted
 DAMPING = 1e-3  # Levenberg damping, relative to the normal matrix's diagonal
 MAX_ROTATION_DEG = 2.0  # largest accepted rotation correction (the network's per-frame errors stay below ~2.5 deg)
-PRIOR_WEIGHT = 0.1  # coarse levels: the prior's information per axis, as a share of the image term's (diagonal)
 
 
 def photometric_cost(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor) -> Tensor:
@@ -55,16 +54,13 @@ def photometric_cost(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T
 
 def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor,
                  prior: Tensor | None = None, iterations: tuple[int, ...] = GN_ITERATIONS,
-                 max_rotation_deg: float = MAX_ROTATION_DEG, prior_weight: float = PRIOR_WEIGHT) -> tuple[Tensor, Tensor]:
+                 max_rotation_deg: float = MAX_ROTATION_DEG) -> tuple[Tensor, Tensor]:
     """Refine ``T_source_target`` (B, 4, 4) photometrically; returns the motions (B, 4, 4), in the input's dtype,
     and ``accepted`` (B,) bool (False: the input motion is returned).
 
-    ``prior`` (B, 4, 4), optional: the expected motion, e.g. the previous frame's refined motion (a constant-velocity
-    model, :class:`StreamAligner`). It is a second start: both starts descend the coarse levels in one batch, and at
-    full resolution only the better of them (or the input, if better still) is refined further. On the coarse
-    levels it is also a Gaussian term of the cost whose information per axis is ``prior_weight`` times the image
-    term's (the diagonal of its normal matrix): where the image cannot tell two motions apart (a sideways translation
-    from a yaw), the coarse levels stay near the prior; the full resolution is the image's alone.
+    ``prior`` (B, 4, 4), optional: a second start, e.g. the previous frame's refined motion (a constant-velocity
+    model, :class:`StreamAligner`); both starts descend the coarse levels in one batch, and at full resolution only
+    the better of them (or the input, if better still) is refined further.
     ``iterations[k]``: Gauss-Newton steps at pyramid level ``len(iterations) - 1 - k`` (level l at 1/2^l of the
     input resolution, coarsest first). Each of the B problems is solved on its own, all in one batch; gradients
     flow to ``T_source_target`` through the correction held fixed.
@@ -80,7 +76,7 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     with torch.no_grad():
         start = T_source_target.detach().float()
         starts = [start] if prior is None else [start, prior.detach().float()]
-        refined, improved = _coarse_to_fine(target, source, depth, K, starts, iterations, prior_weight)
+        refined, improved = _coarse_to_fine(target, source, depth, K, starts, iterations)
         correction = refined @ invert_pose(start)
         angle = rotation_angle(correction[:, :3, :3].double())
         accepted = improved & (angle <= math.radians(max_rotation_deg)) & torch.isfinite(correction).all((1, 2))
@@ -89,21 +85,10 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     return correction @ T_source_target, accepted
 
 
-def motion_change(T: Tensor, reference: Tensor) -> Tensor:
-    """(B, 6) the departure of motions ``T`` (B, 4, 4) from ``reference`` (B, 4, 4): rotation vector (rad, small-angle:
-    the skew part of ``R R_ref^T``) and translation of ``T reference^-1``, in the frame of ``T``'s left increments."""
-    D = T @ invert_pose(reference)
-    R = D[:, :3, :3]
-    w = torch.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1) / 2
-    return torch.cat([w, D[:, :3, 3]], -1)
-
-
 def _coarse_to_fine(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, starts: list[Tensor],
-                    iterations: tuple[int, ...], prior_weight: float, huber: float = HUBER,
-                    damping: float = DAMPING) -> tuple[Tensor, Tensor]:
-    """Gauss-Newton over the pyramid from each of the ``starts`` (B, 4, 4) (the first: the input motion; the
-    second, if any: the prior, a term of the coarse levels' cost with ``prior_weight``) -> the motion of lowest
-    cost at full resolution (B, 4, 4) float32 and whether it beats the input's (B,) bool.
+                    iterations: tuple[int, ...], huber: float = HUBER, damping: float = DAMPING) -> tuple[Tensor, Tensor]:
+    """Gauss-Newton over the pyramid from each of the ``starts`` (B, 4, 4) (the first: the input motion) ->
+    the motion of lowest residual at full resolution (B, 4, 4) float32 and whether it beats the input's (B,) bool.
 
     Every start descends the coarse levels (in one batch); at full resolution the best of them and the input
     compete, and only the winner is refined further."""
@@ -111,27 +96,21 @@ def _coarse_to_fine(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, st
     depth, K = depth.detach().float(), K.detach().float()
     H, W, S = *target.shape[-2:], len(starts)
     T = torch.cat(starts)  # (S B, 4, 4)
-    prior = (starts[1].repeat(S, 1, 1), prior_weight) if S > 1 and prior_weight > 0 else None
     for level in reversed(range(1, len(iterations))):
         size = (max(1, H >> level), max(1, W >> level))
         pyramid = [F.interpolate(x, size, mode="area") for x in (target, source)]
         pyramid.append(1 / F.interpolate(1 / depth.clamp(min=MIN_Z), size, mode="area"))
         pyramid.append(resize_intrinsics(K, (H, W), size))
         pyramid = [x.repeat(S, *[1] * (x.dim() - 1)) for x in pyramid]
-        T, _ = _gauss_newton(*pyramid, [T], iterations[len(iterations) - 1 - level], huber, damping, prior)
+        T, _ = _gauss_newton(*pyramid, [T], iterations[len(iterations) - 1 - level], huber, damping)
     T, best = _gauss_newton(target, source, depth, K, [starts[0], *T.chunk(S)], iterations[-1], huber, damping)
     return T, best > 0
 
 
 def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, candidates: list[Tensor],
-                  iterations: int, huber: float, damping: float,
-                  prior: tuple[Tensor, float] | None = None) -> tuple[Tensor, Tensor]:
-    """Gauss-Newton from the best of the ``candidates`` -> the motion (B, 4, 4) of lowest cost among the candidates
-    and the iterates, and its index (B,) in that order (0: the first candidate).
-
-    The cost is the mean Huber loss of the grey-level residual over the valid pixels, plus, with ``prior`` = (motion
-    (B, 4, 4), weight), the Gaussian term ``e^T L e / 2`` (e = :func:`motion_change` from the prior, ``L`` = weight
-    times the diagonal of the previous step's normal matrix; none before the first step)."""
+                  iterations: int, huber: float, damping: float) -> tuple[Tensor, Tensor]:
+    """Gauss-Newton from the best of the ``candidates`` -> the motion (B, 4, 4) of lowest mean absolute residual
+    among the candidates and the iterates, and its index (B,) in that order (0: the first candidate)."""
     B, C, H, W = target.shape
     points = depth_to_3d_v2(depth[:, 0], K).reshape(B, -1, 3)  # target camera
     # source intensity, then its derivatives along u and along v (per pixel), sampled together
@@ -139,7 +118,6 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
     fx, fy, cx, cy = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 2, None], K[:, 1, 2, None]
     best, best_cost = candidates[-1], torch.full((B,), math.inf, device=target.device)
     index = torch.zeros(B, dtype=torch.long, device=target.device)
-    information = torch.zeros(B, 6, device=target.device)  # the prior's, in the units of the normal matrix
     queue, evaluations = list(candidates), len(candidates) + (len(candidates) > 1) + iterations
     for it in range(evaluations):
         T = queue.pop(0)
@@ -150,11 +128,7 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         valid = ((grid.abs() <= 1).all(-1) & (X[..., 2] > MIN_Z)).to(target.dtype)  # (B, N)
         sampled = F.grid_sample(stacked, grid.view(B, H, W, 2), align_corners=True).flatten(2)  # (B, 3C, N)
         r = (sampled[:, :C] - target.flatten(2)) * valid[:, None]  # (B, C, N)
-        loss = torch.where(r.abs() <= huber, r.square() / 2, huber * (r.abs() - huber / 2)).sum((1, 2))
-        if prior is not None:
-            e = torch.where(information > 0, motion_change(T, prior[0]), 0)  # a non-finite prior adds nothing
-            loss = loss + (information * e.square()).sum(1) / 2
-        cost = loss / (valid.sum(1) * C).clamp(min=1)
+        cost = r.abs().sum((1, 2)) / (valid.sum(1) * C).clamp(min=1)
         improved = cost < best_cost
         best = torch.where(improved[:, None, None], T, best)
         best_cost = torch.where(improved, cost, best_cost)
@@ -174,12 +148,6 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         w = ((huber / r.abs().clamp(min=huber)) * valid[:, None]).flatten(1)[..., None]  # Huber weights
         A = (J * w).transpose(1, 2) @ J  # (B, 6, 6)
         g = (J * w).transpose(1, 2) @ r.flatten(1)[..., None]
-        if prior is not None:  # the prior's residual moves one for one with the left increment
-            finite = torch.isfinite(prior[0]).all((1, 2))[:, None]
-            information = torch.where(finite, prior[1] * A.diagonal(dim1=1, dim2=2), 0)
-            e = torch.where(information > 0, motion_change(T, prior[0]), 0)
-            A = A + torch.diag_embed(information)
-            g = g + (information * e)[..., None]
         A = A + damping * torch.diag_embed(A.diagonal(dim1=1, dim2=2)) + 1e-9 * torch.eye(6, device=A.device)
         step = -torch.linalg.solve(A, g)[..., 0]
         step = torch.where(torch.isfinite(step).all(-1, keepdim=True), step, torch.zeros_like(step))
@@ -188,22 +156,20 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
 
 
 class StreamAligner(torch.nn.Module):
-    """:func:`align_motion` over ``streams`` streams of frame pairs with a constant-velocity prior: each problem's
-    prior is its own previous refined motion (the identity, no motion, before the first call and after
-    :meth:`reset`), a second start and a term of the coarse levels' cost.
+    """:func:`align_motion` over ``streams`` streams of frame pairs: each problem also starts from its own previous
+    refined motion (a constant-velocity model; the identity, no motion, before the first call and after
+    :meth:`reset`).
 
     The pose network's translation can be far off on a camera moving sideways (tens of degrees), outside the
-    Gauss-Newton basin; the previous frame's refined motion is usually close (session 13). Where the network's depth
-    cannot tell that sideways translation from a yaw, the coarse levels slid along the valley to a motion that hardly
-    translates (one frame in eight on the car's sideways camera); the prior term holds them near the previous motion
-    (session 14). The B = ``streams`` problems of every call are the same streams, in the same order. The previous
-    motions are a buffer: ``state_dict`` and ``.to`` carry them.
+    Gauss-Newton basin; the previous frame's refined motion is usually close. The B = ``streams`` problems of every
+    call are the same streams, in the same order. The previous motions are a buffer: ``state_dict`` and ``.to``
+    carry them.
     """
 
     def __init__(self, streams: int, iterations: tuple[int, ...] = GN_ITERATIONS,
-                 max_rotation_deg: float = MAX_ROTATION_DEG, prior_weight: float = PRIOR_WEIGHT):
+                 max_rotation_deg: float = MAX_ROTATION_DEG):
         super().__init__()
-        self.iterations, self.max_rotation_deg, self.prior_weight = iterations, max_rotation_deg, prior_weight
+        self.iterations, self.max_rotation_deg = iterations, max_rotation_deg
         self.register_buffer("previous", torch.eye(4).expand(streams, 4, 4).clone())
 
     def reset(self) -> None:
@@ -213,6 +179,6 @@ class StreamAligner(torch.nn.Module):
                 T_source_target: Tensor) -> tuple[Tensor, Tensor]:
         """As :func:`align_motion`, with the previous call's refined motions (B, 4, 4) as the prior."""
         refined, accepted = align_motion(target, source, depth, K, T_source_target, self.previous, self.iterations,
-                                         self.max_rotation_deg, self.prior_weight)
+                                         self.max_rotation_deg)
         self.previous = refined.detach().float()
         return refined, accepted
