@@ -152,3 +152,24 @@ def test_demo_prints_the_estimate_beside_the_truth_and_its_warnings(tmp_path, ca
     assert "errors against the ground truth" in captured.out and f"rotation {angle:.3f} deg" in captured.out
     assert [line[len("warning: "):] for line in captured.err.splitlines() if line.startswith("warning: ")] \
         == doc["warnings"]
+
+
+@pytest.mark.parametrize("frontend", ["network", "opencv"])
+def test_planar_motion_with_the_network_advises_the_opencv_front_end(frontend):
+    """A car's drive is flagged planar by the head; the network front end then gets the measured advice (OpenCV VO
+    was better on every held-out car), the OpenCV front end and non-planar motion do not."""
+    from ocalib.calib.online import OnlineCalibrator
+    from ocalib.calibnet.run import PLANAR_ADVICE, planar_advice
+    from ocalib.sim.trajectory import car_trajectory, lds_trajectory, random_rig, rig_trajectories
+
+    g = torch.Generator().manual_seed(0)
+    X = random_rig(g)[None]
+    advice = {}
+    for name, cam0 in (("car", car_trajectory(120, g)), ("handheld", lds_trajectory(120, g))):
+        head = OnlineCalibrator(2)
+        for poses in rig_trajectories(cam0, X):
+            estimate = head(poses[None])
+        advice[name] = (bool(estimate.planar_motion[0, 0]), planar_advice(frontend, estimate, ["front", "left"]))
+    assert advice["car"][0] and not advice["handheld"][0]
+    assert advice["car"][1] == ([f"left: {PLANAR_ADVICE}"] if frontend == "network" else [])
+    assert advice["handheld"][1] == []
