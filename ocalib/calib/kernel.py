@@ -507,24 +507,10 @@ def _workspace(C, n_pairs):
             np.empty(6), np.empty(6), np.empty(4), np.empty(3), np.empty(4), np.empty(4), _refine_workspace())  # fmt: skip
 
 @_jit
-def _rig_step(b, state, config, out, work):
-    """One frame of rig ``b``: ``state`` the head's buffers (updated), ``config`` its settings, ``out`` the
-    estimate's arrays (written); see :func:`step` for their order. ``work``: :func:`_workspace`."""
-    (poses, history, history_valid, first, first_valid, gap_S2, gap_V, gap_rotation_rows, gap_Z,
-     gap_translation_rows, S2_state, V_state, rotation_rows_state, screw_scale, screw_count, frames_used,
-     frames_rejected) = state
-    (gaps, has_first, frame, symmetric, lam, min_rotation, screw_gate, screw_sigma, robust, pose_tolerance,
-     refine, refine_steps) = config
-    (out_rotation, out_quaternion, out_translation, out_scale, out_sv, out_observable, out_planar, out_axis,
-     out_Z, out_translation_rows, out_refined) = out  # fmt: skip
+def _read_poses(poses, b, pose, valid, pose_tolerance):
+    """Rig ``b``'s poses into ``pose`` (C, 4, 4); a non-finite or non-orthonormal pose is replaced by the identity and
+    marked invalid in ``valid`` (C,)."""
     C = poses.shape[1]
-    K = C - 1
-    H_size = history.shape[2]
-    n_pos = gaps.shape[0]
-    n_pairs = n_pos + (1 if has_first else 0)
-
-    # Pose checks: a non-finite or non-orthonormal pose is replaced by the identity and marked invalid.
-    (pose, valid, motion, prev_valid, prev, quat, angle, A, WV, gram, w4, E4, a7, V7, w7, newV, z, pair_ok, gw, Mc, S, qs, dR, P, p, maps, Hn, gn, xn, x, axis, q_closed, x_closed, refine_work) = work  # fmt: skip
     for cam in range(C):
         ok = True
         for i in range(4):
@@ -550,7 +536,15 @@ def _rig_step(b, state, config, out, work):
                 for j in range(4):
                     pose[cam, i, j] = 1.0 if i == j else 0.0
 
-    # Motion pairs: gap g from frame t - g, then the pair with the first valid frame.
+@_jit
+def _motion_pairs(b, pose, valid, history, history_valid, first, first_valid, gaps, has_first, frame, motion, prev,
+                  prev_valid, quat, angle):
+    """Every camera's motion pairs (C, n_pairs, 4, 4) ``inv(earlier) @ pose``: gap g from frame t - g, then the pair
+    with the first valid frame (kept in ``first``); their quaternions ``quat`` (w, x, y, z) and angles ``angle``."""
+    C = pose.shape[0]
+    H_size = history.shape[2]
+    n_pos = gaps.shape[0]
+    n_pairs = n_pos + (1 if has_first else 0)
     for j in range(n_pairs):
         for cam in range(C):
             if j < n_pos:
@@ -581,270 +575,320 @@ def _rig_step(b, state, config, out, work):
             qv = quat[cam, j]
             angle[cam, j] = 2.0 * math.atan2(math.sqrt(qv[1] * qv[1] + qv[2] * qv[2] + qv[3] * qv[3]), abs(qv[0]))
 
-    for k in range(K):
-        ck = k + 1
-        # Screw congruence.
-        scale, count = screw_scale[b, k], screw_count[b, k]
-        thr = max(screw_sigma * MAD_TO_STD * scale, screw_gate) if count >= SCREW_MIN_SAMPLES else np.inf
-        clip = 5.0 * MAD_TO_STD * scale if count >= SCREW_MIN_SAMPLES else np.inf
-        total, n_valid, used = 0.0, 0.0, False
-        for j in range(n_pairs):
-            pv = prev_valid[0, j] and valid[0] and prev_valid[ck, j] and valid[ck]
-            screw = abs(angle[0, j] - angle[ck, j])
-            pair_ok[j] = pv and screw <= thr
-            used = used or pair_ok[j]
-            if pv:
-                total += min(screw, clip)
-                n_valid += 1.0
-        count = min(count + n_valid, SCREW_MAX_SAMPLES)
-        screw_scale[b, k] = scale + (total - n_valid * scale) / max(count, 1.0)
-        screw_count[b, k] = count
+@_jit
+def _screw_gate(b, k, n_pairs, valid, prev_valid, angle, screw_scale, screw_count, screw_sigma, screw_gate, pair_ok):
+    """Screw congruence of camera k + 1 against camera 0: ``pair_ok`` (n_pairs,) for the pairs whose rotation angles
+    agree within the robust threshold; updates the running scale of the angle differences. Returns whether any
+    pair passed."""
+    ck = k + 1
+    scale, count = screw_scale[b, k], screw_count[b, k]
+    thr = max(screw_sigma * MAD_TO_STD * scale, screw_gate) if count >= SCREW_MIN_SAMPLES else np.inf
+    clip = 5.0 * MAD_TO_STD * scale if count >= SCREW_MIN_SAMPLES else np.inf
+    total, n_valid, used = 0.0, 0.0, False
+    for j in range(n_pairs):
+        pv = prev_valid[0, j] and valid[0] and prev_valid[ck, j] and valid[ck]
+        screw = abs(angle[0, j] - angle[ck, j])
+        pair_ok[j] = pv and screw <= thr
+        used = used or pair_ok[j]
+        if pv:
+            total += min(screw, clip)
+            n_valid += 1.0
+    count = min(count + n_valid, SCREW_MAX_SAMPLES)
+    screw_scale[b, k] = scale + (total - n_valid * scale) / max(count, 1.0)
+    screw_count[b, k] = count
+    return used
 
-        # Robust weights under the last frame's combined estimate.
-        for i in range(4):
-            S[i] = math.sqrt(max(S2_state[b, k, i], 0.0))
-        established = _excited(S, rotation_rows_state[b, k], 2, ROTATION_OBSERVABLE_SIGNIFICANCE)
-        sign = 1.0 if V_state[b, k, 0, 3] >= 0 else -1.0
-        for i in range(4):
-            qs[i] = sign * V_state[b, k, i, 3]
+@_jit
+def _update_gaps(b, k, n_pairs, quat, angle, motion, pair_ok, S2_state, V_state, rotation_rows_state, gap_S2, gap_V,
+                 gap_rotation_rows, gap_Z, gap_translation_rows, lam, min_rotation, robust, symmetric, S, qs, A, WV,
+                 gram, w4, E4, a7, newV, z):
+    """Add this frame's pairs of camera k + 1 to each gap's statistics: the rotation rows (robust weights under the
+    last frame's combined estimate) by incremental SVD, the translation rows to the gap's 15x15 moment."""
+    ck = k + 1
+    for i in range(4):
+        S[i] = math.sqrt(max(S2_state[b, k, i], 0.0))
+    established = _excited(S, rotation_rows_state[b, k], 2, ROTATION_OBSERVABLE_SIGNIFICANCE)
+    sign = 1.0 if V_state[b, k, 0, 3] >= 0 else -1.0
+    for i in range(4):
+        qs[i] = sign * V_state[b, k, i, 3]
 
-        for j in range(n_pairs):
-            # A = L(q0) - R(qk), both with w >= 0.
-            q0 = quat[0, j]
-            q1 = quat[ck, j]
-            w0, x0, y0, z0 = q0[0], q0[1], q0[2], q0[3]
-            w1, x1, y1, z1 = q1[0], q1[1], q1[2], q1[3]
-            A[0, 0], A[0, 1], A[0, 2], A[0, 3] = w0 - w1, -x0 + x1, -y0 + y1, -z0 + z1
-            A[1, 0], A[1, 1], A[1, 2], A[1, 3] = x0 - x1, w0 - w1, -z0 - z1, y0 + y1
-            A[2, 0], A[2, 1], A[2, 2], A[2, 3] = y0 - y1, z0 + z1, w0 - w1, -x0 - x1
-            A[3, 0], A[3, 1], A[3, 2], A[3, 3] = z0 - z1, -y0 - y1, x0 + x1, w0 - w1
-            moving = (angle[0, j] + angle[ck, j]) / 2.0 >= min_rotation
-            weight = 1.0 if (pair_ok[j] and moving) else 0.0
-            if weight > 0.0 and established:
-                rr = 0.0
-                for i in range(4):
-                    acc = A[i, 0] * qs[0] + A[i, 1] * qs[1] + A[i, 2] * qs[2] + A[i, 3] * qs[3]
-                    rr += acc * acc
-                dres = 4.0 * math.asin(min(math.sqrt(rr) / 2.0, 1.0))
-                if dres > robust:
-                    weight = robust / max(dres, 1e-12)
-            # Incremental SVD of the gap: eigen of lam diag(S2) + (W V)^T (W V), W = sqrt(w) A.
-            sw = math.sqrt(weight)
+    for j in range(n_pairs):
+        # A = L(q0) - R(qk), both with w >= 0.
+        q0 = quat[0, j]
+        q1 = quat[ck, j]
+        w0, x0, y0, z0 = q0[0], q0[1], q0[2], q0[3]
+        w1, x1, y1, z1 = q1[0], q1[1], q1[2], q1[3]
+        A[0, 0], A[0, 1], A[0, 2], A[0, 3] = w0 - w1, -x0 + x1, -y0 + y1, -z0 + z1
+        A[1, 0], A[1, 1], A[1, 2], A[1, 3] = x0 - x1, w0 - w1, -z0 - z1, y0 + y1
+        A[2, 0], A[2, 1], A[2, 2], A[2, 3] = y0 - y1, z0 + z1, w0 - w1, -x0 - x1
+        A[3, 0], A[3, 1], A[3, 2], A[3, 3] = z0 - z1, -y0 - y1, x0 + x1, w0 - w1
+        moving = (angle[0, j] + angle[ck, j]) / 2.0 >= min_rotation
+        weight = 1.0 if (pair_ok[j] and moving) else 0.0
+        if weight > 0.0 and established:
+            rr = 0.0
             for i in range(4):
-                for m in range(4):
-                    acc = 0.0
-                    for l in range(4):
-                        acc += A[i, l] * gap_V[b, k, j, l, m]
-                    WV[i, m] = sw * acc
-            for i in range(4):
-                for m in range(4):
-                    acc = 0.0
-                    for l in range(4):
-                        acc += WV[l, i] * WV[l, m]
-                    gram[i, m] = acc + (lam * gap_S2[b, k, j, i] if i == m else 0.0)
-            _eigh4(gram, w4, E4, a7)
-            for i in range(4):
-                for m in range(4):
-                    acc = 0.0
-                    for l in range(4):
-                        acc += gap_V[b, k, j, i, l] * E4[l, 3 - m]
-                    newV[i, m] = acc
-            for i in range(4):
-                gap_S2[b, k, j, i] = w4[3 - i]
-            gap_V[b, k, j] = newV
-            gap_rotation_rows[b, k, j] = lam * gap_rotation_rows[b, k, j] + weight
-            # Translation moment of the gap.
-            w_tr = 1.0 if pair_ok[j] else 0.0
-            m0 = motion[0, j]
-            mk = motion[ck, j]
+                acc = A[i, 0] * qs[0] + A[i, 1] * qs[1] + A[i, 2] * qs[2] + A[i, 3] * qs[3]
+                rr += acc * acc
+            dres = 4.0 * math.asin(min(math.sqrt(rr) / 2.0, 1.0))
+            if dres > robust:
+                weight = robust / max(dres, 1e-12)
+        # Incremental SVD of the gap: eigen of lam diag(S2) + (W V)^T (W V), W = sqrt(w) A.
+        sw = math.sqrt(weight)
+        for i in range(4):
+            for m in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += A[i, l] * gap_V[b, k, j, l, m]
+                WV[i, m] = sw * acc
+        for i in range(4):
+            for m in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += WV[l, i] * WV[l, m]
+                gram[i, m] = acc + (lam * gap_S2[b, k, j, i] if i == m else 0.0)
+        _eigh4(gram, w4, E4, a7)
+        for i in range(4):
+            for m in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += gap_V[b, k, j, i, l] * E4[l, 3 - m]
+                newV[i, m] = acc
+        for i in range(4):
+            gap_S2[b, k, j, i] = w4[3 - i]
+        gap_V[b, k, j] = newV
+        gap_rotation_rows[b, k, j] = lam * gap_rotation_rows[b, k, j] + weight
+        # Translation moment of the gap.
+        w_tr = 1.0 if pair_ok[j] else 0.0
+        m0 = motion[0, j]
+        mk = motion[ck, j]
+        for i in range(3):
+            for l in range(3):
+                z[0, 3 * i + l] = (1.0 if i == l else 0.0) - m0[i, l]
+            z[0, 9 + i] = mk[i, 3]
+            z[0, 12 + i] = m0[i, 3]
+        n_rows = 1
+        if symmetric:  # the reverse pair: R0^T, -R0^T t0, -Rk^T tk
+            n_rows = 2
             for i in range(3):
                 for l in range(3):
-                    z[0, 3 * i + l] = (1.0 if i == l else 0.0) - m0[i, l]
-                z[0, 9 + i] = mk[i, 3]
-                z[0, 12 + i] = m0[i, 3]
-            n_rows = 1
-            if symmetric:  # the reverse pair: R0^T, -R0^T t0, -Rk^T tk
-                n_rows = 2
-                for i in range(3):
-                    for l in range(3):
-                        z[1, 3 * i + l] = (1.0 if i == l else 0.0) - m0[l, i]
-                    z[1, 9 + i] = -(mk[0, i] * mk[0, 3] + mk[1, i] * mk[1, 3] + mk[2, i] * mk[2, 3])
-                    z[1, 12 + i] = -(m0[0, i] * m0[0, 3] + m0[1, i] * m0[1, 3] + m0[2, i] * m0[2, 3])
-            Zg = gap_Z[b, k, j]
-            if lam != 1.0:
-                for i in range(15):
-                    for l in range(15):
-                        Zg[i, l] *= lam
-            if pair_ok[j]:  # the moment is symmetric: its upper triangle, mirrored
-                for i in range(15):
-                    for l in range(i, 15):
-                        acc = z[0, i] * z[0, l]
-                        if n_rows == 2:
-                            acc += z[1, i] * z[1, l]
-                        Zg[i, l] += acc
-                        if l != i:
-                            Zg[l, i] = Zg[i, l]
-            gap_translation_rows[b, k, j] = lam * gap_translation_rows[b, k, j] + w_tr
+                    z[1, 3 * i + l] = (1.0 if i == l else 0.0) - m0[l, i]
+                z[1, 9 + i] = -(mk[0, i] * mk[0, 3] + mk[1, i] * mk[1, 3] + mk[2, i] * mk[2, 3])
+                z[1, 12 + i] = -(m0[0, i] * m0[0, 3] + m0[1, i] * m0[1, 3] + m0[2, i] * m0[2, 3])
+        Zg = gap_Z[b, k, j]
+        if lam != 1.0:
+            for i in range(15):
+                for l in range(15):
+                    Zg[i, l] *= lam
+        if pair_ok[j]:  # the moment is symmetric: its upper triangle, mirrored
+            for i in range(15):
+                for l in range(i, 15):
+                    acc = z[0, i] * z[0, l]
+                    if n_rows == 2:
+                        acc += z[1, i] * z[1, l]
+                    Zg[i, l] += acc
+                    if l != i:
+                        Zg[l, i] = Zg[i, l]
+        gap_translation_rows[b, k, j] = lam * gap_translation_rows[b, k, j] + w_tr
 
-        # The gaps, weighted by their noise (pairing.gap_weights, combine_statistics).
-        Zc = out_Z[b, k]
-        if n_pairs == 1:
-            for i in range(4):
-                S2_state[b, k, i] = gap_S2[b, k, 0, i]
-            V_state[b, k] = gap_V[b, k, 0]
-            rows = gap_rotation_rows[b, k, 0]
-            Zc[:, :] = gap_Z[b, k, 0]
-            trows = gap_translation_rows[b, k, 0]
-        else:
-            dof_sum, res_sum, top = 0.0, 0.0, 0.0
-            for j in range(n_pairs):
-                rj = gap_rotation_rows[b, k, j]
-                dof_sum += max(2.0 * rj - 3.0, 0.0)
-                res_sum += max(gap_S2[b, k, j, 3], 0.0)
-                top = max(top, gap_S2[b, k, j, 0] / max(rj, 1.0))
-            pooled = res_sum / max(dof_sum, 1.0)
-            floor = NOISE_FLOOR * top
-            prior, any_measured = 0.0, False
-            for j in range(n_pairs):
-                dof = max(2.0 * gap_rotation_rows[b, k, j] - 3.0, 0.0)
-                shrunk = (max(gap_S2[b, k, j, 3], 0.0) + GAP_PRIOR_DOF * pooled) / (dof + GAP_PRIOR_DOF)
-                if dof > 0 and shrunk + floor > 0:
-                    any_measured = True
-                    prior = max(prior, shrunk)
-            ref = np.inf
-            for j in range(n_pairs):
-                dof = max(2.0 * gap_rotation_rows[b, k, j] - 3.0, 0.0)
-                var = (max(gap_S2[b, k, j, 3], 0.0) + GAP_PRIOR_DOF * prior) / (dof + GAP_PRIOR_DOF) + floor
-                gw[j] = var
-                if any_measured and var > 0:
-                    ref = min(ref, var)
-            for j in range(n_pairs):
-                var = gw[j]
-                gw[j] = (ref / var) ** GAP_WEIGHT_POWER if (any_measured and var > 0) else 1.0
-            rows, trows = 0.0, 0.0
+@_jit
+def _combine_gaps(b, k, n_pairs, gap_S2, gap_V, gap_rotation_rows, gap_Z, gap_translation_rows, S2_state, V_state,
+                  Zc, gw, Mc, WV, gram, w4, E4, a7, newV):
+    """The gaps' statistics weighted by their noise (pairing.gap_weights, combine_statistics) into the rotation
+    system (``S2_state``, ``V_state``) and the translation moment ``Zc`` (15, 15). Returns the weighted rotation and
+    translation row counts."""
+    if n_pairs == 1:
+        for i in range(4):
+            S2_state[b, k, i] = gap_S2[b, k, 0, i]
+        V_state[b, k] = gap_V[b, k, 0]
+        rows = gap_rotation_rows[b, k, 0]
+        Zc[:, :] = gap_Z[b, k, 0]
+        trows = gap_translation_rows[b, k, 0]
+    else:
+        dof_sum, res_sum, top = 0.0, 0.0, 0.0
+        for j in range(n_pairs):
+            rj = gap_rotation_rows[b, k, j]
+            dof_sum += max(2.0 * rj - 3.0, 0.0)
+            res_sum += max(gap_S2[b, k, j, 3], 0.0)
+            top = max(top, gap_S2[b, k, j, 0] / max(rj, 1.0))
+        pooled = res_sum / max(dof_sum, 1.0)
+        floor = NOISE_FLOOR * top
+        prior, any_measured = 0.0, False
+        for j in range(n_pairs):
+            dof = max(2.0 * gap_rotation_rows[b, k, j] - 3.0, 0.0)
+            shrunk = (max(gap_S2[b, k, j, 3], 0.0) + GAP_PRIOR_DOF * pooled) / (dof + GAP_PRIOR_DOF)
+            if dof > 0 and shrunk + floor > 0:
+                any_measured = True
+                prior = max(prior, shrunk)
+        ref = np.inf
+        for j in range(n_pairs):
+            dof = max(2.0 * gap_rotation_rows[b, k, j] - 3.0, 0.0)
+            var = (max(gap_S2[b, k, j, 3], 0.0) + GAP_PRIOR_DOF * prior) / (dof + GAP_PRIOR_DOF) + floor
+            gw[j] = var
+            if any_measured and var > 0:
+                ref = min(ref, var)
+        for j in range(n_pairs):
+            var = gw[j]
+            gw[j] = (ref / var) ** GAP_WEIGHT_POWER if (any_measured and var > 0) else 1.0
+        rows, trows = 0.0, 0.0
+        for i in range(4):
+            for m in range(4):
+                Mc[i, m] = 0.0
+        for i in range(15):
+            for m in range(15):
+                Zc[i, m] = 0.0
+        for j in range(n_pairs):
+            wj = gw[j]
+            rows += wj * gap_rotation_rows[b, k, j]
+            trows += wj * gap_translation_rows[b, k, j]
             for i in range(4):
                 for m in range(4):
-                    Mc[i, m] = 0.0
+                    acc = 0.0
+                    for l in range(4):
+                        acc += gap_V[b, k, j, i, l] * gap_S2[b, k, j, l] * gap_V[b, k, j, m, l]
+                    Mc[i, m] += wj * acc
+            Zg = gap_Z[b, k, j]
             for i in range(15):
-                for m in range(15):
-                    Zc[i, m] = 0.0
-            for j in range(n_pairs):
-                wj = gw[j]
-                rows += wj * gap_rotation_rows[b, k, j]
-                trows += wj * gap_translation_rows[b, k, j]
-                for i in range(4):
-                    for m in range(4):
-                        acc = 0.0
-                        for l in range(4):
-                            acc += gap_V[b, k, j, i, l] * gap_S2[b, k, j, l] * gap_V[b, k, j, m, l]
-                        Mc[i, m] += wj * acc
-                Zg = gap_Z[b, k, j]
-                for i in range(15):
-                    for m in range(i, 15):
-                        Zc[i, m] += wj * Zg[i, m]
-            for i in range(15):
-                for m in range(i):
-                    Zc[i, m] = Zc[m, i]
-            # Eigen-decomposition in the basis of the last frame's (nearly diagonal there: fewer sweeps).
-            Vb = V_state[b, k]
+                for m in range(i, 15):
+                    Zc[i, m] += wj * Zg[i, m]
+        for i in range(15):
+            for m in range(i):
+                Zc[i, m] = Zc[m, i]
+        # Eigen-decomposition in the basis of the last frame's (nearly diagonal there: fewer sweeps).
+        Vb = V_state[b, k]
+        for i in range(4):
+            for m in range(4):
+                WV[i, m] = Mc[i, 0] * Vb[0, m] + Mc[i, 1] * Vb[1, m] + Mc[i, 2] * Vb[2, m] + Mc[i, 3] * Vb[3, m]
+        for i in range(4):
+            for m in range(4):
+                gram[i, m] = Vb[0, i] * WV[0, m] + Vb[1, i] * WV[1, m] + Vb[2, i] * WV[2, m] + Vb[3, i] * WV[3, m]
+        _eigh4(gram, w4, E4, a7)
+        for i in range(4):
+            for m in range(4):
+                newV[i, m] = Vb[i, 0] * E4[0, 3 - m] + Vb[i, 1] * E4[1, 3 - m] + Vb[i, 2] * E4[2, 3 - m] + Vb[i, 3] * E4[3, 3 - m]
+        for i in range(4):
+            S2_state[b, k, i] = w4[3 - i]
+        Vb[:, :] = newV
+    return rows, trows
+
+@_jit
+def _estimate(b, k, rows, trows, S2_state, V_state, Zc, refine, refine_steps, out_rotation, out_quaternion,
+              out_translation, out_scale, out_sv, out_observable, out_planar, out_axis, out_refined, S, qs, dR, P, p,
+              maps, Hn, gn, xn, x, axis, q_closed, x_closed, refine_work, Mc, w4, E4, w7, V7, a7):
+    """Camera k + 1's estimate from the combined statistics (solve.estimate): the rotation (through the translation
+    rows on planar motion), the translation and scale, and the joint refinement where asked."""
+    for i in range(4):
+        S[i] = math.sqrt(max(S2_state[b, k, i], 0.0))
+        out_sv[b, k, i] = S[i]
+    sign = 1.0 if V_state[b, k, 0, 3] >= 0 else -1.0
+    for i in range(4):
+        qs[i] = sign * V_state[b, k, i, 3]
+    _quat_to_rot(qs, dR)
+    planar = _excited(S, rows, 1, ROTATION_OBSERVABLE_SIGNIFICANCE) and not _excited(S, rows, 2, PLANAR_SIGNIFICANCE)
+    observable = _excited(S, rows, 2, ROTATION_OBSERVABLE_SIGNIFICANCE)
+    c = _quadratic(Zc, P, p)
+    axis[:] = 0.0
+    if planar:  # planar.planar_rotation: the rotation about the common axis from the translation rows
+        Vb = V_state[b, k]
+        v3w, v3x, v3y, v3z = Vb[0, 2], -Vb[1, 2], -Vb[2, 2], -Vb[3, 2]  # conj(v3)
+        v4w, v4x, v4y, v4z = Vb[0, 3], Vb[1, 3], Vb[2, 3], Vb[3, 3]
+        axis[0] = v4w * v3x + v4x * v3w + v4y * v3z - v4z * v3y
+        axis[1] = v4w * v3y - v4x * v3z + v4y * v3w + v4z * v3x
+        axis[2] = v4w * v3z + v4x * v3y - v4y * v3x + v4z * v3w
+        na = max(math.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2), 1e-300)
+        for i in range(3):
+            axis[i] /= na
+        for i in range(4):
+            w4[i] = Vb[i, 3]
+        _quat_to_rot(w4, E4)  # R4
+        for i in range(3):
+            for m in range(3):
+                acc0, acc1, acc2 = 0.0, 0.0, 0.0
+                for l in range(3):
+                    nil = axis[i] * axis[l]
+                    acc0 += nil * E4[l, m]
+                    acc1 += ((1.0 if i == l else 0.0) - nil) * E4[l, m]
+                # skew(n) row i
+                if i == 0:
+                    acc2 = -axis[2] * E4[1, m] + axis[1] * E4[2, m]
+                elif i == 1:
+                    acc2 = axis[2] * E4[0, m] - axis[0] * E4[2, m]
+                else:
+                    acc2 = -axis[1] * E4[0, m] + axis[0] * E4[1, m]
+                maps[0, i, m], maps[1, i, m], maps[2, i, m] = acc0, acc1, acc2
+        _normal_equations(P, p, maps, 3, Hn, gn)
+        _pinv_solve(Hn, gn, 6, xn, w7, V7, a7)
+        theta = math.atan2(xn[5], xn[4])
+        ct, st = math.cos(theta), math.sin(theta)
+        for i in range(3):
+            for m in range(3):
+                dR[i, m] = maps[0, i, m] + ct * maps[1, i, m] + st * maps[2, i, m]
+        _rot_to_quat(dR, qs)
+    maps[0] = dR
+    _normal_equations(P, p, maps, 1, Hn, gn)
+    _spd_solve(Hn, gn, 4, x, w7, V7, a7)
+    refined = False
+    if refine > 0 and refine_steps > 0:
+        active = _excited(S, rows, 1, ROTATION_OBSERVABLE_SIGNIFICANCE) and not planar and trows >= 3
+        if refine == 2:
+            active = active and not observable
+        if active:
             for i in range(4):
                 for m in range(4):
-                    WV[i, m] = Mc[i, 0] * Vb[0, m] + Mc[i, 1] * Vb[1, m] + Mc[i, 2] * Vb[2, m] + Mc[i, 3] * Vb[3, m]
-            for i in range(4):
-                for m in range(4):
-                    gram[i, m] = Vb[0, i] * WV[0, m] + Vb[1, i] * WV[1, m] + Vb[2, i] * WV[2, m] + Vb[3, i] * WV[3, m]
-            _eigh4(gram, w4, E4, a7)
-            for i in range(4):
-                for m in range(4):
-                    newV[i, m] = Vb[i, 0] * E4[0, 3 - m] + Vb[i, 1] * E4[1, 3 - m] + Vb[i, 2] * E4[2, 3 - m] + Vb[i, 3] * E4[3, 3 - m]
-            for i in range(4):
-                S2_state[b, k, i] = w4[3 - i]
-            Vb[:, :] = newV
+                    acc = 0.0
+                    for l in range(4):
+                        acc += V_state[b, k, i, l] * S2_state[b, k, l] * V_state[b, k, m, l]
+                    Mc[i, m] = acc
+            q_closed[:] = qs
+            x_closed[:] = x
+            refined = _joint_refine(Mc, P, p, c, q_closed, x_closed, rows, trows, refine_steps, qs, x, refine_work)
+            if refined:
+                _quat_to_rot(qs, dR)
+    along = axis[0] * x[0] + axis[1] * x[1] + axis[2] * x[2]
+    for i in range(3):
+        out_translation[b, k, i] = x[i] - axis[i] * along
+        out_axis[b, k, i] = axis[i]
+    out_scale[b, k] = x[3]
+    out_rotation[b, k] = dR
+    out_quaternion[b, k] = qs
+    out_observable[b, k] = observable
+    out_planar[b, k] = planar
+    out_refined[b, k] = refined
+
+@_jit
+def _rig_step(b, state, config, out, work):
+    """One frame of rig ``b``: ``state`` the head's buffers (updated), ``config`` its settings, ``out`` the
+    estimate's arrays (written); see :func:`step` for their order. ``work``: :func:`_workspace`."""
+    (poses, history, history_valid, first, first_valid, gap_S2, gap_V, gap_rotation_rows, gap_Z,
+     gap_translation_rows, S2_state, V_state, rotation_rows_state, screw_scale, screw_count, frames_used,
+     frames_rejected) = state
+    (gaps, has_first, frame, symmetric, lam, min_rotation, screw_gate, screw_sigma, robust, pose_tolerance,
+     refine, refine_steps) = config
+    (out_rotation, out_quaternion, out_translation, out_scale, out_sv, out_observable, out_planar, out_axis,
+     out_Z, out_translation_rows, out_refined) = out  # fmt: skip
+    (pose, valid, motion, prev_valid, prev, quat, angle, A, WV, gram, w4, E4, a7, V7, w7, newV, z, pair_ok, gw, Mc, S, qs, dR, P, p, maps, Hn, gn, xn, x, axis, q_closed, x_closed, refine_work) = work  # fmt: skip
+    C = poses.shape[1]
+    n_pairs = gaps.shape[0] + (1 if has_first else 0)
+    _read_poses(poses, b, pose, valid, pose_tolerance)
+    _motion_pairs(b, pose, valid, history, history_valid, first, first_valid, gaps, has_first, frame, motion, prev,
+                  prev_valid, quat, angle)
+    for k in range(C - 1):
+        used = _screw_gate(b, k, n_pairs, valid, prev_valid, angle, screw_scale, screw_count, screw_sigma, screw_gate,
+                           pair_ok)
+        _update_gaps(b, k, n_pairs, quat, angle, motion, pair_ok, S2_state, V_state, rotation_rows_state, gap_S2,
+                     gap_V, gap_rotation_rows, gap_Z, gap_translation_rows, lam, min_rotation, robust, symmetric, S, qs,
+                     A, WV, gram, w4, E4, a7, newV, z)
+        rows, trows = _combine_gaps(b, k, n_pairs, gap_S2, gap_V, gap_rotation_rows, gap_Z, gap_translation_rows,
+                                    S2_state, V_state, out_Z[b, k], gw, Mc, WV, gram, w4, E4, a7, newV)
         rotation_rows_state[b, k] = rows
         out_translation_rows[b, k] = trows
-
-        # The estimate (solve.estimate).
-        for i in range(4):
-            S[i] = math.sqrt(max(S2_state[b, k, i], 0.0))
-            out_sv[b, k, i] = S[i]
-        sign = 1.0 if V_state[b, k, 0, 3] >= 0 else -1.0
-        for i in range(4):
-            qs[i] = sign * V_state[b, k, i, 3]
-        _quat_to_rot(qs, dR)
-        planar = _excited(S, rows, 1, ROTATION_OBSERVABLE_SIGNIFICANCE) and not _excited(S, rows, 2, PLANAR_SIGNIFICANCE)
-        observable = _excited(S, rows, 2, ROTATION_OBSERVABLE_SIGNIFICANCE)
-        c = _quadratic(Zc, P, p)
-        axis[:] = 0.0
-        if planar:  # planar.planar_rotation: the rotation about the common axis from the translation rows
-            Vb = V_state[b, k]
-            v3w, v3x, v3y, v3z = Vb[0, 2], -Vb[1, 2], -Vb[2, 2], -Vb[3, 2]  # conj(v3)
-            v4w, v4x, v4y, v4z = Vb[0, 3], Vb[1, 3], Vb[2, 3], Vb[3, 3]
-            axis[0] = v4w * v3x + v4x * v3w + v4y * v3z - v4z * v3y
-            axis[1] = v4w * v3y - v4x * v3z + v4y * v3w + v4z * v3x
-            axis[2] = v4w * v3z + v4x * v3y - v4y * v3x + v4z * v3w
-            na = max(math.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2), 1e-300)
-            for i in range(3):
-                axis[i] /= na
-            for i in range(4):
-                w4[i] = Vb[i, 3]
-            _quat_to_rot(w4, E4)  # R4
-            for i in range(3):
-                for m in range(3):
-                    acc0, acc1, acc2 = 0.0, 0.0, 0.0
-                    for l in range(3):
-                        nil = axis[i] * axis[l]
-                        acc0 += nil * E4[l, m]
-                        acc1 += ((1.0 if i == l else 0.0) - nil) * E4[l, m]
-                    # skew(n) row i
-                    if i == 0:
-                        acc2 = -axis[2] * E4[1, m] + axis[1] * E4[2, m]
-                    elif i == 1:
-                        acc2 = axis[2] * E4[0, m] - axis[0] * E4[2, m]
-                    else:
-                        acc2 = -axis[1] * E4[0, m] + axis[0] * E4[1, m]
-                    maps[0, i, m], maps[1, i, m], maps[2, i, m] = acc0, acc1, acc2
-            _normal_equations(P, p, maps, 3, Hn, gn)
-            _pinv_solve(Hn, gn, 6, xn, w7, V7, a7)
-            theta = math.atan2(xn[5], xn[4])
-            ct, st = math.cos(theta), math.sin(theta)
-            for i in range(3):
-                for m in range(3):
-                    dR[i, m] = maps[0, i, m] + ct * maps[1, i, m] + st * maps[2, i, m]
-            _rot_to_quat(dR, qs)
-        maps[0] = dR
-        _normal_equations(P, p, maps, 1, Hn, gn)
-        _spd_solve(Hn, gn, 4, x, w7, V7, a7)
-        refined = False
-        if refine > 0 and refine_steps > 0:
-            active = _excited(S, rows, 1, ROTATION_OBSERVABLE_SIGNIFICANCE) and not planar and trows >= 3
-            if refine == 2:
-                active = active and not observable
-            if active:
-                for i in range(4):
-                    for m in range(4):
-                        acc = 0.0
-                        for l in range(4):
-                            acc += V_state[b, k, i, l] * S2_state[b, k, l] * V_state[b, k, m, l]
-                        Mc[i, m] = acc
-                q_closed[:] = qs
-                x_closed[:] = x
-                refined = _joint_refine(Mc, P, p, c, q_closed, x_closed, rows, trows, refine_steps, qs, x, refine_work)
-                if refined:
-                    _quat_to_rot(qs, dR)
-        along = axis[0] * x[0] + axis[1] * x[1] + axis[2] * x[2]
-        for i in range(3):
-            out_translation[b, k, i] = x[i] - axis[i] * along
-            out_axis[b, k, i] = axis[i]
-        out_scale[b, k] = x[3]
-        out_rotation[b, k] = dR
-        out_quaternion[b, k] = qs
-        out_observable[b, k] = observable
-        out_planar[b, k] = planar
-        out_refined[b, k] = refined
+        _estimate(b, k, rows, trows, S2_state, V_state, out_Z[b, k], refine, refine_steps, out_rotation,
+                  out_quaternion, out_translation, out_scale, out_sv, out_observable, out_planar, out_axis,
+                  out_refined, S, qs, dR, P, p, maps, Hn, gn, xn, x, axis, q_closed, x_closed, refine_work, Mc, w4,
+                  E4, w7, V7, a7)
         frames_used[b, k] += 1 if used else 0
         frames_rejected[b, k] += 1 if (not used and frame > 0) else 0
 
-    slot = frame % H_size
+    slot = frame % history.shape[2]
     for cam in range(C):
         history[b, cam, slot] = pose[cam]
         history_valid[b, cam, slot] = valid[cam]
