@@ -27,15 +27,19 @@ from ocalib.data.layout import open_sequence
 from ocalib.sim.trajectory import add_noise
 from ocalib.synth import preset, render_sequence
 
-DEFAULT = {"handheld-1001": ("handheld", 1001), "front-left-1002": ("front-left", 1002)}
+DEFAULT = ["handheld-1001", "front-left-1002"]  # the README's twelve: handheld-1001 ... 1009 (odd), front-left-1002 ... 1014 (even)
 NOISE = (0.002, 0.005)
 
 
 def ensure(root: Path, name: str, frames: int) -> Path:
-    path = root / name
+    """The sequence folder ``name`` (a path, or a name under ``root``); a missing one named PRESET-SEED (a held-out
+    seed, >= 1000) is rendered there first, at 128x416."""
+    path = Path(name) if Path(name).exists() or Path(name).parent != Path(".") else root / name
     if not (path / "rig.yaml").exists():
-        kind, seed = DEFAULT[name]
-        render_sequence(preset(kind).with_overrides(frames=frames, seed=seed, height=128, width=416), path,
+        kind, _, seed = path.name.rpartition("-")
+        if not seed.isdigit():
+            raise SystemExit(f"{name}: no sequence there, and its name is not PRESET-SEED (e.g. front-left-1008)")
+        render_sequence(preset(kind).with_overrides(frames=frames, seed=int(seed), height=128, width=416), path,
                         workers=2)
     return path
 
@@ -62,7 +66,8 @@ def row(errors: list[dict], seconds: float, frames: int) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
-    p.add_argument("--sequences", nargs="+", default=list(DEFAULT))
+    p.add_argument("--sequences", nargs="+", default=DEFAULT,
+                   help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing")
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--checkpoint")
     p.add_argument("--skip-opencv", action="store_true")
@@ -71,7 +76,7 @@ def main() -> None:
     args = p.parse_args()
     results = {}
     for name in args.sequences:
-        path = ensure(Path(args.root), name, args.frames) if name in DEFAULT else Path(name)
+        path = ensure(Path(args.root), name, args.frames)
         res = results[path.name] = {}
         runs = [(f"network ({scale})", dict(frontend="network", scale=scale, align=False)) for scale in ("head", "normalise")]
         if not args.skip_align:
