@@ -38,8 +38,9 @@ def ensure(root: Path, name: str, frames: int) -> Path:
     path = Path(name) if Path(name).exists() or Path(name).parent != Path(".") else root / name
     if not (path / "rig.yaml").exists():
         kind, _, seed = path.name.rpartition("-")
-        if not seed.isdigit():
-            raise SystemExit(f"{name}: no sequence there, and its name is not PRESET-SEED (e.g. front-left-1008)")
+        if not seed.isdigit() or int(seed) < 1000:
+            raise SystemExit(f"{name}: no sequence there, and its name is not PRESET-SEED with a held-out seed "
+                             "(>= 1000; lower seeds are training worlds), e.g. front-left-1008")
         render_sequence(preset(kind).with_overrides(frames=frames, seed=int(seed), height=128, width=416), path,
                         workers=2)
     return path
