@@ -2,7 +2,7 @@
 
 For each sequence (rendered by ``ocalib synth`` with a seed never used in training; rendered here when
 missing), calibrates camera 1 against camera 0 with: the pose network (``--checkpoint``, default the
-shipped one, with each ``--scale`` mode, and with ``--align``), OpenCV monocular VO, and the true poses with VO-like drift noise
+shipped one, with each ``--scale`` mode, and with ``--align`` with and without ``--rig-align``), OpenCV monocular VO, and the true poses with VO-like drift noise
 of a few sizes (the reference of what the head makes of a front end of known quality). Reports the final
 rotation error, translation direction error (in the ground plane on planar motion) and translation error
 relative to the baseline after scaling camera 0's trajectory to metres. Prints a table, writes JSON.
@@ -83,6 +83,8 @@ def main() -> None:
         runs = [(f"network ({scale})", dict(frontend="network", scale=scale, align=False)) for scale in ("head", "normalise")]
         if not args.skip_align:
             runs.append(("network (normalise), aligned", dict(frontend="network", scale="normalise", align=True)))
+            runs.append(("network (normalise), aligned, no rig", dict(frontend="network", scale="normalise", align=True,
+                                                                      rig_align=False)))
         if not args.skip_opencv:
             runs.append(("opencv", dict(frontend="opencv")))
         for label, kw in runs:

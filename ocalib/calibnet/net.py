@@ -18,7 +18,7 @@ from torch import Tensor, nn
 
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.result import Calibration
-from ocalib.frontend.align import StreamAligner
+from ocalib.frontend.align import StreamAligner, align_translation
 from ocalib.geometry.pose import invert_pose
 
 SCALE_MODES = ("head", "normalise")
@@ -40,17 +40,25 @@ class OnlineCalibrationNet(nn.Module):
             previous frame, started from the network's motion and from the camera's previous refined motion
             (:class:`~ocalib.frontend.align.StreamAligner`; accepted corrections counted in ``aligned``); rotation
             and translation both (README, issue 5).
+        rig_align: with ``align``, re-align the translation of every camera k >= 1 with its rotation held to the
+            rig's, R_X^T R_0 R_X (R_0: camera 0's refined rotation, R_X: the head's estimate of the previous frame),
+            and the depth's inverse tilt solved with it (:func:`~ocalib.frontend.align.align_translation`). The
+            head still gets camera k's own refined rotation, so its rotation rows stay independent of R_X; on
+            planar motion R_X^T R_0 R_X does not depend on the unobservable yaw. Measured on the held-out cars
+            (README, issue 5).
         head_options: passed to :class:`OnlineCalibrator` (``motion``, ``solver``, ``forgetting``, ...).
     """
 
     def __init__(self, model: nn.Module, num_cameras: int = 2, batch_size: int = 1, scale: str = "head",
-                 scale_momentum: float = 0.95, intrinsics: Tensor | None = None, align: bool = False, **head_options):
+                 scale_momentum: float = 0.95, intrinsics: Tensor | None = None, align: bool = False,
+                 rig_align: bool = True, **head_options):
         super().__init__()
         if scale not in SCALE_MODES:
             raise ValueError(f"scale must be one of {SCALE_MODES}, got {scale!r}")
         if align and intrinsics is None:
             raise ValueError("align needs the cameras' intrinsics at the model's resolution")
         self.model, self.scale, self.scale_momentum, self.align = model, scale, scale_momentum, align
+        self.rig_align = align and rig_align and num_cameras > 1
         if intrinsics is not None:
             intrinsics = torch.as_tensor(intrinsics, dtype=torch.float32)
             if intrinsics.shape not in ((num_cameras, 3, 3), (batch_size, num_cameras, 3, 3)):
@@ -75,6 +83,7 @@ class OnlineCalibrationNet(nn.Module):
         self.register_buffer("trajectory", torch.eye(4, **f).expand(B, C, 4, 4).clone())
         self.register_buffer("step_length", torch.zeros(B, C, **f))
         self.register_buffer("aligned", torch.zeros(B, C, dtype=torch.long, device=f["device"]))
+        self.register_buffer("rig_rotation", torch.eye(3, **f).expand(B, C - 1, 3, 3).clone())  # the head's R_X
 
     def forward(self, images: Tensor) -> Calibration:
         """Consume one frame. images: (B, C, 3, H, W) or (C, 3, H, W) in [0, 1], at the model's resolution
@@ -95,7 +104,9 @@ class OnlineCalibrationNet(nn.Module):
         self.trajectory = self.trajectory @ step
         self.previous = images.detach()
         self.started = torch.ones_like(self.started)
-        return self.head(self.trajectory)
+        estimate = self.head(self.trajectory)
+        self.rig_rotation = estimate.rotation.detach()
+        return estimate
 
     def _align(self, previous: Tensor, images: Tensor, step: Tensor) -> Tensor:
         """``step`` (B, C, 4, 4) = ``T_prev_cur`` refined photometrically on the previous frames' depth."""
@@ -103,7 +114,22 @@ class OnlineCalibrationNet(nn.Module):
         depth = self.model.depth(previous)
         T, accepted = self.aligner(previous, images, depth, K, invert_pose(step.flatten(0, 1)))
         self.aligned = self.aligned + (accepted.view_as(self.aligned) & self.started[..., 0, 0])
-        return invert_pose(T).view_as(step)
+        step = invert_pose(T).view_as(step)
+        return self._rig_align(previous, images, depth, K, step) if self.rig_align else step
+
+    def _rig_align(self, previous: Tensor, images: Tensor, depth: Tensor, K: Tensor, step: Tensor) -> Tensor:
+        """``step`` (B, C, 4, 4) with the translation of cameras k >= 1 re-aligned under the rig's rotation
+        R_X^T R_0 R_X; their own rotations are kept."""
+        B, C = self.batch_size, self.num_cameras
+        others = lambda x: x.view(B, C, *x.shape[1:])[:, 1:].flatten(0, 1)
+        R = self.rig_rotation.to(step.dtype)
+        start = step[:, 1:].clone()
+        start[..., :3, :3] = R.transpose(-1, -2) @ step[:, :1, :3, :3] @ R
+        T, _ = align_translation(others(previous), others(images), others(depth), others(K),
+                                 invert_pose(start.flatten(0, 1)))
+        out = step.clone()
+        out[:, 1:, :3, 3] = invert_pose(T).view_as(start)[..., :3, 3]
+        return out
 
     def _normalise(self, step: Tensor) -> Tensor:
         """Express each step's translation in units of that camera's running mean step length."""

@@ -70,6 +70,7 @@ def calibrate_sequence(
     max_frames: int | None = None,
     intrinsics: str | None = None,
     align: bool | None = None,
+    rig_align: bool = True,
     progress: bool | None = None,
     on_frame=None,
 ) -> ImageCalibration:
@@ -81,7 +82,9 @@ def calibrate_sequence(
     :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet` (the default,
     ``normalise``, was measured better on the held-out rigs: README, issue 5). align: refine the network's motions
     by direct photometric alignment (:class:`~ocalib.frontend.align.StreamAligner`; None: with the
-    network front end, measured better on every held-out rig: README, issue 5). max_frames: use only the first
+    network front end, measured better on every held-out rig: README, issue 5). rig_align: with ``align``, camera
+    k's translation is re-aligned under the rig's rotation (:class:`OnlineCalibrationNet`; measured better on the
+    held-out cars: README, issue 5). max_frames: use only the first
     frames. on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the
     current estimate (None: on a terminal).
     """
@@ -106,7 +109,7 @@ def calibrate_sequence(
         frames_in = FrameImages(sequence, views)
         net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting,
                                    refine=refine, scale=scale, intrinsics=np.stack([v.K for v in views]),
-                                   align=align).to(device)
+                                   align=align, rig_align=rig_align).to(device)
         step = _network_step(net, device)
     else:
         frames_in = RigStream(sequence, size=sequence.cameras[0].size)
@@ -121,7 +124,7 @@ def calibrate_sequence(
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
     settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
-                "align": align, "motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine,
+                "align": align, "rig_align": bool(align and rig_align), "motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine,
                 "scale": scale, "frames": frames, "max_dt": None, "sequence": str(path)}
     if align:  # motions whose photometric correction was accepted, per camera (frame 0 has none)
         settings["aligned_frames"] = dict(zip(sequence.names, net.aligned[0].tolist()))

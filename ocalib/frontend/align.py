@@ -43,6 +43,7 @@ GN_ITERATIONS = (5, 5, 5)  # Gauss-Newton steps at a quarter, half, then full re
 HUBER = 0.05  # grey levels: residuals beyond it are down-weighted
 DAMPING = 1e-3  # Levenberg damping, relative to the normal matrix's diagonal
 MAX_ROTATION_DEG = 2.0  # largest accepted rotation correction (the network's per-frame errors stay below ~2.5 deg)
+MAX_TILT = (0.2, 0.3)  # largest inverse-depth tilt (a, b) of align_translation (measured on the network's depth: ~0.05)
 
 
 def photometric_cost(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor) -> Tensor:
@@ -65,14 +66,7 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     input resolution, coarsest first). Each of the B problems is solved on its own, all in one batch; gradients
     flow to ``T_source_target`` through the correction held fixed.
     """
-    B = target.shape[0]
-    if not (target.dim() == 4 and target.shape == source.shape and depth.shape == (B, 1, *target.shape[2:])
-            and K.shape == (B, 3, 3) and T_source_target.shape == (B, 4, 4)
-            and (prior is None or prior.shape == (B, 4, 4))):
-        raise ValueError(f"align_motion: expected target and source (B, C, H, W), depth (B, 1, H, W), K (B, 3, 3), "
-                         f"T_source_target and prior (B, 4, 4), got {tuple(target.shape)}, {tuple(source.shape)}, "
-                         f"{tuple(depth.shape)}, {tuple(K.shape)}, {tuple(T_source_target.shape)}, "
-                         f"{None if prior is None else tuple(prior.shape)}")
+    _check_shapes(target, source, depth, K, T_source_target, prior)
     with torch.no_grad():
         start = T_source_target.detach().float()
         starts = [start] if prior is None else [start, prior.detach().float()]
@@ -85,43 +79,89 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     return correction @ T_source_target, accepted
 
 
+def align_translation(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor,
+                      iterations: tuple[int, ...] = GN_ITERATIONS) -> tuple[Tensor, Tensor]:
+    """Refine only the translation of ``T_source_target`` (B, 4, 4), its rotation held; returns the motions
+    (B, 4, 4), in the input's dtype, and ``accepted`` (B,) bool (False: the input motion is returned).
+
+    For a camera whose rotation is known better from elsewhere: on a rig, camera k turns by R_X^T R_0 R_X when
+    camera 0 turns by R_0 (:class:`~ocalib.calibnet.OnlineCalibrationNet`). A camera moving sideways trades its
+    lateral translation for a rotation about its vertical axis, and the network's depth (whose error grows across
+    the image, ~13 % from edge to edge on the car's left camera) biases that trade; with the rotation held the
+    translation is left, and the depth's error across the image is solved with it as a tilt of the inverse depth,
+    rho' = rho (1 + a x + b y) (x, y: normalised image coordinates, |a|, |b| <= :data:`MAX_TILT`). Measured on
+    the held-out cars: README, issue 5. Gradients flow to ``T_source_target`` through the correction held fixed.
+    """
+    _check_shapes(target, source, depth, K, T_source_target, None)
+    with torch.no_grad():
+        start = T_source_target.detach().float()
+        refined, improved = _coarse_to_fine(target, source, depth, K, [start], iterations, translation_only=True)
+        correction = refined @ invert_pose(start)
+        correction[:, :3, :3] = torch.eye(3, device=start.device)  # exactly a translation
+        accepted = improved & torch.isfinite(correction).all((1, 2))
+        eye = torch.eye(4, dtype=correction.dtype, device=correction.device)
+        correction = torch.where(accepted[:, None, None], correction, eye).to(T_source_target.dtype)
+    return correction @ T_source_target, accepted
+
+
+def _check_shapes(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T: Tensor, prior: Tensor | None) -> None:
+    B = target.shape[0]
+    if not (target.dim() == 4 and target.shape == source.shape and depth.shape == (B, 1, *target.shape[2:])
+            and K.shape == (B, 3, 3) and T.shape == (B, 4, 4) and (prior is None or prior.shape == (B, 4, 4))):
+        raise ValueError(f"align: expected target and source (B, C, H, W), depth (B, 1, H, W), K (B, 3, 3), "
+                         f"T_source_target and prior (B, 4, 4), got {tuple(target.shape)}, {tuple(source.shape)}, "
+                         f"{tuple(depth.shape)}, {tuple(K.shape)}, {tuple(T.shape)}, "
+                         f"{None if prior is None else tuple(prior.shape)}")
+
+
 def _coarse_to_fine(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, starts: list[Tensor],
-                    iterations: tuple[int, ...], huber: float = HUBER, damping: float = DAMPING) -> tuple[Tensor, Tensor]:
+                    iterations: tuple[int, ...], translation_only: bool = False, huber: float = HUBER,
+                    damping: float = DAMPING) -> tuple[Tensor, Tensor]:
     """Gauss-Newton over the pyramid from each of the ``starts`` (B, 4, 4) (the first: the input motion) ->
     the motion of lowest residual at full resolution (B, 4, 4) float32 and whether it beats the input's (B,) bool.
 
     Every start descends the coarse levels (in one batch); at full resolution the best of them and the input
-    compete, and only the winner is refined further."""
+    compete, and only the winner is refined further. ``translation_only``: the rotation is held and the depth's
+    inverse tilt is solved with the translation (:func:`align_translation`)."""
     target, source = (x.detach().float().mean(1, keepdim=True) for x in (target, source))  # grey
     depth, K = depth.detach().float(), K.detach().float()
     H, W, S = *target.shape[-2:], len(starts)
     T = torch.cat(starts)  # (S B, 4, 4)
+    tilt = T.new_zeros(T.shape[0], 2)
+    options = (translation_only, huber, damping)
     for level in reversed(range(1, len(iterations))):
         size = (max(1, H >> level), max(1, W >> level))
         pyramid = [F.interpolate(x, size, mode="area") for x in (target, source)]
         pyramid.append(1 / F.interpolate(1 / depth.clamp(min=MIN_Z), size, mode="area"))
         pyramid.append(resize_intrinsics(K, (H, W), size))
         pyramid = [x.repeat(S, *[1] * (x.dim() - 1)) for x in pyramid]
-        T, _ = _gauss_newton(*pyramid, [T], iterations[len(iterations) - 1 - level], huber, damping)
-    T, best = _gauss_newton(target, source, depth, K, [starts[0], *T.chunk(S)], iterations[-1], huber, damping)
+        T, tilt, _ = _gauss_newton(*pyramid, [(T, tilt)], iterations[len(iterations) - 1 - level], *options)
+    candidates = [(starts[0], starts[0].new_zeros(len(starts[0]), 2)), *zip(T.chunk(S), tilt.chunk(S))]
+    T, _, best = _gauss_newton(target, source, depth, K, candidates, iterations[-1], *options)
     return T, best > 0
 
 
-def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, candidates: list[Tensor],
-                  iterations: int, huber: float, damping: float) -> tuple[Tensor, Tensor]:
-    """Gauss-Newton from the best of the ``candidates`` -> the motion (B, 4, 4) of lowest mean absolute residual
-    among the candidates and the iterates, and its index (B,) in that order (0: the first candidate)."""
+def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, candidates: list[tuple[Tensor, Tensor]],
+                  iterations: int, translation_only: bool, huber: float,
+                  damping: float) -> tuple[Tensor, Tensor, Tensor]:
+    """Gauss-Newton from the best of the ``candidates`` (motion (B, 4, 4), inverse-depth tilt (B, 2)) -> the
+    motion and tilt of lowest mean absolute residual among the candidates and the iterates, and its index (B,) in
+    that order (0: the first candidate). ``translation_only``: the unknowns are the translation and the tilt."""
     B, C, H, W = target.shape
     points = depth_to_3d_v2(depth[:, 0], K).reshape(B, -1, 3)  # target camera
+    ray = points[..., :2] / points[..., 2:].clamp(min=MIN_Z)  # (B, N, 2) normalised image coordinates
+    max_tilt = torch.tensor(MAX_TILT, device=target.device)
     # source intensity, then its derivatives along u and along v (per pixel), sampled together
     stacked = torch.cat([source, spatial_gradient(source, normalized=True).transpose(1, 2).flatten(1, 2)], 1)
     fx, fy, cx, cy = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 2, None], K[:, 1, 2, None]
-    best, best_cost = candidates[-1], torch.full((B,), math.inf, device=target.device)
+    (best, best_tilt), best_cost = candidates[-1], torch.full((B,), math.inf, device=target.device)
     index = torch.zeros(B, dtype=torch.long, device=target.device)
     queue, evaluations = list(candidates), len(candidates) + (len(candidates) > 1) + iterations
     for it in range(evaluations):
-        T = queue.pop(0)
-        X = points @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]  # (B, N, 3) in the source camera
+        T, tilt = queue.pop(0)
+        factor = (1 + (ray * tilt[:, None]).sum(-1, keepdim=True)).clamp(min=0.2)  # (B, N, 1): rho' / rho
+        tilted = points / factor if translation_only else points
+        X = tilted @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]  # (B, N, 3) in the source camera
         z = X[..., 2].clamp(min=MIN_Z)
         u, v = fx * X[..., 0] / z + cx, fy * X[..., 1] / z + cy
         grid = torch.stack([2 * u / max(W - 1, 1) - 1, 2 * v / max(H - 1, 1) - 1], -1)
@@ -131,12 +171,13 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         cost = r.abs().sum((1, 2)) / (valid.sum(1) * C).clamp(min=1)
         improved = cost < best_cost
         best = torch.where(improved[:, None, None], T, best)
+        best_tilt = torch.where(improved[:, None], tilt, best_tilt)
         best_cost = torch.where(improved, cost, best_cost)
         index = torch.where(improved, it, index)
         if queue or it == evaluations - 1:
             continue
         if it == len(candidates) - 1 and len(candidates) > 1:  # descend from the best candidate
-            queue.append(best)
+            queue.append((best, best_tilt))
             continue
         x, y, iz = X[..., 0], X[..., 1], 1 / z
         gu, gv = sampled[:, C : 2 * C] * fx[:, None], sampled[:, 2 * C :] * fy[:, None]  # per unit of x/z, y/z
@@ -144,15 +185,22 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         zero = torch.zeros_like(z)
         du = torch.stack([-x * y * iz, z + x * x * iz, -y, z * iz, zero, -x * iz], -1) * iz[..., None]
         dv = torch.stack([-(z + y * y * iz), x * y * iz, x, zero, z * iz, -y * iz], -1) * iz[..., None]
-        J = (gu[..., None] * du[:, None] + gv[..., None] * dv[:, None]).flatten(1, 2)  # (B, C N, 6)
+        J = gu[..., None] * du[:, None] + gv[..., None] * dv[:, None]  # (B, C, N, 6)
+        if translation_only:  # d(u, v)/d(tilt) = (d(u, v)/dt . t) (x, y) / factor
+            J = J[..., 3:]
+            J = torch.cat([J, (J @ T[:, None, :3, 3:]) / factor[:, None] * ray[:, None]], -1)
+        J = J.flatten(1, 2)  # (B, C N, 6 or 5)
         w = ((huber / r.abs().clamp(min=huber)) * valid[:, None]).flatten(1)[..., None]  # Huber weights
         A = (J * w).transpose(1, 2) @ J  # (B, 6, 6)
         g = (J * w).transpose(1, 2) @ r.flatten(1)[..., None]
-        A = A + damping * torch.diag_embed(A.diagonal(dim1=1, dim2=2)) + 1e-9 * torch.eye(6, device=A.device)
+        A = A + damping * torch.diag_embed(A.diagonal(dim1=1, dim2=2)) + 1e-9 * torch.eye(A.shape[-1], device=A.device)
         step = -torch.linalg.solve(A, g)[..., 0]
         step = torch.where(torch.isfinite(step).all(-1, keepdim=True), step, torch.zeros_like(step))
-        queue.append(motion_to_pose(step) @ T)
-    return best, index
+        if translation_only:
+            tilt = torch.maximum(torch.minimum(tilt + step[:, 3:], max_tilt), -max_tilt)
+            step = F.pad(step[:, :3], (3, 0))
+        queue.append((motion_to_pose(step) @ T, tilt))
+    return best, best_tilt, index
 
 
 class StreamAligner(torch.nn.Module):
