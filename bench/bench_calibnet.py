@@ -2,7 +2,7 @@
 
 Measures, side by side in one run, the median wall time per frame of: the whole graph
 (:class:`OnlineCalibrationNet`) without and with photometric alignment (``align``, the default of
-``ocalib calibrate``), the pose network alone on the same (previous, current) batch, and the head alone, for a
+``ocalib calibrate``; with and without ``rig_align``), the pose network alone on the same (previous, current) batch, and the head alone, for a
 rig of C cameras at the model's resolution, on a rendered handheld sequence; frames per second follow. CPU always; CUDA
 when available. Prints a table and writes ``bench/results/calibnet.json``.
 
@@ -48,6 +48,7 @@ def bench(model: EgoMotionModel, device: torch.device, cameras: int, frames: int
     K = torch.from_numpy(np.stack([seq.rig.cameras[c].K for c in pick])).float()
     net = OnlineCalibrationNet(model, cameras).to(device)
     aligned = OnlineCalibrationNet(model, cameras, intrinsics=K, align=True).to(device)
+    camera_only = OnlineCalibrationNet(model, cameras, intrinsics=K, align=True, rig_align=False).to(device)
     head = OnlineCalibrator(cameras, device=device)
     poses = torch.eye(4, dtype=torch.float64, device=device).repeat(frames + warmup, cameras, 1, 1)
     poses[:, :, :3, 3] = torch.randn(frames + warmup, cameras, 3, dtype=torch.float64, device=device).cumsum(0)
@@ -55,6 +56,7 @@ def bench(model: EgoMotionModel, device: torch.device, cameras: int, frames: int
         cases = {
             "whole graph": lambda t: net(images[t]),
             "aligned graph": lambda t: aligned(images[t]),
+            "aligned graph, no rig": lambda t: camera_only(images[t]),
             "pose network": lambda t: model.pose(images[t - 1], images[t]),
             "head": lambda t: head(poses[t]),
         }
