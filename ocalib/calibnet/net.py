@@ -22,6 +22,7 @@ from ocalib.frontend.align import StreamAligner, align_translation
 from ocalib.geometry.pose import invert_pose
 
 SCALE_MODES = ("head", "normalise")
+RIG_ITERATIONS = (3, 3)  # rig-held alignment: Gauss-Newton steps at half, then full resolution (measured: as (5, 5, 5), half the time)
 
 
 class OnlineCalibrationNet(nn.Module):
@@ -126,7 +127,7 @@ class OnlineCalibrationNet(nn.Module):
         start = step[:, 1:].clone()
         start[..., :3, :3] = R.transpose(-1, -2) @ step[:, :1, :3, :3] @ R
         T, _ = align_translation(others(previous), others(images), others(depth), others(K),
-                                 invert_pose(start.flatten(0, 1)))
+                                 invert_pose(start.flatten(0, 1)), RIG_ITERATIONS)
         out = step.clone()
         out[:, 1:, :3, 3] = invert_pose(T).view_as(start)[..., :3, 3]
         return out

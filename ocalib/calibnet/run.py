@@ -35,8 +35,8 @@ FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 # The rotation on planar (car-like) motion, six held-out cars (README, issue 5, session 14): network front end
 # 0.61-6.58 deg (one car within 2 deg), OpenCV VO 0.52-2.49 (five within 2 deg).
-PLANAR_ADVICE = ("planar motion with the network front end: on six held-out cars its rotation was 0.8-2.1 deg off, "
-                 "OpenCV VO's 0.5-2.5, lower on four of the six (README, issue 5); --frontend opencv is worth a try")
+PLANAR_ADVICE = ("planar motion with the network front end: on six held-out cars its rotation was 0.8-2.2 deg off, "
+                 "OpenCV VO's 0.5-2.5, lower on five of the six (README, issue 5); --frontend opencv is worth a try")
 ALIGNED_WARNING = 0.5  # share of frames with an accepted alignment below which a camera is reported (demo: 99-100 %)
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 

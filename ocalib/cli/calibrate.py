@@ -28,7 +28,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)")
     p.add_argument("--frontend", choices=("network", "opencv"), default="network",
                    help="ego-motion front end: the pose network (default) or OpenCV monocular VO (on six held-out "
-                   "cars 0.52-2.49 deg, the network 0.76-2.12, OpenCV lower on four; README, issue 5)")
+                   "cars 0.52-2.49 deg, the network 0.82-2.16, OpenCV lower on five; README, issue 5)")
     p.add_argument("--out", metavar="JSON", help="write the result JSON here")
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
@@ -54,7 +54,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--rig-align", action=argparse.BooleanOptionalAction, default=True,
                    help="with --align, re-align each camera k's translation with its rotation held to the rig's "
                    "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it (default: "
-                   "on five of six held-out cars the rotation error fell, from 2.8-6.6 to 0.76-2.12 deg; 20 %% more time a frame)")
+                   "on five of six held-out cars the rotation error fell, from 2.8-6.6 to 0.82-2.16 deg; 25 %% more time a frame)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     return p
