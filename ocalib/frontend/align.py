@@ -16,7 +16,8 @@ problem also starts from its previous refined motion (constant velocity): on a c
 translation is tens of degrees off, outside the basin (session 13: the median direction error there fell from 11
 to 7 deg). The iterations run on the input's device with no host synchronisation. :func:`align_translation`
 refines the translation alone, for a camera whose rotation is known from a rig's other camera, with the depth's
-error across the image solved as a tilt (session 15: the car's sideways camera's direction 7.3 -> 2.3 deg).
+error across the image solved as a tilt (session 15: the car's sideways camera's direction 5.5-8.2 -> 1.6-2.9 deg
+a frame).
 
 Convention: ``T_source_target`` (B, 4, 4) maps target-camera points into the source camera
 (``p_source = T p_target``); the correction is applied on the left, in the source camera's frame. Images
