@@ -120,7 +120,8 @@ class OnlineCalibrationNet(nn.Module):
 
     def _rig_align(self, previous: Tensor, images: Tensor, depth: Tensor, K: Tensor, step: Tensor) -> Tensor:
         """``step`` (B, C, 4, 4) with the translation of cameras k >= 1 re-aligned under the rig's rotation
-        R_X^T R_0 R_X; their own rotations are kept."""
+        R_X^T R_0 R_X; their own rotations are kept, and so is their translation where the result is not finite
+        (a non-finite motion or extrinsic)."""
         B, C = self.batch_size, self.num_cameras
         others = lambda x: x.view(B, C, *x.shape[1:])[:, 1:].flatten(0, 1)
         R = self.rig_rotation.to(step.dtype)
@@ -128,8 +129,9 @@ class OnlineCalibrationNet(nn.Module):
         start[..., :3, :3] = R.transpose(-1, -2) @ step[:, :1, :3, :3] @ R
         T, _ = align_translation(others(previous), others(images), others(depth), others(K),
                                  invert_pose(start.flatten(0, 1)), RIG_ITERATIONS)
+        translation = invert_pose(T).view_as(start)[..., :3, 3]
         out = step.clone()
-        out[:, 1:, :3, 3] = invert_pose(T).view_as(start)[..., :3, 3]
+        out[:, 1:, :3, 3] = torch.where(translation.isfinite().all(-1, keepdim=True), translation, step[:, 1:, :3, 3])
         return out
 
     def _normalise(self, step: Tensor) -> Tensor:

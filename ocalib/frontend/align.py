@@ -162,9 +162,9 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
     queue, evaluations = list(candidates), len(candidates) + (len(candidates) > 1) + iterations
     for it in range(evaluations):
         T, tilt = queue.pop(0)
-        factor = (1 + (ray * tilt[:, None]).sum(-1, keepdim=True)).clamp(min=0.2)  # (B, N, 1): rho' / rho
-        tilted = points / factor if translation_only else points
-        X = tilted @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]  # (B, N, 3) in the source camera
+        if translation_only:
+            factor = (1 + (ray * tilt[:, None]).sum(-1, keepdim=True)).clamp(min=0.2)  # (B, N, 1): rho' / rho
+        X = (points / factor if translation_only else points) @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]
         z = X[..., 2].clamp(min=MIN_Z)
         u, v = fx * X[..., 0] / z + cx, fy * X[..., 1] / z + cy
         grid = torch.stack([2 * u / max(W - 1, 1) - 1, 2 * v / max(H - 1, 1) - 1], -1)

@@ -230,7 +230,8 @@ def test_align_brings_a_biased_network_back_to_the_true_motion():
 def test_rig_align_gives_camera_k_the_translation_under_the_rigs_rotation():
     """Camera 1's motion is 0.8 deg and 3.7 cm off; with the true extrinsic as the head's estimate, its translation
     is re-aligned under the rig's rotation R_X^T R_0 R_X (camera 0's true) on the true depth and comes back to the
-    truth (within 30 % of the start's error), while its own rotation and camera 0's motion are kept as given."""
+    truth (within 30 % of the start's error), while its own rotation and camera 0's motion are kept as given; with a
+    non-finite extrinsic every motion is kept."""
     torch.set_num_threads(1)
     seq = render_rig(preset("handheld").with_overrides(frames=2, height=128, width=416))
     K = torch.from_numpy(np.stack([c.K for c in seq.rig.cameras])).float()
@@ -249,6 +250,8 @@ def test_rig_align_gives_camera_k_the_translation_under_the_rigs_rotation():
     torch.testing.assert_close(out[0, 1, :3, :3], step[0, 1, :3, :3], rtol=0, atol=0)
     error = lambda s: float((s[0, 1, :3, 3] - true[1, 0, :3, 3]).norm())
     assert error(out) < 0.3 * error(step)
+    net.rig_rotation = torch.full_like(net.rig_rotation, math.nan)  # a non-finite extrinsic: the motions are kept
+    assert torch.equal(net._rig_align(previous, images, model.depth(previous), net.intrinsics.flatten(0, 1), step), step)
 
 
 def test_state_dict_resumes_an_aligned_stream_mid_way():
