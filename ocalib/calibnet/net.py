@@ -22,7 +22,8 @@ from ocalib.frontend.align import StreamAligner, align_translation
 from ocalib.geometry.pose import invert_pose
 
 SCALE_MODES = ("head", "normalise")
-RIG_ITERATIONS = (3, 3)  # rig-held alignment: Gauss-Newton steps at half, then full resolution (measured: as (5, 5, 5), half the time)
+# rig-held alignment: Gauss-Newton steps at half, then full resolution (measured: as good as (5, 5, 5), half the time)
+RIG_ITERATIONS = (3, 3)
 
 
 class OnlineCalibrationNet(nn.Module):

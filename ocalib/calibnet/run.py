@@ -33,8 +33,8 @@ from ocalib.io.jsonable import finite_or_null
 
 FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
-# The rotation on planar (car-like) motion, six held-out cars (README, issue 5, session 14): network front end
-# 0.61-6.58 deg (one car within 2 deg), OpenCV VO 0.52-2.49 (five within 2 deg).
+# The rotation on planar (car-like) motion, six held-out cars (README, issue 5, session 15): network front end with
+# the rig-held alignment 0.82-2.16 deg, OpenCV VO 0.52-2.49 (five within 2 deg each; OpenCV lower on five).
 PLANAR_ADVICE = ("planar motion with the network front end: on six held-out cars its rotation was 0.8-2.2 deg off, "
                  "OpenCV VO's 0.5-2.5, lower on five of the six (README, issue 5); --frontend opencv is worth a try")
 ALIGNED_WARNING = 0.5  # share of frames with an accepted alignment below which a camera is reported (demo: 99-100 %)
@@ -124,8 +124,8 @@ def calibrate_sequence(
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
     settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
-                "align": align, "rig_align": bool(align and rig_align), "motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine,
-                "scale": scale, "frames": frames, "max_dt": None, "sequence": str(path)}
+                "align": align, "rig_align": bool(align and rig_align), "motion": motion, "solver": solver,
+                "forgetting": forgetting, "refine": refine, "scale": scale, "frames": frames, "max_dt": None, "sequence": str(path)}
     if align:  # motions whose photometric correction was accepted, per camera (frame 0 has none)
         settings["aligned_frames"] = dict(zip(sequence.names, net.aligned[0].tolist()))
     run = CalibrationRun(rig, final, trace, settings, [])

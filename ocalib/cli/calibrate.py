@@ -53,8 +53,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    "3.6-80; about 25 ms a camera and frame on 2 CPU cores)")
     p.add_argument("--rig-align", action=argparse.BooleanOptionalAction, default=True,
                    help="with --align, re-align each camera k's translation with its rotation held to the rig's "
-                   "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it (default: "
-                   "on five of six held-out cars the rotation error fell, from 2.8-6.6 to 0.82-2.16 deg; 25 %% more time a frame)")
+                   "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it "
+                   "(default: on five of six held-out cars the rotation error fell, from 2.8-6.6 to 0.82-2.16 deg; "
+                   "25 %% more time a frame)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     return p

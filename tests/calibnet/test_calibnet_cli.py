@@ -156,8 +156,8 @@ def test_demo_prints_the_estimate_beside_the_truth_and_its_warnings(tmp_path, ca
 
 @pytest.mark.parametrize("frontend", ["network", "opencv"])
 def test_planar_motion_with_the_network_advises_the_opencv_front_end(frontend):
-    """A car's drive is flagged planar by the head; the network front end then gets the measured advice (OpenCV VO
-    was better on five of six held-out cars, within 0.03 deg on the sixth), the OpenCV front end and non-planar
+    """A car's drive is flagged planar by the head; the network front end then gets the measured advice (OpenCV VO's
+    rotation was lower on five of six held-out cars), the OpenCV front end and non-planar
     motion do not."""
     from ocalib.calib.online import OnlineCalibrator
     from ocalib.calibnet.run import PLANAR_ADVICE, planar_advice
