@@ -74,6 +74,7 @@ def main() -> None:
     p.add_argument("--cameras", type=int, default=2)
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--devices", default="cpu,cuda", help="devices to time (cuda only when available)")
     p.add_argument("--out", default="bench/results/calibnet.json")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
@@ -83,7 +84,7 @@ def main() -> None:
         if args.checkpoint:
             raise
         model = EgoMotionModel("small")
-    devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
+    devices = [torch.device(d) for d in args.devices.split(",") if d != "cuda" or torch.cuda.is_available()]
     runs = [bench(model, d, args.cameras, args.frames) for d in devices]
     print(f"on-line calibration net, {args.cameras} cameras, model {model.size} at {model.height}x{model.width}, "
           f"{args.threads} CPU threads, median of {args.frames} frames")

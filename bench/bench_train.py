@@ -100,9 +100,10 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--steps", type=int, default=10)
     p.add_argument("--threads", default="1,2", help="torch intra-op thread counts to try")
+    p.add_argument("--devices", default="cpu,cuda", help="devices to time (cuda only when available)")
     p.add_argument("--out", default="bench/results/train.json")
     args = p.parse_args(argv)
-    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    devices = [d for d in args.devices.split(",") if d != "cuda" or torch.cuda.is_available()]
     rows = []
     for threads in [int(t) for t in args.threads.split(",")]:
         torch.set_num_threads(threads)

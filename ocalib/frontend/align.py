@@ -70,7 +70,7 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     flow to ``T_source_target`` through the correction held fixed.
     """
     _check_shapes(target, source, depth, K, T_source_target, prior)
-    with torch.no_grad():
+    with torch.no_grad(), torch.autocast(target.device.type, enabled=False):  # float32 under mixed precision too
         start = T_source_target.detach().float()
         starts = [start] if prior is None else [start, prior.detach().float()]
         refined, improved = _coarse_to_fine(target, source, depth, K, starts, iterations)
@@ -96,7 +96,7 @@ def align_translation(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, 
     the held-out cars: README, issue 5. Gradients flow to ``T_source_target`` through the correction held fixed.
     """
     _check_shapes(target, source, depth, K, T_source_target, None)
-    with torch.no_grad():
+    with torch.no_grad(), torch.autocast(target.device.type, enabled=False):
         start = T_source_target.detach().float()
         refined, improved = _coarse_to_fine(target, source, depth, K, [start], iterations, translation_only=True)
         correction = refined @ invert_pose(start)

@@ -56,6 +56,19 @@ def test_align_recovers_the_true_motion(pair, device):
     assert costs[1] < costs[0] and costs[1] <= costs[2] + 1e-3
 
 
+def test_align_runs_in_float32_under_mixed_precision(pair, device):
+    """Training with ``precision: bf16-mixed`` (configs/train/gpu.yaml) calls the alignment inside autocast: the
+    result is the float32 one (before, linalg.solve met a bfloat16 gradient and raised)."""
+    target, source, depth, K, T = (x.to(device) for x in pair)
+    start = PERTURBATION.to(device) @ T
+    expected, _ = align_motion(target, source, depth, K, start)
+    with torch.autocast(device.type, dtype=torch.bfloat16):
+        aligned, accepted = align_motion(target, source, depth, K, start)
+        held, _ = align_translation(target, source, depth, K, start)
+    assert bool(accepted[0]) and torch.allclose(aligned, expected, atol=1e-5)
+    assert torch.isfinite(held).all()
+
+
 def test_align_keeps_the_input_beyond_its_limit(pair):
     target, source, depth, K, T = pair
     start = PERTURBATION @ T
