@@ -122,9 +122,9 @@ class EgoMotionModule(pl.LightningModule):
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         out, disp, T = self.step(batch)
         B = len(batch["image"])
-        self.log("val/loss", out.total, batch_size=B, prog_bar=True)
+        self.log("val/loss", out.total, batch_size=B, prog_bar=True, sync_dist=True)  # DDP: the mean over processes
         for name, value in out.terms.items():
-            self.log(f"val/{name}", value, batch_size=B)
+            self.log(f"val/{name}", value, batch_size=B, sync_dist=True)
         if batch_idx == 0:
             self._log_images("val", batch, out, disp)
         if "depth" in batch:
@@ -168,7 +168,7 @@ class EgoMotionModule(pl.LightningModule):
             if cvs:
                 metrics["val/scale_ratio_cv"] = float(np.mean(cvs))
         if metrics:
-            self.log_dict(metrics, prog_bar=False)
+            self.log_dict(metrics, prog_bar=False, sync_dist=True)  # DDP: each process's metrics, averaged
         if len(v["trajectory_pred"]) > 1:
             key = v["trajectory_key"]
             fig = trajectory_figure(_chain(v["trajectory_pred"]), _chain(v["trajectory_gt"]), f"{key[0]} / {key[1]}")

@@ -20,7 +20,8 @@ from torch import Tensor
 
 from ocalib.calib.handeye import normal_equations
 from ocalib.calib.translation import pinv_solve
-from ocalib.geometry.quaternion import left_product_matrix, quaternion_multiply, quaternion_to_rotation_matrix
+from ocalib.geometry.quaternion import (left_product_matrix, quaternion_conjugate, quaternion_multiply,
+                                        quaternion_to_rotation_matrix)
 
 
 def skew(v: Tensor) -> Tensor:
@@ -36,7 +37,7 @@ def planar_axis(V: Tensor) -> Tensor:
     ``v4 * conj(v3)`` is a pure quaternion (``v3 . v4 = 0``): a 180-degree turn about ``n``.
     """
     v3, v4 = V[..., :, 2], V[..., :, 3]
-    conj3 = v3 * v3.new_tensor([1.0, -1.0, -1.0, -1.0])
+    conj3 = quaternion_conjugate(v3)
     n = quaternion_multiply(v4, conj3)[..., 1:]
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-300)
 
@@ -83,7 +84,7 @@ def planar_rotation_std(
     dof_r = 2 * rotation_rows - 2
     Er = (quat.unsqueeze(-2) @ M @ quat.unsqueeze(-1)).squeeze((-1, -2))
     sr2 = torch.where(dof_r > 0, Er / dof_r.clamp_min(1), torch.inf)
-    conj = quat * quat.new_tensor([1.0, -1.0, -1.0, -1.0])
+    conj = quaternion_conjugate(quat)
     JV = 2 * left_product_matrix(conj)[..., 1:, :] @ (V[..., :, :2] / S[..., None, :2].clamp_min(1e-300))
     axis_k = (quaternion_to_rotation_matrix(quat).mT @ n.unsqueeze(-1)).squeeze(-1)
     return (sr2[..., None] * (JV * JV).sum(-1) + var_theta[..., None] * axis_k**2).sqrt()

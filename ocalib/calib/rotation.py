@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from ocalib.calib.linalg import guarded_eigh
-from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix
+from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, quaternion_conjugate
 
 ROTATION_OBSERVABLE_MIN_SV = 0.1  # S[2] must exceed this (a ~6 degree motion, or many smaller ones) ...
 # ... and stand out of the noise floor: (S[2]^2 / S[3]^2 - 1) sqrt(2 n - 3) > this. Over n rows, S[3]^2 is the
@@ -112,7 +112,7 @@ def rotation_std(S: Tensor, V: Tensor, rows: Tensor) -> Tensor:
     sigma2 = torch.where(dof > 0, S[..., 3] ** 2 / dof.clamp_min(1), torch.inf)  # no residual to tell: unknown
     Vt = V[..., :, :3] / S[..., None, :3].clamp_min(1e-300)
     q = rotation_solution(V)
-    conj = q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
+    conj = quaternion_conjugate(q)
     J = 2 * left_product_matrix(conj)[..., 1:, :]  # (..., 3, 4)
     JV = J @ Vt
     return (sigma2[..., None] * (JV * JV).sum(-1)).sqrt()

@@ -31,11 +31,11 @@ import math
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import spatial_gradient
 from kornia.geometry.depth import depth_to_3d_v2
 from torch import Tensor
 
 from ocalib.data.intrinsics import resize_intrinsics
+from ocalib.geometry.constants import constant_cache
 from ocalib.losses.photometric import photometric_error
 from ocalib.losses.warp import MIN_Z, inverse_warp
 from ocalib.geometry.pose import invert_pose
@@ -107,6 +107,23 @@ def align_translation(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, 
     return correction @ T_source_target, accepted
 
 
+def image_gradient(image: Tensor) -> Tensor:
+    """Derivatives along u, then along v, of every channel: (B, C, H, W) -> (B, 2 C, H, W) (all d/du first).
+
+    The normalised 3x3 Sobel filter with replicated borders, as kornia's ``spatial_gradient(normalized=True)``,
+    with its kernels cached per device: no host-to-device copy in a frame on CUDA."""
+    B, C, H, W = image.shape
+    padded = F.pad(image.reshape(B * C, 1, H, W), (1, 1, 1, 1), mode="replicate")
+    return F.conv2d(padded, _sobel(image.dtype, image.device)).reshape(B, C, 2, H, W).transpose(1, 2).flatten(1, 2)
+
+
+@constant_cache
+def _sobel(dtype: torch.dtype, device: torch.device) -> Tensor:
+    """The normalised Sobel kernels d/du and d/dv, (2, 1, 3, 3)."""
+    k = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dtype=torch.float64) / 8
+    return torch.stack([k, k.T])[:, None].to(dtype=dtype, device=device)
+
+
 def _check_shapes(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T: Tensor, prior: Tensor | None) -> None:
     B = target.shape[0]
     if not (target.dim() == 4 and target.shape == source.shape and depth.shape == (B, 1, *target.shape[2:])
@@ -153,9 +170,8 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
     B, C, H, W = target.shape
     points = depth_to_3d_v2(depth[:, 0], K).reshape(B, -1, 3)  # target camera
     ray = points[..., :2] / points[..., 2:].clamp(min=MIN_Z)  # (B, N, 2) normalised image coordinates
-    max_tilt = torch.tensor(MAX_TILT, device=target.device)
     # source intensity, then its derivatives along u and along v (per pixel), sampled together
-    stacked = torch.cat([source, spatial_gradient(source, normalized=True).transpose(1, 2).flatten(1, 2)], 1)
+    stacked = torch.cat([source, image_gradient(source)], 1)
     fx, fy, cx, cy = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 2, None], K[:, 1, 2, None]
     (best, best_tilt), best_cost = candidates[-1], torch.full((B,), math.inf, device=target.device)
     index = torch.zeros(B, dtype=torch.long, device=target.device)
@@ -197,10 +213,10 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         A = (J * w).transpose(1, 2) @ J  # (B, 6, 6)
         g = (J * w).transpose(1, 2) @ r.flatten(1)[..., None]
         A = A + damping * torch.diag_embed(A.diagonal(dim1=1, dim2=2)) + 1e-9 * torch.eye(A.shape[-1], device=A.device)
-        step = -torch.linalg.solve(A, g)[..., 0]
+        step = -torch.linalg.solve_ex(A, g)[0][..., 0]  # _ex: no host round-trip to check the factorisation
         step = torch.where(torch.isfinite(step).all(-1, keepdim=True), step, torch.zeros_like(step))
         if translation_only:
-            tilt = torch.maximum(torch.minimum(tilt + step[:, 3:], max_tilt), -max_tilt)
+            tilt = torch.stack([(tilt + step[:, 3:]).select(1, i).clamp(-m, m) for i, m in enumerate(MAX_TILT)], 1)
             step = F.pad(step[:, :3], (3, 0))
         queue.append((motion_to_pose(step) @ T, tilt))
     return best, best_tilt, index

@@ -18,6 +18,11 @@ def quaternion_multiply(p: Tensor, q: Tensor) -> Tensor:
     return (left_product_matrix(p) @ q.unsqueeze(-1)).squeeze(-1)
 
 
+def quaternion_conjugate(q: Tensor) -> Tensor:
+    """``q*`` = (w, -x, -y, -z), the inverse of a unit quaternion. Shape (..., 4) -> (..., 4)."""
+    return torch.cat([q[..., :1], -q[..., 1:]], -1)
+
+
 def left_product_matrix(q: Tensor) -> Tensor:
     """``L(q)`` with ``q * p = L(q) p``. Shape (..., 4) -> (..., 4, 4)."""
     return (q @ _bases(q.dtype, q.device)[0]).unflatten(-1, (4, 4))

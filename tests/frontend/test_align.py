@@ -10,7 +10,9 @@ import torch
 
 from kornia.geometry.depth import depth_to_3d_v2
 
-from ocalib.frontend.align import StreamAligner, align_motion, align_translation, photometric_cost
+import kornia
+
+from ocalib.frontend.align import StreamAligner, align_motion, align_translation, image_gradient, photometric_cost
 from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.geometry.quaternion import rotation_angle
 from ocalib.synth import preset, render_rig
@@ -67,6 +69,13 @@ def test_align_runs_in_float32_under_mixed_precision(pair, device):
         held, _ = align_translation(target, source, depth, K, start)
     assert bool(accepted[0]) and torch.allclose(aligned, expected, atol=1e-5)
     assert torch.isfinite(held).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_image_gradient_is_kornias_sobel(device, dtype):
+    image = torch.rand(2, 3, 7, 9, dtype=dtype, device=device)
+    expected = kornia.filters.spatial_gradient(image, normalized=True).transpose(1, 2).flatten(1, 2)
+    assert torch.allclose(image_gradient(image), expected, atol=1e-6)
 
 
 def test_align_keeps_the_input_beyond_its_limit(pair):

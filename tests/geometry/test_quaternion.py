@@ -7,6 +7,7 @@ from ocalib.geometry import (
     left_product_matrix,
     orthonormality_error,
     quaternion_angle,
+    quaternion_conjugate,
     quaternion_multiply,
     quaternion_to_rotation_matrix,
     right_product_matrix,
@@ -46,6 +47,14 @@ def test_product_matrices(generator):
         quaternion_to_rotation_matrix(pq), quaternion_to_rotation_matrix(p) @ quaternion_to_rotation_matrix(q)
     )
     torch.testing.assert_close(left_product_matrix(p) @ q[..., None], pq[..., None])
+
+
+def test_conjugate_inverts_the_rotation(generator, device):
+    q = torch.randn(50, 4, generator=generator, dtype=torch.float64).to(device)
+    q = q / q.norm(dim=-1, keepdim=True)
+    torch.testing.assert_close(quaternion_to_rotation_matrix(quaternion_conjugate(q)), quaternion_to_rotation_matrix(q).mT)
+    torch.testing.assert_close(kc.quaternion_to_rotation_matrix(quaternion_conjugate(q)),
+                               kc.quaternion_to_rotation_matrix(q).mT)
 
 
 def test_gradcheck(generator):
