@@ -132,7 +132,9 @@ def test_a_non_finite_motion_does_not_poison_the_stream(pair):
     assert not bool(accepted[0]) and torch.isnan(bad).all()
     after, accepted = aligner(target, source, depth, K, PERTURBATION @ T)
     alone, _ = align_motion(target, source, depth, K, PERTURBATION @ T)
-    assert bool(accepted[0]) and torch.equal(after, alone)
+    # equal up to rounding: the stream solves its two starts in one batch (bitwise equal on this CPU; on a 16-core
+    # host with torch 2.11 the batched products round differently, session 16)
+    assert bool(accepted[0]) and torch.allclose(after, alone, atol=1e-6, rtol=0)
 
 
 def direction_error_deg(A, B):
