@@ -70,7 +70,7 @@ def calibrate_sequence(
     max_frames: int | None = None,
     intrinsics: str | None = None,
     align: bool | None = None,
-    rig_align: bool = True,
+    rig_align: bool | None = None,
     progress: bool | None = None,
     on_frame=None,
 ) -> ImageCalibration:
@@ -82,9 +82,9 @@ def calibrate_sequence(
     :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet` (the default,
     ``normalise``, was measured better on the held-out rigs: README, issue 5). align: refine the network's motions
     by direct photometric alignment (:class:`~ocalib.frontend.align.StreamAligner`; None: with the
-    network front end, measured better on every held-out rig: README, issue 5). rig_align: with ``align``, camera
-    k's translation is re-aligned under the rig's rotation (:class:`OnlineCalibrationNet`; measured better on the
-    held-out cars: README, issue 5). max_frames: use only the first
+    network front end, measured better on every held-out rig: README, issue 5). rig_align: camera k's aligned
+    translation is re-aligned under the rig's rotation (:class:`OnlineCalibrationNet`; None: with ``align``,
+    measured better on the held-out cars: README, issue 5). max_frames: use only the first
     frames. on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the
     current estimate (None: on a terminal).
     """
@@ -93,6 +93,9 @@ def calibrate_sequence(
     align = frontend == "network" if align is None else align
     if align and frontend != "network":
         raise InputError("align refines the pose network's motions; the OpenCV front end has its own bundle adjustment")
+    rig_align = align if rig_align is None else rig_align
+    if rig_align and not align:
+        raise InputError("rig-align re-aligns the photometrically aligned motions: it needs align")
     sequence = open_sequence(path, cameras, intrinsics)
     if len(sequence.cameras) < 2:
         raise InputError(f"{path}: calibration needs at least two cameras, the sequence has "
@@ -124,7 +127,7 @@ def calibrate_sequence(
     rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
                    lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
     settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
-                "align": align, "rig_align": bool(align and rig_align), "motion": motion, "solver": solver,
+                "align": align, "rig_align": rig_align, "motion": motion, "solver": solver,
                 "forgetting": forgetting, "refine": refine, "scale": scale, "frames": frames, "max_dt": None, "sequence": str(path)}
     if align:  # motions whose photometric correction was accepted, per camera (frame 0 has none)
         settings["aligned_frames"] = dict(zip(sequence.names, net.aligned[0].tolist()))

@@ -51,10 +51,10 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    help="refine each network motion by direct photometric alignment on the network's depth (default "
                    "with the network front end: on the held-out rigs 0.09-6.6 deg where the network alone gives "
                    "3.6-80; about 25 ms a camera and frame on 2 CPU cores)")
-    p.add_argument("--rig-align", action=argparse.BooleanOptionalAction, default=True,
+    p.add_argument("--rig-align", action=argparse.BooleanOptionalAction, default=None,
                    help="with --align, re-align each camera k's translation with its rotation held to the rig's "
                    "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it "
-                   "(default: on five of six held-out cars the rotation error fell, from 2.8-6.6 to 0.82-2.16 deg; "
+                   "(default with --align: on five of six held-out cars the rotation error fell, from 2.8-6.6 to 0.82-2.16 deg; "
                    "25 %% more time a frame)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")

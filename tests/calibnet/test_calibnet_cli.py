@@ -106,6 +106,7 @@ def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     ("wrong checkpoint", "not an ocalib ego-motion model"),
     ("corrupt frame", "000007.png: cannot read the image"),
     ("align with opencv", "align refines the pose network's motions"),
+    ("rig-align without align", "rig-align re-aligns the photometrically aligned motions"),
 ])
 def test_clear_errors(tiny, tmp_path, capsys, case, message):
     root, seq, model = tiny
@@ -121,6 +122,8 @@ def test_clear_errors(tiny, tmp_path, capsys, case, message):
         args[2] = str(broken)
     elif case == "align with opencv":
         args += ["--frontend", "opencv", "--align"]
+    elif case == "rig-align without align":
+        args += ["--no-align", "--rig-align"]
     elif case == "corrupt frame":  # read in a DataLoader worker: still one line naming the file
         broken = tmp_path / "seq"
         shutil.copytree(seq, broken)
