@@ -30,6 +30,21 @@ def test_ssim_matches_a_box_filter_reference():
     assert ssim_error(x, x).abs().max() < 1e-6
 
 
+def test_ssim_in_float32_under_mixed_precision():
+    """In bfloat16 the variances E[x^2] - E[x]^2 cancel; under autocast the error is the float32 one (against
+    the OpenCV reference) and its gradient finite, on a nearly flat patch where bfloat16 alone breaks down."""
+    g = torch.Generator().manual_seed(0)
+    x = 0.5 + 1e-3 * torch.rand(1, 3, 10, 14, generator=g)
+    y = (x + 1e-3 * torch.rand(1, 3, 10, 14, generator=g)).requires_grad_()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = ssim_error(x, y)
+    expected = reference_ssim_error(x[0].numpy(), y[0].detach().numpy()).mean(0)
+    assert got.dtype == torch.float32
+    np.testing.assert_allclose(got[0, 0, 1:-1, 1:-1].detach().numpy(), expected, atol=1e-4)
+    got.sum().backward()
+    assert torch.isfinite(y.grad).all()
+
+
 def test_photometric_error_weights_ssim_and_l1():
     g = torch.Generator().manual_seed(1)
     x, y = torch.rand(2, 2, 3, 8, 9, generator=g)

@@ -41,9 +41,10 @@ def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
         torch.testing.assert_close(ckpt_model.pose(image, image), slim.pose(image, image), rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("align", [(), (2, 2)])
-def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path, align):
-    """With ``align``, the depth learns from the refined motions and the pose net from its own photometric term."""
+@pytest.mark.parametrize("align, precision", [((), "32-true"), ((2, 2), "32-true"), ((2, 2), "bf16-mixed")])
+def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path, align, precision):
+    """With ``align``, the depth learns from the refined motions and the pose net from its own photometric term.
+    ``bf16-mixed`` (configs/train/gpu.yaml's precision, here on the CPU): the step runs and learns."""
     pl.seed_everything(0)
     dm = SyntheticDataModule(presets={"handheld": [0]}, val_presets={}, frames=6, root=str(tiny_synth),
                              height=32, width=96, batch_size=2, augmentation=None)
@@ -56,7 +57,7 @@ def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path, align):
 
     trainer = pl.Trainer(accelerator="cpu", max_steps=25, overfit_batches=1, logger=False, enable_checkpointing=False,
                          enable_progress_bar=False, enable_model_summary=False, callbacks=[Record()],
-                         default_root_dir=tmp_path)
+                         default_root_dir=tmp_path, precision=precision)
     trainer.fit(module, datamodule=dm)
     assert len(losses) == 25
     # measured: 0.08 -> 0.03 alone; 0.12 -> 0.075 with the pose net's own photometric term (depth detached) added
