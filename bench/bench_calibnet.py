@@ -6,7 +6,7 @@ Measures, side by side in one run, the median wall time per frame of: the whole 
 rig of C cameras at the model's resolution, on a rendered handheld sequence; frames per second follow. CPU always; CUDA
 when available. Prints a table and writes ``bench/results/calibnet.json``.
 
-    python bench/bench_calibnet.py [--checkpoint CKPT] [--cameras 2] [--frames 60] [--threads 2]
+    python bench/bench_calibnet.py [--checkpoint CKPT] [--cameras 2] [--frames 60] [--threads 2] [--devices cpu,cuda]
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Benchmark of ego-motion training and inference: training snippets (and images) per second, pose-net and
 depth-net frames per second, at the default resolution, on CPU (and CUDA when available).
 
-    python bench/bench_train.py [--size small] [--height 64 --width 208] [--batch 4] [--steps 10] [--threads 1,2]
+    python bench/bench_train.py [--size small] [--height 64 --width 208] [--batch 4] [--steps 10] [--threads 1,2] [--devices cpu,cuda]
 
 Training: a full step (depth of every frame, pose of every source, the loss, backward, Adam) on random 3-frame
 snippets: the 4-scale loss with and without the geometry-consistency loss, and the shipped recipe (one scale, the
