@@ -54,8 +54,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--rig-align", action=argparse.BooleanOptionalAction, default=None,
                    help="with --align, re-align each camera k's translation with its rotation held to the rig's "
                    "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it "
-                   "(default with --align: on five of six held-out cars the rotation error fell, from 2.8-6.6 to 0.82-2.16 deg; "
-                   "25 %% more time a frame)")
+                   "(default with --align: on five of six held-out cars the rotation error fell, from 2.8-6.6 to "
+                   "0.82-2.16 deg; 25 %% more time a frame)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     return p
