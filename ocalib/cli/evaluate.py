@@ -86,6 +86,11 @@ def summary(doc: dict) -> str:
             lines.append(f"  depth ({d['images']} images): abs rel {d['abs_rel']:.4f}, sq rel {d['sq_rel']:.4f}, "
                          f"RMSE {d['rmse']:.3f}, RMSE log {d['rmse_log']:.4f}, "
                          f"a1/a2/a3 {d['a1']:.3f}/{d['a2']:.3f}/{d['a3']:.3f}")
+            if d.get("by_range"):
+                lines.append("  by true depth (m): " + "; ".join(
+                    (f"{r['range_m'][0]:g}-{r['range_m'][1]:g}" if r["range_m"][1] else f">{r['range_m'][0]:g}")
+                    + f": {100 * r['share']:.0f} % of pixels, abs rel "
+                    f"{r['abs_rel']:.3f}, signed {r['signed_rel']:+.3f}" for r in d["by_range"]))
         if c["pose"]:
             p = c["pose"]
             fmt = lambda v: "n/a" if v is None else f"{v:.4g}"  # noqa: E731

@@ -124,6 +124,26 @@ def test_depth_caps_and_mean():
     assert mean["abs_rel"] == pytest.approx(0.125) and mean["a1"] == pytest.approx(0.75)
 
 
+def test_errors_by_true_depth_range_hand_computed():
+    """Pooled over the pixels of all images, per ground-truth range; a compressed depth range (pred ~ gt^0.7) is
+    too far near the camera and too near far from it."""
+    gt = np.array([[2.0, 8.0, 30.0, 60.0]])
+    pred = np.array([[3.0, 8.0, 24.0, 30.0]])
+    m = depth_errors(pred, gt, median_scaling=False)
+    assert m["range_pixels"] == [1, 1, 0, 1, 1]
+    np.testing.assert_allclose(m["range_signed_rel_sum"], [0.5, 0.0, 0.0, -0.2, -0.5])
+    np.testing.assert_allclose(m["range_abs_rel_sum"], [0.5, 0.0, 0.0, 0.2, 0.5])
+    other = depth_errors(np.array([[1.0, 4.0]]), np.array([[2.0, 4.0]]), median_scaling=False)  # 2 pixels, 0-5 m
+    by_range = mean_depth_errors([m, other])["by_range"]
+    assert [r["range_m"] for r in by_range] == [[0.0, 5.0], [5.0, 10.0], [20.0, 40.0], [40.0, None]]
+    assert by_range[0]["share"] == pytest.approx(3 / 6) and by_range[0]["signed_rel"] == pytest.approx((0.5 - 0.5) / 3)
+    assert by_range[0]["abs_rel"] == pytest.approx((0.5 + 0.5) / 3)
+    assert by_range[3]["signed_rel"] == pytest.approx(-0.5) and sum(r["share"] for r in by_range) == pytest.approx(1)
+    gt = np.random.default_rng(0).uniform(1, 79, size=(40, 50))
+    signed = [r["signed_rel"] for r in mean_depth_errors([depth_errors(gt**0.7, gt)])["by_range"]]
+    assert signed[0] > 0 > signed[-1] and np.all(np.diff(signed) < 0)
+
+
 def test_perfect_depth_gives_zero_error():
     gt = np.random.default_rng(0).uniform(1, 60, size=(8, 10))
     m = depth_errors(gt * 0.01, gt)
