@@ -68,10 +68,10 @@ def mean_depth_errors(per_image: list[dict | None]) -> dict:
         out[key] = float(np.mean([m[key] for m in used]))
     scales = np.array([m["scale"] for m in used])
     out["scale_cv"] = float(scales.std() / scales.mean())
-    if all("range_pixels" in m for m in used):
-        n, a, s = (np.sum([m[k] for m in used], 0) for k in ("range_pixels", "range_abs_rel_sum", "range_signed_rel_sum"))
-        edges = (0.0, *DEPTH_RANGES, None)
-        out["by_range"] = [{"range_m": [lo, hi], "share": float(n[i] / n.sum()), "abs_rel": float(a[i] / n[i]),
-                            "signed_rel": float(s[i] / n[i])}
-                           for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])) if n[i] > 0]
+    n, a, s = (np.sum([m[k] for m in used], 0)
+               for k in ("range_pixels", "range_abs_rel_sum", "range_signed_rel_sum"))
+    edges = (0.0, *DEPTH_RANGES, None)  # the last range is open (up to max_depth)
+    out["by_range"] = [{"range_m": [lo, hi], "share": float(n[i] / n.sum()), "abs_rel": float(a[i] / n[i]),
+                        "signed_rel": float(s[i] / n[i])}
+                       for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])) if n[i] > 0]
     return out
