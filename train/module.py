@@ -21,7 +21,7 @@ from ocalib.frontend.align import align_motion
 from ocalib.geometry.pose import invert_pose
 from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.losses.selfsup import self_supervised_loss
-from ocalib.models import EgoMotionModel, disp_to_depth
+from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth
 from train.visuals import colorize, trajectory_figure
 
 
@@ -46,7 +46,9 @@ class EgoMotionModule(pl.LightningModule):
     at the last step. ``align``: Gauss-Newton steps per pyramid level, coarsest first
     (:func:`~ocalib.frontend.align.align_motion`, no rotation limit; empty: off): in training, the depth network
     learns from the pose network's motions refined on its own depth, and the pose network from its own motions
-    with the depth detached, so that the depth does not absorb the pose network's errors. Images go to TensorBoard
+    with the depth detached, so that the depth does not absorb the pose network's errors. The network's depth scale
+    is free and is held by the loss's scale gauge; ``train/depth_median`` and ``train/depth_far_share`` (the share
+    of pixels beyond half of the depth range's far end) show it in TensorBoard. Images go to TensorBoard
     every ``image_interval`` steps; ``trajectory_frames``: length of the validation trajectory plotted.
     """
 
@@ -104,6 +106,10 @@ class EgoMotionModule(pl.LightningModule):
         self.log("train/loss", out.total, prog_bar=True, batch_size=B)
         for name, value in out.terms.items():
             self.log(f"train/{name}", value, batch_size=B)
+        with torch.no_grad():
+            depth = disp_to_depth(disp.float())
+            self.log("train/depth_median", depth.median(), batch_size=B)
+            self.log("train/depth_far_share", (depth > 0.5 * MAX_DEPTH).float().mean(), batch_size=B)
         if self.global_step % self.hparams.image_interval == 0:
             self._log_images("train", batch, out, disp)
         return out.total

@@ -1,5 +1,6 @@
 """The self-supervised objective: monodepth2's minimum reprojection with auto-masking, multi-scale, edge-aware
-smoothness, and SC-SfMLearner's geometry consistency with its self-discovered mask (optional).
+smoothness, SC-SfMLearner's geometry consistency with its self-discovered mask (optional), and a scale gauge
+(:mod:`ocalib.losses.gauge`).
 
 Convention: ``images`` (B, S, 3, H, W), the target first then S-1 sources; ``T_source_target`` (B, S-1, 4, 4)
 maps target-camera points into each source camera; ``K`` (B, 3, 3) at (H, W); disparities (B, 1, h, w) per scale.
@@ -14,6 +15,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ocalib.losses.consistency import depth_inconsistency
+from ocalib.losses.gauge import scale_gauge
 from ocalib.losses.photometric import photometric_error
 from ocalib.losses.smoothness import edge_aware_smoothness
 from ocalib.losses.warp import inverse_warp
@@ -63,7 +65,8 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
 
     ``geometry`` > 0 needs ``source_depths`` (B, S-1, 1, H, W): it adds ``geometry x`` the masked mean depth
     inconsistency and weights the photometric errors by the self-discovered mask ``1 - inconsistency``
-    (detached). ``smoothness`` weighs the edge-aware term at scale s by ``1 / 2^s``.
+    (detached). ``smoothness`` weighs the edge-aware term at scale s by ``1 / 2^s``. The scale gauge on the
+    finest depth is added with weight 1 (zero while the depth's scale is in the middle of its range).
     """
     B, S, _, H, W = images.shape
     target, sources = images[:, 0], images[:, 1:]
@@ -100,9 +103,11 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
         sums["used"] = sums["used"] + used.mean().detach()
         if s == 0:
             images_out["used"] = used.detach()
+            gauge = scale_gauge(depth, min_depth, max_depth)
     n = len(disparities)
     terms = {k: v / n for k, v in sums.items()}
-    total = terms["photometric"] + smoothness * terms["smoothness"] + geometry * terms["geometry"]
+    terms["gauge"] = gauge
+    total = terms["photometric"] + smoothness * terms["smoothness"] + geometry * terms["geometry"] + gauge
     if not use_geometry:
         del terms["geometry"]
     return LossOutput(total, terms, images_out)

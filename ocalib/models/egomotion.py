@@ -13,7 +13,7 @@ from ocalib.errors import InputError
 from ocalib.models.depth import DepthNet, disp_to_depth
 from ocalib.models.pose import PoseNet
 
-MIN_DEPTH, MAX_DEPTH = 0.1, 100.0
+MIN_DEPTH, MAX_DEPTH = 0.1, 100.0  # the network's scale is held in the middle of it (ocalib.losses.gauge)
 
 # size -> (depth net kwargs, pose net kwargs). "small": 2 CPU cores; "large": ResNet-18 widths for GPUs.
 SIZES = {

@@ -6,7 +6,8 @@ import torch
 
 from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.losses import depth_inconsistency, inverse_warp, photometric_error, self_supervised_loss
-from ocalib.models import MAX_DEPTH, MIN_DEPTH
+from ocalib.losses.gauge import scale_gauge
+from ocalib.models import MAX_DEPTH, MIN_DEPTH, disp_to_depth
 from ocalib.synth import preset, render_rig
 
 ROTATED = make_pose(torch.linalg.matrix_exp(torch.tensor([[0.0, -0.03, 0], [0.03, 0, 0], [0, 0, 0]]))[None],
@@ -54,7 +55,19 @@ def test_self_supervised_loss_is_small_at_ground_truth(snippet):
     wrong = self_supervised_loss(images, K, disp, ROTATED @ T, depth[:, 1:], automask=False, smoothness=0, geometry=0.5)
     assert truth.terms["photometric"] < 0.06
     assert wrong.terms["photometric"] > 2.5 * truth.terms["photometric"]
-    assert wrong.total > 2.5 * truth.total
+    gauge = truth.terms["gauge"]  # the same depth: the same scale gauge
+    assert wrong.total - gauge > 2.5 * (truth.total - gauge)
+
+
+def test_scale_gauge_holds_the_depth_scale_in_the_loss(snippet):
+    images, depth, K, T = snippet
+    for scale in (0.1, 30.0):  # the truth in tenths of metres (within the band) and a drifted network scale
+        disp = gt_disparity(depth[:, 0] * scale)
+        out = self_supervised_loss(images, K, [disp], T, automask=False, smoothness=0)
+        gauge = scale_gauge(disp_to_depth(disp, MIN_DEPTH, MAX_DEPTH), MIN_DEPTH, MAX_DEPTH)
+        assert (gauge > 0) == (scale > 1.0)
+        torch.testing.assert_close(out.terms["gauge"], gauge)
+        torch.testing.assert_close(out.total, out.terms["photometric"] + gauge)
 
 
 def test_ground_truth_depths_are_geometrically_consistent(snippet):

@@ -23,7 +23,10 @@ def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
     version = Path(cli.trainer.log_dir)
     last = version / "checkpoints" / "last.ckpt"
     assert last.is_file() and (version / "model.pt").is_file()
-    assert {"val/abs_rel", "val/rotation_error_deg", "val/direction_error_deg", "val/rotation_gain_y"} <= set(cli.trainer.callback_metrics)
+    metrics = cli.trainer.callback_metrics
+    assert {"val/abs_rel", "val/rotation_error_deg", "val/direction_error_deg", "val/rotation_gain_y"} <= set(metrics)
+    assert {"train/gauge", "train/depth_median", "train/depth_far_share"} <= set(metrics)  # the depth's scale
+    assert 0.1 < metrics["train/depth_median"] < 100 and 0 <= metrics["train/depth_far_share"] <= 1
     assert list(version.glob("events.out.tfevents.*"))
 
     # resume through `ocalib train`: the step count continues from the checkpoint
