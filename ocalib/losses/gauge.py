@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 
+import torch
 from torch import Tensor
 
 
@@ -20,4 +21,5 @@ def scale_gauge(depth: Tensor, min_depth: float, max_depth: float, band: float =
     """Depth (any shape, > 0) -> scalar ``max(0, |mean(log depth) - log(centre)| - log(band))^2``,
     ``centre = sqrt(min_depth x max_depth)``."""
     centre = 0.5 * (math.log(min_depth) + math.log(max_depth))
-    return ((depth.log().mean() - centre).abs() - math.log(band)).clamp(min=0.0).square()
+    log_depth = depth.to(torch.promote_types(depth.dtype, torch.float32)).log()  # at least float32 (autocast)
+    return ((log_depth.mean() - centre).abs() - math.log(band)).clamp(min=0.0).square()
