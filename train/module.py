@@ -87,7 +87,7 @@ class EgoMotionModule(pl.LightningModule):
         pose = self_supervised_loss(images, K, [disps[0].detach()], invert_pose(T), automask=self.loss.automask,
                                     smoothness=0.0, ssim=self.loss.ssim)
         out.terms["pose_photometric"] = pose.terms["photometric"]
-        out.total = out.total + pose.total
+        out.total = out.total + pose.terms["photometric"]  # not pose.total: its gauge is a constant (detached depth)
         return out, disps[0], T
 
     def training_step(self, batch: dict, batch_idx: int) -> Tensor | None:
