@@ -20,6 +20,7 @@ from ocalib.eval.pose_metrics import rotation_angle_deg, rotation_gain
 from ocalib.frontend.align import align_motion
 from ocalib.geometry.pose import invert_pose
 from ocalib.losses import LossOutput, SelfSupervisedLoss
+from ocalib.losses.motion import motion_distance
 from ocalib.losses.selfsup import self_supervised_loss
 from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth
 from train.visuals import colorize, trajectory_figure
@@ -48,14 +49,17 @@ class EgoMotionModule(pl.LightningModule):
     learns from the pose network's motions refined on its own depth, and the pose network from its own motions
     with the depth detached, so that the depth does not absorb the pose network's errors. The network's depth scale
     is free and is held by the loss's scale gauge; ``train/depth_median`` and ``train/depth_far_share`` (the share
-    of pixels beyond half of the depth range's far end) show it in TensorBoard. Images go to TensorBoard
+    of pixels beyond half of the depth range's far end) show it in TensorBoard. ``distill``: weight of the pose
+    network's distance to the refined motions (:func:`~ocalib.losses.motion.motion_distance`, degrees + relative
+    translation; 0: off; with ``align`` only). Images go to TensorBoard
     every ``image_interval`` steps; ``trajectory_frames``: length of the validation trajectory plotted.
     """
 
     def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
                  weight_decay: float = 0.0, warmup_steps: int = 200, min_lr_ratio: float = 0.05,
                  automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.1, scales: int = 4,
-                 align: tuple[int, ...] = (), image_interval: int = 250, trajectory_frames: int = 200):
+                 align: tuple[int, ...] = (), distill: float = 0.0, image_interval: int = 250,
+                 trajectory_frames: int = 200):
         super().__init__()
         self.save_hyperparameters()
         self.model = EgoMotionModel(size, height, width)
@@ -88,6 +92,10 @@ class EgoMotionModule(pl.LightningModule):
                                     smoothness=0.0, ssim=self.loss.ssim)
         out.terms["pose_photometric"] = pose.terms["photometric"]
         out.total = out.total + pose.terms["photometric"]  # not pose.total: its gauge is a constant (detached depth)
+        if self.hparams.distill > 0:
+            rotation, translation = motion_distance(T.flatten(0, 1), invert_pose(refined).detach())
+            out.terms["pose_distill"] = rotation.mean() + translation.mean()
+            out.total = out.total + self.hparams.distill * out.terms["pose_distill"]
         return out, disps[0], T
 
     def training_step(self, batch: dict, batch_idx: int) -> Tensor | None:

@@ -73,3 +73,39 @@ def test_held_out_seeds_are_refused(tmp_path):
         SyntheticDataModule(presets={"handheld": [0], "stereo": [1000]}, root=str(tmp_path))
     with pytest.raises(InputError, match="in both"):
         SyntheticDataModule(presets={"handheld": [0]}, val_presets={"handheld": [0]}, root=str(tmp_path))
+
+
+def test_distill_term_is_the_distance_to_the_refined_motions(tiny_synth):
+    """``distill``: the term is the pose net's distance to its motions refined by the alignment, computed here
+    from the module's parts, and it enters the total with its weight."""
+    import math
+
+    from ocalib.frontend.align import align_motion
+    from ocalib.geometry.pose import invert_pose
+    from ocalib.losses.motion import motion_distance
+    from ocalib.models import disp_to_depth
+
+    dm = SyntheticDataModule(presets={"handheld": [0]}, val_presets={}, frames=6, root=str(tiny_synth),
+                             height=32, width=96, batch_size=2, augmentation=None)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    totals = {}
+    for weight in (0.0, 0.5):
+        torch.manual_seed(0)
+        module = EgoMotionModule(height=32, width=96, geometry=0.0, align=(2, 2), distill=weight).train()
+        with torch.no_grad():
+            out, _, T = module.step(batch)
+        totals[weight] = out.total
+    assert "pose_distill" in out.terms
+    images, K = batch["image"], batch["K"]
+    B, S = images.shape[:2]
+    with torch.no_grad():
+        depth = disp_to_depth(module.model.disparities(images[:, 0])[0]).repeat_interleave(S - 1, 0)
+        targets = images[:, :1].expand(-1, S - 1, -1, -1, -1).flatten(0, 1)
+        refined, _ = align_motion(targets, images[:, 1:].flatten(0, 1), depth, K.repeat_interleave(S - 1, 0),
+                                  invert_pose(T).flatten(0, 1), iterations=(2, 2), max_rotation_deg=math.inf)
+        rotation, translation = motion_distance(T.flatten(0, 1), invert_pose(refined))
+    expected = rotation.mean() + translation.mean()
+    assert expected > 0
+    torch.testing.assert_close(out.terms["pose_distill"], expected)
+    torch.testing.assert_close(totals[0.5] - totals[0.0], 0.5 * expected)
