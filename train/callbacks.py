@@ -12,6 +12,16 @@ from lightning.pytorch.trainer.states import TrainerStatus
 from ocalib.models import save_model
 
 
+def _plain(value):
+    """A scalar, or a list of scalars (e.g. ``align``), as written into the slim model's meta; None for anything else."""
+    scalar = (int, float, str, bool)
+    if isinstance(value, scalar):
+        return value
+    if isinstance(value, (list, tuple)) and all(isinstance(v, scalar) for v in value):
+        return list(value)
+    return None
+
+
 class ExportModel(pl.Callback):
     """On fit end, write ``<log_dir>/<filename>`` (:func:`ocalib.models.save_model`) beside the checkpoints."""
 
@@ -24,7 +34,7 @@ class ExportModel(pl.Callback):
         if not trainer.is_global_zero:
             return
         meta = {"global_step": int(trainer.global_step), "epoch": int(trainer.current_epoch),
-                "hparams": {k: v for k, v in pl_module.hparams.items() if isinstance(v, (int, float, str, bool))}}
+                "hparams": {k: _plain(v) for k, v in pl_module.hparams.items() if _plain(v) is not None}}
         self.path = save_model(pl_module.model, folder / self.filename, meta)
 
 

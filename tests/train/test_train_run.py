@@ -28,6 +28,8 @@ def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
     assert {"train/gauge", "train/depth_median", "train/depth_far_share"} <= set(metrics)  # the depth's scale
     assert 0.1 < metrics["train/depth_median"] < 100 and 0 <= metrics["train/depth_far_share"] <= 1
     assert list(version.glob("events.out.tfevents.*"))
+    recipe = torch.load(version / "model.pt", weights_only=False)["meta"]["hparams"]  # the recipe, lists included
+    assert recipe["align"] == list(cli.model.hparams.align) and recipe["distill"] == cli.model.hparams.distill
 
     # resume through `ocalib train`: the step count continues from the checkpoint
     assert ocalib_main(["train", "fit", *tiny_args(tiny_synth, out, "--trainer.max_steps=4",
