@@ -61,6 +61,9 @@ class EgoMotionModule(pl.LightningModule):
                  align: tuple[int, ...] = (), distill: float = 0.0, image_interval: int = 250,
                  trajectory_frames: int = 200):
         super().__init__()
+        if distill < 0 or (distill > 0 and not align):
+            raise ValueError(f"model.distill={distill}: needs to be >= 0, and > 0 only with model.align (it pulls the "
+                             "pose network towards the aligned motions)")
         self.save_hyperparameters()
         self.model = EgoMotionModel(size, height, width)
         self.loss = SelfSupervisedLoss(automask, smoothness, geometry)

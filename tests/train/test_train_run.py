@@ -111,3 +111,5 @@ def test_distill_term_is_the_distance_to_the_refined_motions(tiny_synth):
     assert expected > 0
     torch.testing.assert_close(out.terms["pose_distill"], expected)
     torch.testing.assert_close(totals[0.5] - totals[0.0], 0.5 * expected)
+    with pytest.raises(ValueError, match="only with model.align"):
+        EgoMotionModule(height=32, width=96, distill=0.1)
