@@ -34,7 +34,7 @@ class ExportModel(pl.Callback):
         if not trainer.is_global_zero:
             return
         meta = {"global_step": int(trainer.global_step), "epoch": int(trainer.current_epoch),
-                "hparams": {k: _plain(v) for k, v in pl_module.hparams.items() if _plain(v) is not None}}
+                "hparams": {k: p for k, v in pl_module.hparams.items() if (p := _plain(v)) is not None}}
         self.path = save_model(pl_module.model, folder / self.filename, meta)
 
 
