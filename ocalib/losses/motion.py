@@ -19,7 +19,9 @@ def motion_distance(T: Tensor, T_ref: Tensor, eps: float = 1e-6) -> tuple[Tensor
     ``rotation``: the chordal distance ``|R - R_ref|_F / sqrt(2) = 2 sin(angle / 2)`` in degrees, where ``angle``
     is the rotation angle of ``R_ref^T R``: the angle itself to within 0.01 % below 2 degrees.
     ``translation``: ``|t - t_ref| / |t_ref|``, unitless, so that it does not depend on the network's depth scale.
-    Both are smoothed by ``eps`` so that the gradient is finite where the motions agree.
+    Both are smoothed by ``eps`` so that the gradient is finite where the motions agree. A reference that hardly
+    translates (``|t_ref|`` near 0, a static pair) makes the translation term large (its denominator is clamped at
+    ``eps`` only): train on sequences that move (the synthetic presets always do).
 
     Convention: both motions in the same frames (e.g. both ``T_target_source``); pass ``T_ref`` detached to use it
     as a target.
