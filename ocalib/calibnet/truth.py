@@ -36,6 +36,30 @@ def front_end_rotation_gain(estimate: np.ndarray, truth: np.ndarray) -> list[flo
     return [float(x) for x in rotation_gain(m[ok], g[ok])] if ok.sum() >= 2 else [math.nan] * 3
 
 
+WANDER_WINDOW = 25  # frames, about a turn of the held-out cars
+
+
+def scale_wander(trajectory: np.ndarray, truth: np.ndarray, window: int = WANDER_WINDOW) -> tuple[float, float]:
+    """How much camera k's front-end scale wanders against camera 0's, beside the signal that hides in it.
+
+    ``trajectory``, ``truth`` (T, 2, 4, 4): cameras 0 and k, camera-to-first-frame (the truth in any world frame).
+    Per step and camera, ``e = log(|t| / |t_true|)``. Returns (*wander*, *signal*): the std of the ``window``-frame
+    moving mean of ``e_k - e_0``, and the same of ``log(|t_k,true| / |t_0,true|)``, the change of the true steps'
+    length ratio in turns (the lever arm), which the rig's translation is solved from. Steps whose true length is
+    under 0.3x the camera's median, or not finite, are left out; NaN with fewer than ``2 window`` steps left.
+    """
+    step = lambda P: np.linalg.norm(frame_motions(P)[..., :3, 3], axis=-1)  # noqa: E731
+    est = np.stack([step(trajectory[:, c]) for c in range(2)], 1)
+    true = np.stack([step(truth[:, c]) for c in range(2)], 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        kept = np.isfinite(est).all(1) & (est > 0).all(1) & (true > 0.3 * np.nanmedian(true, 0)).all(1)
+        e, ratio = np.log(est[kept] / true[kept]), np.log(true[kept, 1] / true[kept, 0])
+    if kept.sum() < 2 * window:
+        return math.nan, math.nan
+    moving_std = lambda x: float(np.convolve(x - x.mean(), np.ones(window) / window, mode="valid").std())  # noqa: E731
+    return moving_std(e[:, 1] - e[:, 0]), moving_std(ratio)
+
+
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Angle between two vectors in degrees (NaN when either is zero)."""
     na, nb = np.linalg.norm(a), np.linalg.norm(b)
@@ -57,7 +81,9 @@ def extrinsic_errors(estimate: Calibration, extrinsics: np.ndarray, trajectory: 
     scale), ``translation_error_rel_baseline`` (over the true baseline, same components),
     ``scale_true`` (the scale that maps camera k's front-end units into camera 0's), and
     ``rotation_gain_reference`` / ``rotation_gain`` (3 each): the front end's rotation gain about each axis of
-    camera 0 / camera k (:func:`~ocalib.eval.pose_metrics.rotation_gain`; unequal gains bend the rotation axes).
+    camera 0 / camera k (:func:`~ocalib.eval.pose_metrics.rotation_gain`; unequal gains bend the rotation axes),
+    ``scale_wander`` / ``lever_arm_signal``: see :func:`scale_wander` (the translation needs the first well under
+    the second).
     """
     C = extrinsics.shape[0]
     ref = np.linalg.inv(extrinsics[0])
@@ -92,5 +118,6 @@ def extrinsic_errors(estimate: Calibration, extrinsics: np.ndarray, trajectory: 
             e["scale_true"] = scales[k] / a if a and math.isfinite(a) else math.nan
             e["scale"] = float(estimate.scale[0, k - 1])
             e["rotation_gain_reference"], e["rotation_gain"] = gains[0], gains[k]
+            e["scale_wander"], e["lever_arm_signal"] = scale_wander(trajectory[:, [0, k]], truth[:, [0, k]])
         out.append(e)
     return out

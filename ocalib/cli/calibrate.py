@@ -112,6 +112,10 @@ def print_warnings(doc: dict) -> None:
 
 def errors_table(errors: list[dict], cameras: list[str]) -> str:
     """The ground-truth errors, one line per camera."""
+    import math
+
+    from ocalib.calibnet.truth import WANDER_WINDOW
+
     lines = ["errors against the ground truth:"]
     for e in errors:
         text = (f"  {cameras[e['camera']]}: rotation {e['rotation_error_deg']:.3f} deg, translation direction "
@@ -123,6 +127,10 @@ def errors_table(errors: list[dict], cameras: list[str]) -> str:
             gains = lambda g: "/".join(f"{x:.2f}" for x in g)  # noqa: E731
             text += (f"\n    front-end rotation gain x/y/z (1: unbiased): {cameras[0]} {gains(e['rotation_gain_reference'])}, "
                      f"{cameras[e['camera']]} {gains(e['rotation_gain'])}")
+            if math.isfinite(e["scale_wander"]):
+                text += (f"\n    front-end scale wander against {cameras[0]} {e['scale_wander']:.3f}, lever-arm signal "
+                         f"{e['lever_arm_signal']:.3f} ({WANDER_WINDOW}-frame windows; the translation needs the first "
+                         "well under the second)")
         lines.append(text)
     return "\n".join(lines)
 

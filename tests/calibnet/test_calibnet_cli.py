@@ -41,7 +41,8 @@ def test_calibrate_writes_json_trace_plot_and_errors(tiny, tmp_path, capsys):
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
     assert e["frames_used"] + e["frames_rejected"] <= 12
     assert set(doc["ground_truth_errors"][0]) >= {"rotation_error_deg", "translation_direction_error_deg",
-                                                  "translation_error_rel_baseline", "scale_true"}
+                                                  "translation_error_rel_baseline", "scale_true", "scale_wander",
+                                                  "lever_arm_signal"}
     rows = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
     assert rows.shape[0] == 12 and (tmp_path / "p.png").stat().st_size > 0
     assert any((tmp_path / "tb").iterdir())
