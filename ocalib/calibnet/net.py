@@ -35,12 +35,12 @@ class OnlineCalibrationNet(nn.Module):
         batch_size: B, rigs calibrated at once.
         scale: how the network's translation scale is handled. ``head``: trust each camera's network scale to
             be consistent over time and let the head's scale unknown absorb the ratio between cameras.
-            ``normalise``: divide every step by a running mean of that camera's step lengths (momentum
-            ``scale_momentum``), for networks whose scale drifts slowly. The mean's window (1 / (1 - momentum)
-            frames) must be long beside a turn: in a turn a camera off the rig's axis steps longer or shorter than
-            camera 0 (the lever arm), which is what the translation is solved from, and a short window normalises it
-            away (the exact motions of the eleven held-out rigs: a median 21 deg of translation direction at 0.95,
-            2.2 at 0.99; README, issue 5).
+            ``normalise``: divide every step by a running mean of that camera's step lengths (exponential, momentum
+            ``scale_momentum``, its start-up bias divided out), for networks whose scale drifts slowly. The mean's
+            window (1 / (1 - momentum) frames) must be long beside a turn: in a turn a camera off the rig's axis
+            steps longer or shorter than camera 0 (the lever arm), which is what the translation is solved from, and
+            a short window normalises it away (the exact motions of the eleven held-out rigs: a median 21 deg of
+            translation direction at 0.95, 4.1 at 0.99; docs/calibnet.md).
         intrinsics: (C, 3, 3) or (B, C, 3, 3) pixels at the model's resolution; needed by ``align``.
         align: refine every motion of the network by direct photometric alignment on the network's depth of the
             previous frame, started from the network's motion and from the camera's previous refined motion
@@ -87,7 +87,8 @@ class OnlineCalibrationNet(nn.Module):
         self.register_buffer("previous", torch.zeros(B, C, 3, self.model.height, self.model.width, device=f["device"]))
         self.register_buffer("started", torch.zeros(B, C, 1, 1, dtype=torch.bool, device=f["device"]))
         self.register_buffer("trajectory", torch.eye(4, **f).expand(B, C, 4, 4).clone())
-        self.register_buffer("step_length", torch.zeros(B, C, **f))
+        self.register_buffer("step_length", torch.zeros(B, C, **f))  # exponential sums of the step lengths
+        self.register_buffer("step_weight", torch.zeros(B, C, **f))  # and of their weights (1 - m^n after n steps)
         self.register_buffer("aligned", torch.zeros(B, C, dtype=torch.long, device=f["device"]))
         self.register_buffer("rig_rotation", torch.eye(3, **f).expand(B, C - 1, 3, 3).clone())  # the head's R_X
 
@@ -140,13 +141,16 @@ class OnlineCalibrationNet(nn.Module):
         return out
 
     def _normalise(self, step: Tensor) -> Tensor:
-        """Express each step's translation in units of that camera's running mean step length."""
+        """Express each step's translation in units of that camera's running mean step length: an exponential
+        mean with its start-up bias divided out (``step_length / step_weight``), so the first steps are averaged
+        alike rather than the first one standing for the mean until the window forgets it (the network's first
+        step can be several times its typical one)."""
         length = step[..., :3, 3].norm(dim=-1)
-        first = self.step_length == 0
-        m = self.scale_momentum
-        mean = torch.where(first, length, m * self.step_length + (1 - m) * length)
-        self.step_length = torch.where(self.started[..., 0, 0], mean, self.step_length)
-        unit = torch.where(self.step_length > 0, self.step_length, torch.ones_like(self.step_length))
+        m, started = self.scale_momentum, self.started[..., 0, 0]
+        self.step_length = torch.where(started, m * self.step_length + (1 - m) * length, self.step_length)
+        self.step_weight = torch.where(started, m * self.step_weight + (1 - m), self.step_weight)
+        mean = self.step_length / self.step_weight.clamp_min(1 - m)
+        unit = torch.where(mean > 0, mean, torch.ones_like(mean))
         out = step.clone()
         out[..., :3, 3] = step[..., :3, 3] / unit[..., None]
         return out
