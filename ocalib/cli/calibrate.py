@@ -44,9 +44,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    "leave the rotation unobservable (default: a monocular front end's translation directions are "
                    "biased and would pull an observable rotation off), always, or never")
     p.add_argument("--scale", choices=("head", "normalise"), default="normalise",
-                   help="network scale: normalise each camera's steps by their running mean length over ~100 frames (default: on the "
-                   "held-out cars, session 5's checkpoint, it kept the rotation 1.6-4.5 deg off where head gave "
-                   "6.2-10.5), or trust it per camera and let the head solve the ratio (head)")
+                   help="network scale: normalise each camera's steps by their running mean length over ~100 "
+                   "frames (default: on the held-out cars, session 5's checkpoint, it kept the rotation 1.6-4.5 deg "
+                   "off where head gave 6.2-10.5), or trust it per camera and let the head solve the ratio (head)")
     p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
                    help="refine each network motion by direct photometric alignment on the network's depth (default "
                    "with the network front end: on the held-out rigs 0.09-6.6 deg where the network alone gives "
