@@ -26,9 +26,8 @@ import numpy as np
 from bench_calibnet_accuracy import DEFAULT, ensure
 from common import write_json
 from ocalib.calibnet.run import calibrate_sequence
-from ocalib.calibnet.truth import WANDER_WINDOW, scale_wander
+from ocalib.calibnet.truth import WANDER_WINDOW, scale_wander, step_length_errors
 from ocalib.data.layout import open_sequence
-from ocalib.eval.pose_metrics import frame_motions
 
 
 def measure(path: Path, frames: int, frontend: str, checkpoint: str | None) -> dict:
@@ -38,11 +37,8 @@ def measure(path: Path, frames: int, frontend: str, checkpoint: str | None) -> d
     truth = np.stack([c.poses[:frames] for c in sequence.cameras], 1)
     truth = np.linalg.inv(truth[:1]) @ truth
     wander, signal = scale_wander(out.run.rig.poses, truth)
-    step = lambda P: np.linalg.norm(frame_motions(P)[..., :3, 3], axis=-1)  # noqa: E731
-    est, true = (np.stack([step(P[:, c]) for c in range(2)], 1) for P in (out.run.rig.poses, truth))
-    kept = (true > 0.3 * np.median(true, 0)).all(1) & (est > 0).all(1)
-    jitter = np.diff(np.log(est[kept] / true[kept]), axis=0).std(0)
-    return {"wander": wander, "signal": signal, "jitter": jitter.tolist(), "frames": int(kept.sum())}
+    e, _ = step_length_errors(out.run.rig.poses, truth)
+    return {"wander": wander, "signal": signal, "jitter": np.diff(e, axis=0).std(0).tolist(), "frames": len(e)}
 
 
 def main() -> None:

@@ -39,25 +39,34 @@ def front_end_rotation_gain(estimate: np.ndarray, truth: np.ndarray) -> list[flo
 WANDER_WINDOW = 25  # frames, about a turn of the held-out cars
 
 
-def scale_wander(trajectory: np.ndarray, truth: np.ndarray, window: int = WANDER_WINDOW) -> tuple[float, float]:
-    """How much camera k's front-end scale wanders against camera 0's, beside the signal that hides in it.
+def step_length_errors(trajectory: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per step of cameras 0 and k: ``e`` (N, 2), the log ratio of the front end's step length to the true one, and
+    ``lever`` (N,), the log ratio of camera k's true step length to camera 0's.
 
     ``trajectory``, ``truth`` (T, 2, 4, 4): cameras 0 and k, camera-to-first-frame (the truth in any world frame).
-    Per step and camera, ``e = log(|t| / |t_true|)``. Returns (*wander*, *signal*): the std of the ``window``-frame
-    moving mean of ``e_k - e_0``, and the same of ``log(|t_k,true| / |t_0,true|)``, the change of the true steps'
-    length ratio in turns (the lever arm), which the rig's translation is solved from. Steps whose true length is
-    under 0.3x the camera's median, or not finite, are left out; NaN with fewer than ``2 window`` steps left.
+    Steps whose true length is under 0.3x the camera's median, or whose estimate is not finite and positive, are
+    left out (N <= T - 1).
     """
     step = lambda P: np.linalg.norm(frame_motions(P)[..., :3, 3], axis=-1)  # noqa: E731
     est = np.stack([step(trajectory[:, c]) for c in range(2)], 1)
     true = np.stack([step(truth[:, c]) for c in range(2)], 1)
     with np.errstate(invalid="ignore", divide="ignore"):
         kept = np.isfinite(est).all(1) & (est > 0).all(1) & (true > 0.3 * np.nanmedian(true, 0)).all(1)
-        e, ratio = np.log(est[kept] / true[kept]), np.log(true[kept, 1] / true[kept, 0])
-    if kept.sum() < 2 * window:
+        return np.log(est[kept] / true[kept]), np.log(true[kept, 1] / true[kept, 0])
+
+
+def scale_wander(trajectory: np.ndarray, truth: np.ndarray, window: int = WANDER_WINDOW) -> tuple[float, float]:
+    """How much camera k's front-end scale wanders against camera 0's, beside the signal that hides in it.
+
+    ``trajectory``, ``truth``: as :func:`step_length_errors`. Returns (*wander*, *signal*): the std of the
+    ``window``-frame moving mean of ``e_k - e_0``, and the same of the true steps' length ratio, whose change in
+    turns (the lever arm) the rig's translation is solved from. NaN with fewer than ``2 window`` steps kept.
+    """
+    e, lever = step_length_errors(trajectory, truth)
+    if len(e) < 2 * window:
         return math.nan, math.nan
     moving_std = lambda x: float(np.convolve(x - x.mean(), np.ones(window) / window, mode="valid").std())  # noqa: E731
-    return moving_std(e[:, 1] - e[:, 0]), moving_std(ratio)
+    return moving_std(e[:, 1] - e[:, 0]), moving_std(lever)
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:

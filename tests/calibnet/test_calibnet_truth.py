@@ -51,6 +51,11 @@ def test_a_sinusoidal_scale_wanders_by_its_closed_form(period):
     assert wander == pytest.approx(expected, rel=0.05)
 
 
-def test_too_few_moving_frames_give_nan():
-    truth = car_rig(lever_arm=True)[:40]
-    assert all(math.isnan(x) for x in scale_wander(truth, truth))
+def test_too_few_moving_frames_give_nan_and_lost_frames_are_left_out():
+    truth = car_rig(lever_arm=True)
+    assert all(math.isnan(x) for x in scale_wander(truth[:40], truth[:40]))
+    assert all(math.isnan(x) for x in scale_wander(truth[:1].repeat(300, 0), truth[:1].repeat(300, 0)))  # static
+    lost = truth.copy()
+    lost[100:110, 1] = np.nan  # a front end that lost camera 1 for ten frames
+    wander, signal = scale_wander(lost, truth)
+    assert wander < 1e-9 and signal == pytest.approx(scale_wander(truth, truth)[1], rel=0.1)
