@@ -113,3 +113,42 @@ def test_distill_term_is_the_distance_to_the_refined_motions(tiny_synth):
     torch.testing.assert_close(totals[0.5] - totals[0.0], 0.5 * expected)
     with pytest.raises(ValueError, match="only with model.align"):
         EgoMotionModule(height=32, width=96, distill=0.1)
+
+
+def test_scale_consistency_term_is_the_offset_to_the_sources_depth(tiny_synth):
+    """``scale_consistency``: the term is the mean |log scale| between the target's depth carried into each source
+    camera by the refined motion and that source's own depth, and it enters the total with its weight."""
+    import math
+
+    from ocalib.frontend.align import align_motion
+    from ocalib.geometry.pose import invert_pose
+    from ocalib.losses import inverse_warp, log_scale_offset
+    from ocalib.models import disp_to_depth
+
+    dm = SyntheticDataModule(presets={"handheld": [0]}, val_presets={}, frames=6, root=str(tiny_synth),
+                             height=32, width=96, batch_size=2, augmentation=None)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    totals = {}
+    for weight in (0.0, 0.5):
+        torch.manual_seed(0)
+        module = EgoMotionModule(height=32, width=96, geometry=0.0, align=(2, 2), scale_consistency=weight).train()
+        with torch.no_grad():
+            out, _, T = module.step(batch)
+        totals[weight] = out.total
+    images, K = batch["image"], batch["K"]
+    B, S = images.shape[:2]
+    with torch.no_grad():
+        depth = disp_to_depth(module.model.disparities(images[:, 0])[0])
+        sources = disp_to_depth(module.model.disparities(images[:, 1:].flatten(0, 1))[0]).unflatten(0, (B, S - 1))
+        targets = images[:, :1].expand(-1, S - 1, -1, -1, -1).flatten(0, 1)
+        refined, _ = align_motion(targets, images[:, 1:].flatten(0, 1), depth.repeat_interleave(S - 1, 0),
+                                  K.repeat_interleave(S - 1, 0), invert_pose(T).flatten(0, 1), iterations=(2, 2),
+                                  max_rotation_deg=math.inf)
+        refined = refined.unflatten(0, (B, S - 1))
+        offsets = [log_scale_offset(w.depth, w.source_depth, w.mask) for w in
+                   (inverse_warp(images[:, 1 + j], depth, refined[:, j], K, sources[:, j]) for j in range(S - 1))]
+    expected = sum(o.abs().mean() for o in offsets) / (S - 1)
+    assert expected > 0
+    torch.testing.assert_close(out.terms["scale_consistency"], expected)
+    torch.testing.assert_close(totals[0.5] - totals[0.0], 0.5 * expected)
