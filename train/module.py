@@ -41,8 +41,7 @@ def pair_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3)
 class EgoMotionModule(pl.LightningModule):
     """Trains an :class:`~ocalib.models.EgoMotionModel` (``size``, ``height``, ``width``).
 
-    Loss: ``automask``, ``smoothness``, ``geometry`` (0 disables SC-SfMLearner's consistency loss and mask),
-    ``scale_consistency`` (0 disables it; the sources' depth is then computed without gradient, as a reference)
+    Loss: ``automask``, ``smoothness``, ``geometry`` (0 disables SC-SfMLearner's consistency loss and mask)
     as :class:`~ocalib.losses.SelfSupervisedLoss`, over the first ``scales`` disparity scales. Adam with
     ``lr``, ``weight_decay``, linear warm-up over ``warmup_steps`` then cosine decay to ``min_lr_ratio x lr``
     at the last step. ``align``: Gauss-Newton steps per pyramid level, coarsest first
@@ -58,8 +57,8 @@ class EgoMotionModule(pl.LightningModule):
 
     def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
                  weight_decay: float = 0.0, warmup_steps: int = 200, min_lr_ratio: float = 0.05,
-                 automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.1, scale_consistency: float = 0.0,
-                 scales: int = 4, align: tuple[int, ...] = (), distill: float = 0.0, image_interval: int = 250,
+                 automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.1, scales: int = 4,
+                 align: tuple[int, ...] = (), distill: float = 0.0, image_interval: int = 250,
                  trajectory_frames: int = 200):
         super().__init__()
         if distill < 0 or (distill > 0 and not align):
@@ -67,7 +66,7 @@ class EgoMotionModule(pl.LightningModule):
                              "pose network towards the aligned motions)")
         self.save_hyperparameters()
         self.model = EgoMotionModel(size, height, width)
-        self.loss = SelfSupervisedLoss(automask, smoothness, geometry, scale_consistency)
+        self.loss = SelfSupervisedLoss(automask, smoothness, geometry)
         self.nonfinite_steps = 0
         self._skipped = False
         self._val = defaultdict(list)
@@ -82,10 +81,6 @@ class EgoMotionModule(pl.LightningModule):
         if use_geometry:
             source_depths = disp_to_depth(disps[0].unflatten(0, (B, S))[:, 1:])
             disps = [d.unflatten(0, (B, S))[:, 0] for d in disps]
-        elif self.loss.scale > 0:  # the sources' depth as a reference only: the target's scale is pulled to theirs
-            with torch.no_grad():
-                source_depths = disp_to_depth(self.model.disparities(images[:, 1:].flatten(0, 1))[0])
-            source_depths = source_depths.unflatten(0, (B, S - 1))
         targets = images[:, :1].expand(-1, S - 1, -1, -1, -1).flatten(0, 1)
         T = self.model.pose(targets, images[:, 1:].flatten(0, 1)).unflatten(0, (B, S - 1))
         disps = disps[: self.hparams.scales]

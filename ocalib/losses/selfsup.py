@@ -1,6 +1,6 @@
 """The self-supervised objective: monodepth2's minimum reprojection with auto-masking, multi-scale, edge-aware
-smoothness, SC-SfMLearner's geometry consistency with its self-discovered mask (optional), a frame-to-frame depth
-scale consistency (optional) and a scale gauge (:mod:`ocalib.losses.gauge`).
+smoothness, SC-SfMLearner's geometry consistency with its self-discovered mask (optional), and a scale gauge
+(:mod:`ocalib.losses.gauge`).
 
 Convention: ``images`` (B, S, 3, H, W), the target first then S-1 sources; ``T_source_target`` (B, S-1, 4, 4)
 maps target-camera points into each source camera; ``K`` (B, 3, 3) at (H, W); disparities (B, 1, h, w) per scale.
@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ocalib.losses.consistency import depth_inconsistency, log_scale_offset
+from ocalib.losses.consistency import depth_inconsistency
 from ocalib.losses.gauge import scale_gauge
 from ocalib.losses.photometric import photometric_error
 from ocalib.losses.smoothness import edge_aware_smoothness
@@ -59,16 +59,13 @@ def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
 
 def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T_source_target: Tensor,
                          source_depths: Tensor | None = None, *, automask: bool = True,
-                         smoothness: float = 1e-3, geometry: float = 0.0, scale: float = 0.0, ssim: float = 0.85,
+                         smoothness: float = 1e-3, geometry: float = 0.0, ssim: float = 0.85,
                          min_depth: float = MIN_DEPTH, max_depth: float = MAX_DEPTH) -> LossOutput:
     """Total loss, averaged over the scales of ``disparities`` (each upsampled to full resolution).
 
     ``geometry`` > 0 needs ``source_depths`` (B, S-1, 1, H, W): it adds ``geometry x`` the masked mean depth
     inconsistency and weights the photometric errors by the self-discovered mask ``1 - inconsistency``
-    (detached). ``scale`` > 0 needs them too: it adds ``scale x`` the mean ``|log scale offset|`` between the target's
-    finest depth carried into each source camera and the source's depth
-    (:func:`~ocalib.losses.consistency.log_scale_offset`), the one thing the photometric loss leaves free from frame
-    to frame (depth and motion scaled together warp alike). ``smoothness`` weighs the edge-aware term at scale s by ``1 / 2^s``. The scale gauge on the
+    (detached). ``smoothness`` weighs the edge-aware term at scale s by ``1 / 2^s``. The scale gauge on the
     finest depth is added with weight 1 (zero while the depth's scale is in the middle of its range).
     """
     B, S, _, H, W = images.shape
@@ -77,11 +74,10 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
         identity = torch.cat([photometric_error(sources[:, j], target, ssim) for j in range(S - 1)], 1)
         if automask:
             identity += 1e-5 * torch.randn_like(identity)  # break ties (monodepth2)
-    use_geometry, use_scale = geometry > 0, scale > 0
-    if (use_geometry or use_scale) and source_depths is None:
-        raise ValueError("the geometry- and scale-consistency losses need source_depths")
+    use_geometry = geometry > 0
+    if use_geometry and source_depths is None:
+        raise ValueError("the geometry-consistency loss needs source_depths")
     zero = images.new_zeros(())
-    scale_term = zero
     sums = {"photometric": zero, "smoothness": zero, "geometry": zero, "used": zero}
     images_out = {}
     for s, disp in enumerate(disparities):
@@ -90,9 +86,7 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
         errors, geo = [], zero
         for j in range(S - 1):
             warp = inverse_warp(sources[:, j], depth, T_source_target[:, j], K,
-                                source_depths[:, j] if use_geometry or use_scale else None)
-            if use_scale and s == 0:
-                scale_term = scale_term + log_scale_offset(warp.depth, warp.source_depth, warp.mask).abs().mean() / (S - 1)
+                                source_depths[:, j] if use_geometry else None)
             error = photometric_error(warp.image, target, ssim)
             if use_geometry:
                 diff = depth_inconsistency(warp.depth, warp.source_depth)
@@ -114,25 +108,19 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
     terms = {k: v / n for k, v in sums.items()}
     terms["gauge"] = gauge
     total = terms["photometric"] + smoothness * terms["smoothness"] + geometry * terms["geometry"] + gauge
-    if use_scale:
-        terms["scale_consistency"] = scale_term
-        total = total + scale * scale_term
     if not use_geometry:
         del terms["geometry"]
     return LossOutput(total, terms, images_out)
 
 
 class SelfSupervisedLoss(nn.Module):
-    """:func:`self_supervised_loss` with its weights stored (``automask``, ``smoothness``, ``geometry``, ``scale``,
-    ``ssim``)."""
+    """:func:`self_supervised_loss` with its weights stored (``automask``, ``smoothness``, ``geometry``, ``ssim``)."""
 
-    def __init__(self, automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.0, scale: float = 0.0,
-                 ssim: float = 0.85):
+    def __init__(self, automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.0, ssim: float = 0.85):
         super().__init__()
-        self.automask, self.smoothness, self.geometry, self.scale, self.ssim = automask, smoothness, geometry, scale, ssim
+        self.automask, self.smoothness, self.geometry, self.ssim = automask, smoothness, geometry, ssim
 
     def forward(self, images: Tensor, K: Tensor, disparities: list[Tensor], T_source_target: Tensor,
                 source_depths: Tensor | None = None) -> LossOutput:
         return self_supervised_loss(images, K, disparities, T_source_target, source_depths, automask=self.automask,
-                                    smoothness=self.smoothness, geometry=self.geometry, scale=self.scale,
-                                    ssim=self.ssim)
+                                    smoothness=self.smoothness, geometry=self.geometry, ssim=self.ssim)
