@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
 REFINE_CHOICES = {"unobservable": "unobservable", "always": True, "never": False}  # --refine -> the head's refine
@@ -112,8 +113,6 @@ def print_warnings(doc: dict) -> None:
 
 def errors_table(errors: list[dict], cameras: list[str]) -> str:
     """The ground-truth errors, one line per camera."""
-    import math
-
     from ocalib.calibnet.truth import WANDER_WINDOW
 
     lines = ["errors against the ground truth:"]
@@ -137,8 +136,6 @@ def errors_table(errors: list[dict], cameras: list[str]) -> str:
 
 def log_frame(writer, t: int, estimate) -> None:
     """TensorBoard scalars of one frame's estimate, camera k of rig 0."""
-    import math
-
     for k in range(estimate.scale.shape[1]):
         q = estimate.quaternion[0, k].tolist()
         tag = f"camera{k + 1}"
