@@ -11,6 +11,7 @@ import math
 from collections import defaultdict
 
 import lightning.pytorch as pl
+from lightning.pytorch.callbacks import Timer
 import numpy as np
 import torch
 from torch import Tensor
@@ -44,7 +45,7 @@ class EgoMotionModule(pl.LightningModule):
     Loss: ``automask``, ``smoothness``, ``geometry`` (0 disables SC-SfMLearner's consistency loss and mask)
     as :class:`~ocalib.losses.SelfSupervisedLoss`, over the first ``scales`` disparity scales. Adam with
     ``lr``, ``weight_decay``, linear warm-up over ``warmup_steps`` then cosine decay to ``min_lr_ratio x lr``
-    at the last step. ``align``: Gauss-Newton steps per pyramid level, coarsest first
+    at the last step, or at the trainer's ``max_time`` if that comes first (:func:`lr_factor`). ``align``: Gauss-Newton steps per pyramid level, coarsest first
     (:func:`~ocalib.frontend.align.align_motion`, no rotation limit; empty: off): in training, the depth network
     learns from the pose network's motions refined on its own depth, and the pose network from its own motions
     with the depth detached, so that the depth does not absorb the pose network's errors. The network's depth scale
@@ -206,15 +207,30 @@ class EgoMotionModule(pl.LightningModule):
         h = self.hparams
         optimizer = torch.optim.Adam(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
         total = max(1, int(self.trainer.estimated_stepping_batches))
-
-        def factor(step: int) -> float:
-            if step < h.warmup_steps:
-                return (step + 1) / h.warmup_steps
-            progress = min(1.0, (step - h.warmup_steps) / max(1, total - h.warmup_steps))
-            return h.min_lr_ratio + (1 - h.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress))
-
-        schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+        schedule = torch.optim.lr_scheduler.LambdaLR(
+            optimizer, lambda step: lr_factor(step, total, h.warmup_steps, h.min_lr_ratio, self._time_spent()))
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+
+    def _time_spent(self) -> float:
+        """Share of the trainer's ``max_time`` spent in training (rank 0's under DDP, so that every process steps
+        with the same learning rate); 0 without a time limit. A resumed run counts the time before it too."""
+        timer = next((c for c in self.trainer.callbacks if isinstance(c, Timer)), None)
+        if timer is None or timer.time_remaining() is None:
+            return 0.0
+        elapsed, remaining = timer.time_elapsed(), timer.time_remaining()
+        return float(self.trainer.strategy.broadcast(elapsed / max(elapsed + remaining, 1e-9)))
+
+
+def lr_factor(step: int, total_steps: int, warmup_steps: int, min_lr_ratio: float, time_spent: float = 0.0) -> float:
+    """The learning rate's factor at ``step``: linear warm-up over ``warmup_steps``, then cosine decay to
+    ``min_lr_ratio`` at the end of the run. The run's progress is the larger of the steps done (of ``total_steps``)
+    and ``time_spent`` (the share of a time limit spent): a run stopped by its time limit, on a machine slower
+    than the recipe's, still ends annealed instead of cut off in the middle of its schedule."""
+    if step < warmup_steps:
+        return (step + 1) / warmup_steps
+    steps = (step - warmup_steps) / max(1, total_steps - warmup_steps)
+    progress = min(1.0, max(steps, time_spent))
+    return min_lr_ratio + (1 - min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress))
 
 
 def _chain(motions: list[np.ndarray]) -> np.ndarray:
