@@ -11,9 +11,9 @@ import math
 from collections import defaultdict
 
 import lightning.pytorch as pl
-from lightning.pytorch.callbacks import Timer
 import numpy as np
 import torch
+from lightning.pytorch.callbacks import Timer
 from torch import Tensor
 
 from ocalib.eval.depth_metrics import depth_errors
@@ -45,8 +45,9 @@ class EgoMotionModule(pl.LightningModule):
     Loss: ``automask``, ``smoothness``, ``geometry`` (0 disables SC-SfMLearner's consistency loss and mask)
     as :class:`~ocalib.losses.SelfSupervisedLoss`, over the first ``scales`` disparity scales. Adam with
     ``lr``, ``weight_decay``, linear warm-up over ``warmup_steps`` then cosine decay to ``min_lr_ratio x lr``
-    at the last step, or at the trainer's ``max_time`` if that comes first (:func:`lr_factor`). ``align``: Gauss-Newton steps per pyramid level, coarsest first
-    (:func:`~ocalib.frontend.align.align_motion`, no rotation limit; empty: off): in training, the depth network
+    at the last step, or at the trainer's ``max_time`` if that comes first (:func:`lr_factor`). ``align``:
+    Gauss-Newton steps per pyramid level, coarsest first (:func:`~ocalib.frontend.align.align_motion`, no rotation
+    limit; empty: off): in training, the depth network
     learns from the pose network's motions refined on its own depth, and the pose network from its own motions
     with the depth detached, so that the depth does not absorb the pose network's errors. The network's depth scale
     is free and is held by the loss's scale gauge; ``train/depth_median`` and ``train/depth_far_share`` (the share
