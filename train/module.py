@@ -47,9 +47,9 @@ class EgoMotionModule(pl.LightningModule):
     ``lr``, ``weight_decay``, linear warm-up over ``warmup_steps`` then cosine decay to ``min_lr_ratio x lr``
     at the last step, or at the trainer's ``max_time`` if that comes first (:func:`lr_factor`). ``align``:
     Gauss-Newton steps per pyramid level, coarsest first (:func:`~ocalib.frontend.align.align_motion`, no rotation
-    limit; empty: off): in training, the depth network
-    learns from the pose network's motions refined on its own depth, and the pose network from its own motions
-    with the depth detached, so that the depth does not absorb the pose network's errors. The network's depth scale
+    limit; empty: off): in training, the depth network learns from the pose network's motions refined on its own
+    depth, and the pose network from its own motions with the depth detached, so that the depth does not absorb the
+    pose network's errors. The network's depth scale
     is free and is held by the loss's scale gauge; ``train/depth_median`` and ``train/depth_far_share`` (the share
     of pixels beyond half of the depth range's far end) show it in TensorBoard. ``distill``: weight of the pose
     network's distance to the refined motions (:func:`~ocalib.losses.motion.motion_distance`, degrees + relative
@@ -216,9 +216,10 @@ class EgoMotionModule(pl.LightningModule):
         """Share of the trainer's ``max_time`` spent in training (rank 0's under DDP, so that every process steps
         with the same learning rate); 0 without a time limit. A resumed run counts the time before it too."""
         timer = next((c for c in self.trainer.callbacks if isinstance(c, Timer)), None)
-        if timer is None or timer.time_remaining() is None:
+        remaining = None if timer is None else timer.time_remaining()
+        if remaining is None:
             return 0.0
-        elapsed, remaining = timer.time_elapsed(), timer.time_remaining()
+        elapsed = timer.time_elapsed()
         return float(self.trainer.strategy.broadcast(elapsed / max(elapsed + remaining, 1e-9)))
 
 
