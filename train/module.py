@@ -51,10 +51,10 @@ class EgoMotionModule(pl.LightningModule):
     depth, and the pose network from its own motions with the depth detached, so that the depth does not absorb the
     pose network's errors. The network's depth scale is free and is held by the loss's scale gauge;
     ``train/depth_median`` and ``train/depth_far_share`` (the share of pixels beyond half of the depth range's far
-    end) show it in TensorBoard. ``distill``: weight of the pose
-    network's distance to the refined motions (:func:`~ocalib.losses.motion.motion_distance`, degrees + relative
-    translation; 0: off; with ``align`` only). Images go to TensorBoard
-    every ``image_interval`` steps; ``trajectory_frames``: length of the validation trajectory plotted.
+    end) show it in TensorBoard. ``distill``: weight of the pose network's distance to the refined motions
+    (:func:`~ocalib.losses.motion.motion_distance`, degrees + relative translation; 0: off; with ``align`` only).
+    Images go to TensorBoard every ``image_interval`` steps; ``trajectory_frames``: length of the validation
+    trajectory plotted.
     """
 
     def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
