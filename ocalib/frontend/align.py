@@ -168,8 +168,9 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
     motion and tilt of lowest mean absolute residual among the candidates and the iterates, and its index (B,) in
     that order (0: the first candidate). ``translation_only``: the unknowns are the translation and the tilt."""
     B, C, H, W = target.shape
-    points = depth_to_3d_v2(depth[:, 0], K).reshape(B, -1, 3)  # target camera
-    ray = points[..., :2] / points[..., 2:].clamp(min=MIN_Z)  # (B, N, 2) normalised image coordinates
+    # pixels along the last axis, coordinates along the second: every per-pixel term below is a contiguous row
+    points = depth_to_3d_v2(depth[:, 0], K).reshape(B, -1, 3).transpose(1, 2)  # (B, 3, N) target camera
+    ray = points[:, :2] / points[:, 2:].clamp(min=MIN_Z)  # (B, 2, N) normalised image coordinates
     # source intensity, then its derivatives along u and along v (per pixel), sampled together
     stacked = torch.cat([source, image_gradient(source)], 1)
     fx, fy, cx, cy = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 2, None], K[:, 1, 2, None]
@@ -179,13 +180,14 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
     for it in range(evaluations):
         T, tilt = queue.pop(0)
         if translation_only:
-            factor = (1 + (ray * tilt[:, None]).sum(-1, keepdim=True)).clamp(min=0.2)  # (B, N, 1): rho' / rho
-        X = (points / factor if translation_only else points) @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3]
-        z = X[..., 2].clamp(min=MIN_Z)
-        u, v = fx * X[..., 0] / z + cx, fy * X[..., 1] / z + cy
-        grid = torch.stack([2 * u / max(W - 1, 1) - 1, 2 * v / max(H - 1, 1) - 1], -1)
-        valid = ((grid.abs() <= 1).all(-1) & (X[..., 2] > MIN_Z)).to(target.dtype)  # (B, N)
-        sampled = F.grid_sample(stacked, grid.view(B, H, W, 2), align_corners=True).flatten(2)  # (B, 3C, N)
+            factor = (1 + (ray * tilt[..., None]).sum(1, keepdim=True)).clamp(min=0.2)  # (B, 1, N): rho' / rho
+        X = torch.baddbmm(T[:, :3, 3:], T[:, :3, :3], points / factor if translation_only else points)  # (B, 3, N)
+        z = X[:, 2].clamp(min=MIN_Z)
+        iz = 1 / z
+        a, b = X[:, 0] * iz, X[:, 1] * iz  # (B, N) normalised coordinates in the source camera
+        u, v = 2 * (fx * a + cx) / max(W - 1, 1) - 1, 2 * (fy * b + cy) / max(H - 1, 1) - 1  # grid_sample's
+        valid = ((u.abs() <= 1) & (v.abs() <= 1) & (X[:, 2] > MIN_Z)).to(target.dtype)  # (B, N)
+        sampled = F.grid_sample(stacked, torch.stack([u, v], -1).view(B, H, W, 2), align_corners=True).flatten(2)
         r = (sampled[:, :C] - target.flatten(2)) * valid[:, None]  # (B, C, N)
         cost = r.abs().sum((1, 2)) / (valid.sum(1) * C).clamp(min=1)
         improved = cost < best_cost
@@ -198,20 +200,22 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         if it == len(candidates) - 1 and len(candidates) > 1:  # descend from the best candidate
             queue.append((best, best_tilt))
             continue
-        x, y, iz = X[..., 0], X[..., 1], 1 / z
-        gu, gv = sampled[:, C : 2 * C] * fx[:, None], sampled[:, 2 * C :] * fy[:, None]  # per unit of x/z, y/z
-        # d(x/z, y/z)/dX = [[1/z, 0, -x/z^2], [0, 1/z, -y/z^2]] times dX/d(w, v) = [-[X]x, I]
-        zero = torch.zeros_like(z)
-        du = torch.stack([-x * y * iz, z + x * x * iz, -y, z * iz, zero, -x * iz], -1) * iz[..., None]
-        dv = torch.stack([-(z + y * y * iz), x * y * iz, x, zero, z * iz, -y * iz], -1) * iz[..., None]
-        J = gu[..., None] * du[:, None] + gv[..., None] * dv[:, None]  # (B, C, N, 6)
+        # the residual's derivative: the image gradient (per unit of a = x/z, b = y/z) times d(a, b)/d(w, v), with
+        # d(a, b)/dX = [[1/z, 0, -a/z], [0, 1/z, -b/z]] and dX/d(w, v) = [-[X]x, I]
+        gu, gv = sampled[:, C : 2 * C] * fx[..., None], sampled[:, 2 * C :] * fy[..., None]  # (B, C, N)
+        a, b, iz = a[:, None], b[:, None], iz[:, None]
+        J = [gu * iz, gv * iz, -(gu * a + gv * b) * iz]  # translation
         if translation_only:  # d(u, v)/d(tilt) = (d(u, v)/dt . t) (x, y) / factor
-            J = J[..., 3:]
-            J = torch.cat([J, (J @ T[:, None, :3, 3:]) / factor[:, None] * ray[:, None]], -1)
-        J = J.flatten(1, 2)  # (B, C N, 6 or 5)
-        w = ((huber / r.abs().clamp(min=huber)) * valid[:, None]).flatten(1)[..., None]  # Huber weights
-        A = (J * w).transpose(1, 2) @ J  # (B, 6, 6)
-        g = (J * w).transpose(1, 2) @ r.flatten(1)[..., None]
+            along = (J[0] * T[:, 0, 3, None, None] + J[1] * T[:, 1, 3, None, None] + J[2] * T[:, 2, 3, None, None])
+            along = along / factor
+            J += [along * ray[:, :1], along * ray[:, 1:]]
+        else:
+            ab = a * b
+            J = [-gu * ab - gv * (1 + b * b), gu * (1 + a * a) + gv * ab, gv * a - gu * b] + J
+        J = torch.stack(J, 1).flatten(2)  # (B, 6 or 5, C N)
+        Jw = J * ((huber / r.abs().clamp(min=huber)) * valid[:, None]).flatten(1)[:, None]  # Huber weights
+        A = Jw @ J.transpose(1, 2)  # (B, 6, 6)
+        g = Jw @ r.flatten(1)[..., None]
         A = A + damping * torch.diag_embed(A.diagonal(dim1=1, dim2=2)) + 1e-9 * torch.eye(A.shape[-1], device=A.device)
         step = -torch.linalg.solve_ex(A, g)[0][..., 0]  # _ex: no host round-trip to check the factorisation
         step = torch.where(torch.isfinite(step).all(-1, keepdim=True), step, torch.zeros_like(step))
