@@ -22,7 +22,7 @@ from ocalib.frontend.align import align_motion
 from ocalib.geometry.pose import invert_pose
 from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.losses.motion import motion_distance
-from ocalib.losses.selfsup import self_supervised_loss
+from ocalib.losses.selfsup import identity_errors, self_supervised_loss
 from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth
 from train.visuals import colorize, trajectory_figure
 
@@ -92,9 +92,10 @@ class EgoMotionModule(pl.LightningModule):
         refined, _ = align_motion(targets, images[:, 1:].flatten(0, 1), depth, K.repeat_interleave(S - 1, 0),
                                   invert_pose(T.detach()).flatten(0, 1), iterations=tuple(self.hparams.align),
                                   max_rotation_deg=math.inf)
-        out = self.loss(images, K, disps, refined.unflatten(0, (B, S - 1)), source_depths)
+        identity = identity_errors(images, self.loss.ssim, self.loss.automask)  # shared by the two terms
+        out = self.loss(images, K, disps, refined.unflatten(0, (B, S - 1)), source_depths, identity)
         pose = self_supervised_loss(images, K, [disps[0].detach()], invert_pose(T), automask=self.loss.automask,
-                                    smoothness=0.0, ssim=self.loss.ssim)
+                                    smoothness=0.0, ssim=self.loss.ssim, identity=identity)
         out.terms["pose_photometric"] = pose.terms["photometric"]
         out.total = out.total + pose.terms["photometric"]  # not pose.total: its gauge is a constant (detached depth)
         if self.hparams.distill > 0:
@@ -206,7 +207,7 @@ class EgoMotionModule(pl.LightningModule):
 
     def configure_optimizers(self):
         h = self.hparams
-        optimizer = torch.optim.Adam(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
+        optimizer = torch.optim.Adam(self.parameters(), lr=h.lr, weight_decay=h.weight_decay, fused=True)
         total = max(1, int(self.trainer.estimated_stepping_batches))
         schedule = torch.optim.lr_scheduler.LambdaLR(
             optimizer, lambda step: lr_factor(step, total, h.warmup_steps, h.min_lr_ratio, self._time_spent()))

@@ -57,23 +57,32 @@ def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
     return (x * mask).sum() / mask.sum().clamp(min=1.0)
 
 
+def identity_errors(images: Tensor, ssim: float = 0.85, automask: bool = True) -> Tensor:
+    """The photometric errors of the unwarped sources against the target (B, S-1, H, W), no gradient; with
+    ``automask``, plus a 1e-5 noise that breaks ties with the reprojections (monodepth2)."""
+    with torch.no_grad():
+        target, sources = images[:, 0], images[:, 1:]
+        identity = torch.cat([photometric_error(sources[:, j], target, ssim) for j in range(sources.shape[1])], 1)
+        return identity + 1e-5 * torch.randn_like(identity) if automask else identity
+
+
 def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T_source_target: Tensor,
                          source_depths: Tensor | None = None, *, automask: bool = True,
                          smoothness: float = 1e-3, geometry: float = 0.0, ssim: float = 0.85,
-                         min_depth: float = MIN_DEPTH, max_depth: float = MAX_DEPTH) -> LossOutput:
+                         min_depth: float = MIN_DEPTH, max_depth: float = MAX_DEPTH,
+                         identity: Tensor | None = None) -> LossOutput:
     """Total loss, averaged over the scales of ``disparities`` (each upsampled to full resolution).
 
     ``geometry`` > 0 needs ``source_depths`` (B, S-1, 1, H, W): it adds ``geometry x`` the masked mean depth
     inconsistency and weights the photometric errors by the self-discovered mask ``1 - inconsistency``
     (detached). ``smoothness`` weighs the edge-aware term at scale s by ``1 / 2^s``. The scale gauge on the
     finest depth is added with weight 1 (zero while the depth's scale is in the middle of its range).
+    ``identity``: :func:`identity_errors` of ``images``, when the caller has them already (computed here if not).
     """
     B, S, _, H, W = images.shape
     target, sources = images[:, 0], images[:, 1:]
-    with torch.no_grad():
-        identity = torch.cat([photometric_error(sources[:, j], target, ssim) for j in range(S - 1)], 1)
-        if automask:
-            identity += 1e-5 * torch.randn_like(identity)  # break ties (monodepth2)
+    if identity is None:
+        identity = identity_errors(images, ssim, automask)
     use_geometry = geometry > 0
     if use_geometry and source_depths is None:
         raise ValueError("the geometry-consistency loss needs source_depths")
@@ -121,6 +130,7 @@ class SelfSupervisedLoss(nn.Module):
         self.automask, self.smoothness, self.geometry, self.ssim = automask, smoothness, geometry, ssim
 
     def forward(self, images: Tensor, K: Tensor, disparities: list[Tensor], T_source_target: Tensor,
-                source_depths: Tensor | None = None) -> LossOutput:
+                source_depths: Tensor | None = None, identity: Tensor | None = None) -> LossOutput:
         return self_supervised_loss(images, K, disparities, T_source_target, source_depths, automask=self.automask,
-                                    smoothness=self.smoothness, geometry=self.geometry, ssim=self.ssim)
+                                    smoothness=self.smoothness, geometry=self.geometry, ssim=self.ssim,
+                                    identity=identity)
