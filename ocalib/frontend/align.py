@@ -206,8 +206,7 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         a, b, iz = a[:, None], b[:, None], iz[:, None]
         J = [gu * iz, gv * iz, -(gu * a + gv * b) * iz]  # translation
         if translation_only:  # d(u, v)/d(tilt) = (d(u, v)/dt . t) (x, y) / factor
-            along = (J[0] * T[:, 0, 3, None, None] + J[1] * T[:, 1, 3, None, None] + J[2] * T[:, 2, 3, None, None])
-            along = along / factor
+            along = sum(d * T[:, k, 3, None, None] for k, d in enumerate(J)) / factor  # (B, C, N)
             J += [along * ray[:, :1], along * ray[:, 1:]]
         else:
             ab = a * b
