@@ -200,18 +200,7 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
         if it == len(candidates) - 1 and len(candidates) > 1:  # descend from the best candidate
             queue.append((best, best_tilt))
             continue
-        # the residual's derivative: the image gradient (per unit of a = x/z, b = y/z) times d(a, b)/d(w, v), with
-        # d(a, b)/dX = [[1/z, 0, -a/z], [0, 1/z, -b/z]] and dX/d(w, v) = [-[X]x, I]
-        gu, gv = sampled[:, C : 2 * C] * fx[..., None], sampled[:, 2 * C :] * fy[..., None]  # (B, C, N)
-        a, b, iz = a[:, None], b[:, None], iz[:, None]
-        J = [gu * iz, gv * iz, -(gu * a + gv * b) * iz]  # translation
-        if translation_only:  # d(u, v)/d(tilt) = (d(u, v)/dt . t) (x, y) / factor
-            along = sum(d * T[:, k, 3, None, None] for k, d in enumerate(J)) / factor  # (B, C, N)
-            J += [along * ray[:, :1], along * ray[:, 1:]]
-        else:
-            ab = a * b
-            J = [-gu * ab - gv * (1 + b * b), gu * (1 + a * a) + gv * ab, gv * a - gu * b] + J
-        J = torch.stack(J, 1).flatten(2)  # (B, 6 or 5, C N)
+        J = _jacobian(sampled[:, C:], a, b, iz, fx, fy, (T[:, :3, 3], factor, ray) if translation_only else None)
         Jw = J * ((huber / r.abs().clamp(min=huber)) * valid[:, None]).flatten(1)[:, None]  # Huber weights
         A = Jw @ J.transpose(1, 2)  # (B, 6, 6)
         g = Jw @ r.flatten(1)[..., None]
@@ -223,6 +212,32 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
             step = F.pad(step[:, :3], (3, 0))
         queue.append((motion_to_pose(step) @ T, tilt))
     return best, best_tilt, index
+
+
+def _jacobian(gradient: Tensor, a: Tensor, b: Tensor, iz: Tensor, fx: Tensor, fy: Tensor,
+              tilt: tuple[Tensor, Tensor, Tensor] | None = None) -> Tensor:
+    """Derivative of the residual (B, 6, C N) with respect to a correction ``exp([w, v])`` applied on the left of the
+    motion (w: rotation, v: translation, in the source camera), per pixel: the image gradient times d(a, b)/d(w, v),
+    with d(a, b)/dX = [[1/z, 0, -a/z], [0, 1/z, -b/z]] and dX/d(w, v) = [-[X]x, I].
+
+    ``gradient`` (B, 2 C, N): the source's d/du of every channel, then d/dv, sampled at the projections; ``a``,
+    ``b`` (B, N): the points' normalised coordinates x/z, y/z in the source camera; ``iz`` (B, N): 1/z; ``fx``, ``fy``
+    (B, 1). ``tilt``: (translation (B, 3), factor (B, 1, N), ray (B, 2, N)) for :func:`align_translation`: the
+    columns are then d/dv and d/d(tilt) (B, 5, C N), d(u, v)/d(tilt) = (d(u, v)/dv . v) (x, y) / factor (moving X
+    along its own ray does not move its projection).
+    """
+    C = gradient.shape[1] // 2
+    gu, gv = gradient[:, :C] * fx[..., None], gradient[:, C:] * fy[..., None]  # per unit of a, b: (B, C, N)
+    a, b, iz = a[:, None], b[:, None], iz[:, None]
+    J = [gu * iz, gv * iz, -(gu * a + gv * b) * iz]  # translation
+    if tilt is not None:
+        t, factor, ray = tilt
+        along = sum(d * t[:, k, None, None] for k, d in enumerate(J)) / factor  # (B, C, N)
+        J += [along * ray[:, :1], along * ray[:, 1:]]
+    else:
+        ab = a * b
+        J = [-gu * ab - gv * (1 + b * b), gu * (1 + a * a) + gv * ab, gv * a - gu * b] + J
+    return torch.stack(J, 1).flatten(2)
 
 
 class StreamAligner(torch.nn.Module):

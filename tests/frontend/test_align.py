@@ -1,7 +1,8 @@
 """Direct photometric alignment against the renderer's ground truth: from a perturbed motion and the true depth it
 returns the true motion; a correction beyond its limit is refused and the input kept; a start outside the basin is
 rescued by a prior inside it (the stream aligner's previous motion); with the rotation held, the translation is
-found on a depth whose error grows across the image (a tilt), where the 6-DoF alignment is pulled off."""
+found on a depth whose error grows across the image (a tilt), where the 6-DoF alignment is pulled off; the
+analytic Jacobian against central differences of kornia's warp."""
 
 import math
 
@@ -12,7 +13,10 @@ from kornia.geometry.depth import depth_to_3d_v2
 
 import kornia
 
-from ocalib.frontend.align import StreamAligner, align_motion, align_translation, image_gradient, photometric_cost
+from ocalib.frontend.align import (StreamAligner, _jacobian, align_motion, align_translation, image_gradient,
+                                   photometric_cost)
+from ocalib.losses import inverse_warp
+from ocalib.models.pose import motion_to_pose
 from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.geometry.quaternion import rotation_angle
 from ocalib.synth import preset, render_rig
@@ -201,3 +205,45 @@ def test_align_refuses_a_depth_without_valid_pixels(pair):
         aligned, accepted = align_motion(target, source, bad, K, T)
         assert not bool(accepted[0]) and torch.equal(aligned, T)
         assert torch.equal(align_translation(target, source, bad, K, T)[0], T)
+
+
+@pytest.mark.parametrize("translation_only", [False, True])
+def test_gauss_newton_jacobian_matches_finite_differences_of_the_kornia_warp(translation_only, device):
+    """The analytic Jacobian of the alignment (:func:`ocalib.frontend.align._jacobian`) against central differences
+    of the residual of :func:`ocalib.losses.inverse_warp` (kornia), on a smooth image (where the sampled Sobel
+    gradient and the bilinear interpolant's slope agree): the left correction's rotation and translation, and with
+    the rotation held, the translation and the inverse depth's tilt (a depth divided by 1 + tilt . ray)."""
+    H, W, f64 = 48, 64, dict(dtype=torch.float64, device=device)
+    v, u = torch.meshgrid(torch.arange(H, **f64), torch.arange(W, **f64), indexing="ij")
+    source = (0.5 + 0.2 * torch.sin(2 * math.pi * 0.75 * u / W + 0.3) * torch.cos(2 * math.pi * 0.6 * v / H)
+              + 0.1 * torch.sin(2 * math.pi * (u + v) / 180))[None, None]
+    depth = (4 + 0.02 * v)[None, None]
+    K = torch.tensor([[[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]]], **f64)
+    T = motion_to_pose(torch.tensor([[0.01, -0.03, 0.02, 0.10, -0.05, 0.20]], **f64))
+    tilt = torch.tensor([[0.15, -0.10]], **f64)
+    points = depth_to_3d_v2(depth[:, 0], K).reshape(1, -1, 3).transpose(1, 2)  # (1, 3, N)
+    ray = points[:, :2] / points[:, 2:]
+
+    def residual(x):  # x: the correction (6,), or (translation (3,), tilt (2,)) with the rotation held
+        if translation_only:
+            factor = 1 + (ray * (tilt + x[3:])[..., None]).sum(1)
+            moved = T.clone()
+            moved[:, :3, 3] += x[:3]
+            return inverse_warp(source, depth / factor.view(1, 1, H, W), moved, K).image.flatten(2)
+        return inverse_warp(source, depth, motion_to_pose(x[None]) @ T, K).image.flatten(2)
+
+    h, n = 1e-5, 5 if translation_only else 6
+    numeric = torch.stack([(residual(h * e) - residual(-h * e)) / (2 * h) for e in torch.eye(n, **f64)], 1)[:, :, 0]
+    factor = (1 + (ray * tilt[..., None]).sum(1, keepdim=True)) if translation_only else torch.ones_like(ray[:, :1])
+    X = T[:, :3, :3] @ (points / factor) + T[:, :3, 3:]
+    iz = 1 / X[:, 2]
+    a, b = X[:, 0] * iz, X[:, 1] * iz
+    grid = torch.stack([2 * (50 * a + 31.5) / (W - 1) - 1, 2 * (50 * b + 23.5) / (H - 1) - 1], -1).view(1, H, W, 2)
+    gradient = torch.nn.functional.grid_sample(image_gradient(source), grid, align_corners=True).flatten(2)
+    fx = fy = K[:, 0, 0, None]
+    J = _jacobian(gradient, a, b, iz, fx, fy, (T[:, :3, 3], factor, ray) if translation_only else None)
+    inside = ((grid.view(1, -1, 2).abs() < 0.9).all(-1))[0]  # away from the border (replicated gradient there)
+    assert J.shape == (1, n, H * W) and inside.sum() > 0.5 * H * W
+    for k in range(n):  # the bilinear slope is first order: 2-3.5 % here, halved at half the image's frequencies
+        error = (J[0, k, inside] - numeric[0, k, inside]).norm() / numeric[0, k, inside].norm()
+        assert error < 0.05, f"column {k}: relative error {float(error):.3f}"
