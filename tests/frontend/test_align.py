@@ -15,10 +15,10 @@ import kornia
 
 from ocalib.frontend.align import (StreamAligner, _jacobian, align_motion, align_translation, image_gradient,
                                    photometric_cost)
-from ocalib.losses import inverse_warp
-from ocalib.models.pose import motion_to_pose
 from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.geometry.quaternion import rotation_angle
+from ocalib.losses import inverse_warp
+from ocalib.models.pose import motion_to_pose
 from ocalib.synth import preset, render_rig
 
 # 1 degree about a tilted axis and 3 cm: a typical error of the pose network on one frame (README, issue 4)
@@ -218,7 +218,8 @@ def test_gauss_newton_jacobian_matches_finite_differences_of_the_kornia_warp(tra
     source = (0.5 + 0.2 * torch.sin(2 * math.pi * 0.75 * u / W + 0.3) * torch.cos(2 * math.pi * 0.6 * v / H)
               + 0.1 * torch.sin(2 * math.pi * (u + v) / 180))[None, None]
     depth = (4 + 0.02 * v)[None, None]
-    K = torch.tensor([[[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]]], **f64)
+    f, cx, cy = 50.0, 31.5, 23.5
+    K = torch.tensor([[[f, 0, cx], [0, f, cy], [0, 0, 1]]], **f64)
     T = motion_to_pose(torch.tensor([[0.01, -0.03, 0.02, 0.10, -0.05, 0.20]], **f64))
     tilt = torch.tensor([[0.15, -0.10]], **f64)
     points = depth_to_3d_v2(depth[:, 0], K).reshape(1, -1, 3).transpose(1, 2)  # (1, 3, N)
@@ -238,7 +239,7 @@ def test_gauss_newton_jacobian_matches_finite_differences_of_the_kornia_warp(tra
     X = T[:, :3, :3] @ (points / factor) + T[:, :3, 3:]
     iz = 1 / X[:, 2]
     a, b = X[:, 0] * iz, X[:, 1] * iz
-    grid = torch.stack([2 * (50 * a + 31.5) / (W - 1) - 1, 2 * (50 * b + 23.5) / (H - 1) - 1], -1).view(1, H, W, 2)
+    grid = torch.stack([2 * (f * a + cx) / (W - 1) - 1, 2 * (f * b + cy) / (H - 1) - 1], -1).view(1, H, W, 2)
     gradient = torch.nn.functional.grid_sample(image_gradient(source), grid, align_corners=True).flatten(2)
     fx = fy = K[:, 0, 0, None]
     J = _jacobian(gradient, a, b, iz, fx, fy, (T[:, :3, 3], factor, ray) if translation_only else None)
