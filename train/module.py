@@ -54,14 +54,15 @@ class EgoMotionModule(pl.LightningModule):
     end) show it in TensorBoard. ``distill``: weight of the pose network's distance to the refined motions
     (:func:`~ocalib.losses.motion.motion_distance`, degrees + relative translation; 0: off; with ``align`` only).
     Images go to TensorBoard every ``image_interval`` steps; ``trajectory_frames``: length of the validation
-    trajectory plotted.
+    trajectory plotted. ``compile``: the training step (networks, alignment and loss, forward and backward) runs
+    through ``torch.compile`` (inductor), compiled on the first step; validation stays eager.
     """
 
     def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
                  weight_decay: float = 0.0, warmup_steps: int = 200, min_lr_ratio: float = 0.05,
                  automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.1, scales: int = 4,
                  align: tuple[int, ...] = (), distill: float = 0.0, image_interval: int = 250,
-                 trajectory_frames: int = 200):
+                 trajectory_frames: int = 200, compile: bool = False):
         super().__init__()
         if distill < 0 or (distill > 0 and not align):
             raise ValueError(f"model.distill={distill}: needs to be >= 0, and > 0 only with model.align (it pulls the "
@@ -71,6 +72,7 @@ class EgoMotionModule(pl.LightningModule):
         self.loss = SelfSupervisedLoss(automask, smoothness, geometry)
         self.nonfinite_steps = 0
         self._skipped = False
+        self._train_step = None  # self.step, compiled on first use when hparams.compile
         self._val = defaultdict(list)
 
     def step(self, batch: dict) -> tuple[LossOutput, Tensor, Tensor]:
@@ -106,7 +108,9 @@ class EgoMotionModule(pl.LightningModule):
 
     def training_step(self, batch: dict, batch_idx: int) -> Tensor | None:
         buffers = [b.clone() for b in self.model.buffers()]  # batch-norm statistics, restored after a NaN batch
-        out, disp, _ = self.step(batch)
+        if self._train_step is None:
+            self._train_step = torch.compile(self.step) if self.hparams.compile else self.step
+        out, disp, _ = self._train_step(batch)
         B = len(batch["image"])
         if not torch.isfinite(out.total):  # NaN guard: skip the step, count it, never crash
             with torch.no_grad():
@@ -131,7 +135,7 @@ class EgoMotionModule(pl.LightningModule):
     def on_before_optimizer_step(self, optimizer) -> None:
         """NaN guard for gradients: a step with a non-finite gradient updates nothing."""
         params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
-        if params and not all(torch.isfinite(p.grad).all() for p in params):
+        if params and not torch.nn.utils.get_total_norm([p.grad for p in params]).isfinite():  # one check, not 112
             for p in params:
                 p.grad = None
             if not self._skipped:  # (a non-finite loss was counted already)
