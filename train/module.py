@@ -8,12 +8,15 @@ The pose net predicts ``T_target_source``; the warp uses its inverse.
 from __future__ import annotations
 
 import math
+import os
+import shutil
 from collections import defaultdict
 
 import lightning.pytorch as pl
 import numpy as np
 import torch
 from lightning.pytorch.callbacks import Timer
+from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor
 
 from ocalib.eval.depth_metrics import depth_errors
@@ -109,7 +112,7 @@ class EgoMotionModule(pl.LightningModule):
     def training_step(self, batch: dict, batch_idx: int) -> Tensor | None:
         buffers = [b.clone() for b in self.model.buffers()]  # batch-norm statistics, restored after a NaN batch
         if self._train_step is None:
-            self._train_step = torch.compile(self.step) if self.hparams.compile else self.step
+            self._train_step = self._compiled_step() if self.hparams.compile else self.step
         out, disp, _ = self._train_step(batch)
         B = len(batch["image"])
         if not torch.isfinite(out.total):  # NaN guard: skip the step, count it, never crash
@@ -131,6 +134,16 @@ class EgoMotionModule(pl.LightningModule):
         if self.global_step % self.hparams.image_interval == 0:
             self._log_images("train", batch, out, disp)
         return out.total
+
+    def _compiled_step(self):
+        """``torch.compile(self.step)``; on the CPU without a C++ compiler (inductor generates C++), a warning and the
+        eager step."""
+        compilers = (os.environ.get("CXX"), "c++", "g++", "clang++")
+        if self.device.type == "cpu" and not any(c and shutil.which(c) for c in compilers):
+            rank_zero_warn("model.compile: torch.compile needs a C++ compiler on the CPU and none was found (CXX, c++, "
+                           "g++, clang++): training with the eager step (the same computation, ~1.4x slower a step)")
+            return self.step
+        return torch.compile(self.step)
 
     def on_before_optimizer_step(self, optimizer) -> None:
         """NaN guard for gradients: a step with a non-finite gradient updates nothing."""

@@ -5,6 +5,7 @@ same dynamo capture and AOTAutograd forward and backward graphs that inductor wo
 eager kernels. ``fullgraph=True`` turns a graph break (a slower step, part of it left eager) into a failure.
 """
 
+import pytest
 import torch
 
 from train.module import EgoMotionModule
@@ -48,3 +49,13 @@ def test_compiled_training_step_is_one_graph_with_the_eager_loss_and_gradients(m
         if expected is not None:
             torch.testing.assert_close(p.grad, expected, rtol=1e-3, atol=1e-6)
     assert sum(p.grad is not None for p in module.parameters()) > 50  # both networks learn
+
+
+def test_without_a_cpp_compiler_the_step_stays_eager_with_a_warning(monkeypatch):
+    monkeypatch.delenv("CXX", raising=False)
+    monkeypatch.setattr("shutil.which", lambda name: None)
+    module = EgoMotionModule(height=H, width=W, compile=True)
+    module.log = lambda *a, **k: None  # outside a Trainer
+    with pytest.warns(UserWarning, match="C\\+\\+ compiler"):
+        loss = module.training_step(snippets(), 0)
+    assert module._train_step == module.step and torch.isfinite(loss)
