@@ -8,7 +8,7 @@ snippets: the 4-scale loss with and without the geometry-consistency loss, and t
 motions refined by Gauss-Newton photometric alignment for the depth's loss, the pose net pulled towards them); a
 training image is a target frame.
 The compiled case runs the step through ``torch.compile`` as ``model.compile`` does; its first step (the
-compilation: minutes on two cores without inductor's on-disk cache, seconds with it) is reported apart.
+compilation: minutes on two cores without inductor's on-disk cache, half a minute with it) is reported apart.
 Inference: ``model.pose`` on (target, source) pairs and ``model.depth`` on frames, batch 16, no gradients.
 Also times the 3x3 box SSIM of :mod:`ocalib.losses.photometric` against kornia's ``ssim_loss`` (forward +
 backward). Medians over the repeats. Prints a table and writes ``bench/results/train.json``.
