@@ -58,7 +58,8 @@ class EgoMotionModule(pl.LightningModule):
     (:func:`~ocalib.losses.motion.motion_distance`, degrees + relative translation; 0: off; with ``align`` only).
     Images go to TensorBoard every ``image_interval`` steps; ``trajectory_frames``: length of the validation
     trajectory plotted. ``compile``: the training step (networks, alignment and loss, forward and backward) runs
-    through ``torch.compile`` (inductor), compiled on the first step; validation stays eager.
+    through ``torch.compile`` (inductor), compiled on the first step (:meth:`compiled_step`; eager, with a
+    warning, on a CPU without a C++ compiler); validation stays eager.
     """
 
     def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
@@ -112,7 +113,7 @@ class EgoMotionModule(pl.LightningModule):
     def training_step(self, batch: dict, batch_idx: int) -> Tensor | None:
         buffers = [b.clone() for b in self.model.buffers()]  # batch-norm statistics, restored after a NaN batch
         if self._train_step is None:
-            self._train_step = self._compiled_step() if self.hparams.compile else self.step
+            self._train_step = self.compiled_step() if self.hparams.compile else self.step
         out, disp, _ = self._train_step(batch)
         B = len(batch["image"])
         if not torch.isfinite(out.total):  # NaN guard: skip the step, count it, never crash
@@ -135,9 +136,9 @@ class EgoMotionModule(pl.LightningModule):
             self._log_images("train", batch, out, disp)
         return out.total
 
-    def _compiled_step(self):
-        """``torch.compile(self.step)``; on the CPU without a C++ compiler (inductor generates C++), a warning and the
-        eager step."""
+    def compiled_step(self):
+        """``torch.compile(self.step)`` (what ``compile`` trains with); on the CPU without a C++ compiler (inductor
+        generates C++), a warning and the eager ``self.step``."""
         compilers = (os.environ.get("CXX"), "c++", "g++", "clang++")
         if self.device.type == "cpu" and not any(c and shutil.which(c) for c in compilers):
             rank_zero_warn("model.compile: torch.compile needs a C++ compiler on the CPU and none was found (CXX, c++, "
@@ -148,7 +149,7 @@ class EgoMotionModule(pl.LightningModule):
     def on_before_optimizer_step(self, optimizer) -> None:
         """NaN guard for gradients: a step with a non-finite gradient updates nothing."""
         params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
-        if params and not torch.nn.utils.get_total_norm([p.grad for p in params]).isfinite():  # one check, not 112
+        if params and not torch.nn.utils.get_total_norm([p.grad for p in params]).isfinite():  # one check, not one a tensor
             for p in params:
                 p.grad = None
             if not self._skipped:  # (a non-finite loss was counted already)
