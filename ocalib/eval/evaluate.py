@@ -109,13 +109,14 @@ def evaluate_stream(sequence: Sequence, frames: Iterable[FramePrediction], views
 
 
 def evaluate_model(model, sequence: Sequence, device="cpu", batch_size: int = 8, workers: int = 0,
-                   progress: bool | None = False, align: bool = False, **options) -> list[CameraEvaluation]:
-    """Predict with ``model`` (``align``: see :func:`predict_frames`) and evaluate (``options``: those of
+                   progress: bool | None = False, align: bool = False, flip: bool = False,
+                   **options) -> list[CameraEvaluation]:
+    """Predict with ``model`` (``align``, ``flip``: see :func:`predict_frames`) and evaluate (``options``: those of
     :func:`evaluate_stream`)."""
     missing = ground_truth_available(sequence)
     depth = any("depth" not in m for m in missing.values())
     views = [model_view(cam, model.height, model.width) for cam in sequence.cameras]
-    frames = predict_frames(model, sequence, device, batch_size, depth, workers, progress, align)
+    frames = predict_frames(model, sequence, device, batch_size, depth, workers, progress, align, flip)
     return evaluate_stream(sequence, frames, views, **options)
 
 

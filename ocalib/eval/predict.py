@@ -122,13 +122,14 @@ class FramePrediction:
 
 def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu", batch_size: int = 8,
                    depth: bool = True, workers: int = 0, progress: bool | None = False,
-                   align: bool = False) -> Iterator[FramePrediction]:
+                   align: bool = False, flip: bool = False) -> Iterator[FramePrediction]:
     """Run ``model`` (an :class:`ocalib.models.EgoMotionModel`) over every frame of every camera.
 
     Each forward pass takes ``batch_size`` frames of all C cameras: C x batch_size pose pairs (t-1, t) and
     depth maps, under ``torch.inference_mode`` on ``device``. ``workers``: DataLoader processes reading
     images. ``progress``: a tqdm bar over frames (None: only on a terminal). Yields :class:`FramePrediction`
-    in frame order. Checks the sequence for motion first (:func:`check_motion`).
+    in frame order. Checks the sequence for motion first (:func:`check_motion`). ``flip``: the depth maps (those
+    written and those the alignment uses) averaged with the mirrored image's (:meth:`EgoMotionModel.depth`).
     """
     if batch_size < 1:
         raise InputError(f"batch size must be >= 1, got {batch_size}")
@@ -136,15 +137,15 @@ def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu"
     check_motion(sequence)
     loader = DataLoader(FrameImages(sequence, views), batch_size=batch_size, num_workers=workers)
     K = torch.from_numpy(np.stack([v.K for v in views])).float().to(device) if align else None
-    return _generate(model.to(device).eval(), loader, len(sequence), device, depth, progress, K)
+    return _generate(model.to(device).eval(), loader, len(sequence), device, depth, progress, K, flip)
 
 
-def _generate(model, loader, frames: int, device, depth: bool, progress, K) -> Iterator[FramePrediction]:
+def _generate(model, loader, frames: int, device, depth: bool, progress, K, flip: bool) -> Iterator[FramePrediction]:
     previous, t = None, 0
     aligner = StreamAligner(len(K)).to(K.device) if K is not None else None
     with tqdm(total=frames, unit="frame", desc="predicting", disable=None if progress is None else not progress) as bar:
         for images in loader:  # (b, C, 3, H, W)
-            motion, depth_maps, previous = _predict_batch(model, images.to(device), previous, depth, K, aligner)
+            motion, depth_maps, previous = _predict_batch(model, images.to(device), previous, depth, K, aligner, flip)
             for i in range(len(images)):
                 yield FramePrediction(t, motion[i], None if depth_maps is None else depth_maps[i])
                 t += 1
@@ -152,7 +153,7 @@ def _generate(model, loader, frames: int, device, depth: bool, progress, K) -> I
 
 
 def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: bool, K: torch.Tensor | None,
-                   aligner: StreamAligner | None):
+                   aligner: StreamAligner | None, flip: bool = False):
     """One batch of frames.
 
     Args:
@@ -160,13 +161,14 @@ def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: b
             or None)``, or None at the start. depth: return the depth maps. K: (C, 3, 3) at the model's
             resolution: align the motions on the network's depth of each pair's first frame, frame after frame
             with ``aligner`` (its state carries over between batches; None: the network's motions as they are).
+            flip: test-time flipping of the depth (:meth:`EgoMotionModel.depth`).
 
     Returns motions (b, C, 4, 4) float64, depth (b, C, H, W) float32 or None, and the batch's last frame as the
     next call's ``previous``. Each frame's depth is computed once, whether for the output or for the alignment.
     """
     b, C = images.shape[:2]
     with torch.inference_mode():
-        maps = model.depth(images.flatten(0, 1)).unflatten(0, (b, C)) if depth or K is not None else None
+        maps = model.depth(images.flatten(0, 1), flip).unflatten(0, (b, C)) if depth or K is not None else None
         targets = images[:-1] if previous is None else torch.cat([previous[0][None], images[:-1]])
         sources = images[b - len(targets):]
         motion = torch.eye(4, dtype=torch.float64).repeat(b, C, 1, 1)

@@ -55,9 +55,7 @@ def test_predict_writes_depth_and_chained_kitti_poses(seq, ckpt, tmp_path):
         P = read_kitti(folder / "poses.txt")
         np.testing.assert_allclose(P[0], np.eye(4), atol=1e-12)
         # independent reference: the model called directly on each resized pair, chained by hand
-        images = [torch.from_numpy(cv2.resize(cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB), (MW, MH),
-                                              interpolation=cv2.INTER_LINEAR)).permute(2, 0, 1).float() / 255
-                  for p in cam.images]
+        images = [resized(p) for p in cam.images]
         with torch.no_grad():
             expected = np.eye(4)
             for t in range(1, FRAMES):
@@ -66,6 +64,23 @@ def test_predict_writes_depth_and_chained_kitti_poses(seq, ckpt, tmp_path):
             np.testing.assert_allclose(d, model.depth(images[3][None])[0, 0].numpy(), rtol=1e-4)
         K = np.loadtxt(folder / "K.txt")  # 1.5x resolution: 1.5 fx, cx' = 1.5 (cx + 0.5) - 0.5
         np.testing.assert_allclose(K[0], [1.5 * cam.K[0, 0], 0, 1.5 * (cam.K[0, 2] + 0.5) - 0.5], rtol=1e-9)
+
+
+def resized(path) -> torch.Tensor:
+    """An image file -> (3, MH, MW) in [0, 1], resized with OpenCV (the sequence needs no crop)."""
+    image = cv2.resize(cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB), (MW, MH), interpolation=cv2.INTER_LINEAR)
+    return torch.from_numpy(image).permute(2, 0, 1).float() / 255
+
+
+def test_predict_flip_writes_the_flip_averaged_depth(seq, ckpt, tmp_path):
+    out = tmp_path / "pred"
+    assert main(["predict", "--sequence", str(seq), "--out", str(out), "--checkpoint", str(ckpt), "--flip",
+                 "--cameras", "rear", "--workers", "0"]) == 0
+    model, image = load_model(ckpt), resized(open_sequence(seq, ["rear"]).cameras[0].images[2])[None]
+    d = np.load(out / "rear" / "depth" / "000002.npy")
+    with torch.no_grad():
+        np.testing.assert_allclose(d, model.depth(image, flip=True)[0, 0].numpy(), rtol=1e-4)
+        assert not np.allclose(d, model.depth(image)[0, 0].numpy(), rtol=1e-3)
 
 
 def test_batching_does_not_change_the_predictions(seq, ckpt):
@@ -85,6 +100,7 @@ def test_evaluate_end_to_end(seq, ckpt, tmp_path):
     assert main(["evaluate", "--sequence", str(seq), "--out", str(out), "--checkpoint", str(ckpt), "--workers", "0",
                  "--plots", str(tmp_path / "plots"), "--rpe-delta", "2"]) == 0
     doc = json.loads(out.read_text())
+    assert doc["align"] is False and doc["flip"] is False
     assert doc["frames"] == FRAMES and doc["model"] == {"size": "small", "height": MH, "width": MW}
     assert set(doc["cameras"]) == {"front", "rear"} and doc["warnings"] == []
     for name, cam in doc["cameras"].items():

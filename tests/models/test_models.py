@@ -34,6 +34,18 @@ def test_depth_and_pose_shapes_and_ranges(model):
     assert T[:, :3, 3].norm(dim=-1).max() < 0.05
 
 
+def test_flipped_depth_is_mirror_symmetric_and_the_mean_disparity(model):
+    """``depth(flip=True)``: the disparity averaged with the mirrored image's, mirrored back. It commutes with
+    mirroring the image, which the plain depth of an untrained network does not."""
+    image = torch.rand(2, 3, H, W)
+    with torch.no_grad():
+        flipped = model.depth(image, flip=True)
+        mean = 0.5 * (model.disparities(image)[0] + model.disparities(image.flip(-1))[0].flip(-1))
+        torch.testing.assert_close(flipped, disp_to_depth(mean, 0.1, 100.0))
+        torch.testing.assert_close(model.depth(image.flip(-1), flip=True), flipped.flip(-1))
+        assert not torch.allclose(model.depth(image.flip(-1)), model.depth(image).flip(-1))
+
+
 def test_disp_to_depth_bounds():
     torch.testing.assert_close(disp_to_depth(torch.tensor([0.0, 1.0]), 0.1, 100.0), torch.tensor([100.0, 0.1]))
 
