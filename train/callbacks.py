@@ -1,13 +1,16 @@
-"""Callbacks of the training application: the slim model file written at the end of a fit, and a clean exit of
-distributed workers."""
+"""Callbacks of the training application: the slim model file written at the end of a fit (the best validated
+weights), and a clean exit of distributed workers."""
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import lightning.pytorch as pl
+import torch
 import torch.distributed as dist
 from lightning.pytorch.trainer.states import TrainerStatus
+from lightning.pytorch.utilities import rank_zero_info
 
 from ocalib.models import save_model
 
@@ -23,19 +26,52 @@ def _plain(value):
 
 
 class ExportModel(pl.Callback):
-    """On fit end, write ``<log_dir>/<filename>`` (:func:`ocalib.models.save_model`) beside the checkpoints."""
+    """On fit end, write ``<log_dir>/<filename>`` (:func:`ocalib.models.save_model`) beside the checkpoints.
+
+    The weights written are those of the validation with the lowest ``val/abs_rel`` (the depth's error on the
+    validation sequences), or the last weights where no validation measured it (data without depth, no validation
+    set). Only validated weights compete, so a config's ``val_check_interval`` should divide its ``max_steps`` (a
+    run stopped by ``max_time`` is validated when it stops). The best weights travel in the checkpoints, so a
+    resumed run keeps them. Measured (session 26): two runs of the default config were 0.143 and 0.150 on
+    validation at their last two validations; the better one was better on seven of eight held-out cameras' depth.
+    """
+
+    monitor = "val/abs_rel"
 
     def __init__(self, filename: str = "model.pt"):
         self.filename = filename
         self.path: Path | None = None
+        self.best: dict | None = None  # {"score", "global_step", "state": the model's state_dict on the CPU}
+
+    def on_validation_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        score = trainer.callback_metrics.get(self.monitor)
+        if trainer.sanity_checking or score is None or not torch.isfinite(score):
+            return
+        if self.best is None or float(score) < self.best["score"]:
+            state = {k: v.detach().cpu().clone() for k, v in pl_module.model.state_dict().items()}
+            self.best = {"score": float(score), "global_step": int(trainer.global_step), "state": state}
+
+    def state_dict(self) -> dict:
+        return dict(self.best) if self.best is not None else {}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.best = dict(state_dict) or None
 
     def on_fit_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         folder = Path(trainer.log_dir or trainer.default_root_dir)  # log_dir is a collective under DDP: every rank
         if not trainer.is_global_zero:
             return
-        meta = {"global_step": int(trainer.global_step), "epoch": int(trainer.current_epoch),
+        model = pl_module.model
+        selected = {"weights": "last", "global_step": int(trainer.global_step)}
+        if self.best is not None:
+            model = copy.deepcopy(model).cpu()
+            model.load_state_dict(self.best["state"])
+            selected = {"weights": f"lowest {self.monitor}", "global_step": self.best["global_step"],
+                        self.monitor: self.best["score"]}
+        meta = {"global_step": int(trainer.global_step), "epoch": int(trainer.current_epoch), "selected": selected,
                 "hparams": {k: p for k, v in pl_module.hparams.items() if (p := _plain(v)) is not None}}
-        self.path = save_model(pl_module.model, folder / self.filename, meta)
+        self.path = save_model(model, folder / self.filename, meta)
+        rank_zero_info(f"{self.path}: the weights of step {selected['global_step']} ({selected['weights']})")
 
 
 class ReleaseProcessGroup(pl.Callback):

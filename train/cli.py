@@ -2,7 +2,7 @@
 
 ``python -m train fit --config configs/train/synthetic-cpu.yaml`` (or ``ocalib train fit ...``); also
 ``validate``, ``test`` and resuming with ``--ckpt_path``. Every run checkpoints ``last.ckpt``, logs the learning
-rate and writes the slim ``model.pt`` at the end (see :mod:`train.callbacks`).
+rate and writes the slim ``model.pt`` at the end: the weights of its best validation (see :mod:`train.callbacks`).
 """
 
 from __future__ import annotations

@@ -31,19 +31,68 @@ def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
     recipe = torch.load(version / "model.pt", weights_only=False)["meta"]["hparams"]  # the recipe, lists included
     assert recipe["align"] == list(cli.model.hparams.align) and recipe["distill"] == cli.model.hparams.distill
 
-    # resume through `ocalib train`: the step count continues from the checkpoint
+    assert torch.load(version / "model.pt", weights_only=False)["meta"]["selected"]["global_step"] == 2
+
+    # resume through `ocalib train`: the step count continues from the checkpoint; the resumed run validates
+    # nothing, so its model.pt keeps the best validated weights, step 2's, carried in the checkpoint
     assert ocalib_main(["train", "fit", *tiny_args(tiny_synth, out, "--trainer.max_steps=4",
                                                    "--trainer.limit_val_batches=0", f"--ckpt_path={last}")]) == 0
     resumed = sorted(out.glob("tiny/version_*/checkpoints/last.ckpt"))[-1]
     assert torch.load(resumed, weights_only=True)["global_step"] == 4
+    exported = torch.load(resumed.parent.parent / "model.pt", weights_only=False)["meta"]
+    assert exported["global_step"] == 4 and exported["selected"]["global_step"] == 2
 
-    # the Lightning checkpoint and the slim file load to the same model
-    ckpt_model, slim = load_model(resumed), load_model(resumed.parent.parent / "model.pt")
+    # the Lightning checkpoint of step 2 and the slim file load to the same model
+    ckpt_model, slim = load_model(last), load_model(resumed.parent.parent / "model.pt")
     assert (ckpt_model.height, ckpt_model.width) == (32, 96)
     image = torch.rand(1, 3, 32, 96)
     with torch.no_grad():
         torch.testing.assert_close(ckpt_model.depth(image), slim.depth(image), rtol=0, atol=0)
         torch.testing.assert_close(ckpt_model.pose(image, image), slim.pose(image, image), rtol=0, atol=0)
+
+
+def test_export_writes_the_best_validated_weights(tmp_path):
+    """ExportModel against a record of the validations: the weights of the lowest ``val/abs_rel`` are written,
+    sanity checks and non-finite scores are ignored, the choice survives a checkpoint, and without any validation
+    the last weights are written."""
+    from types import SimpleNamespace
+
+    from ocalib.models import EgoMotionModel
+    from train.callbacks import ExportModel
+
+    torch.manual_seed(0)
+    module = SimpleNamespace(model=EgoMotionModel("small", 32, 96), hparams={"lr": 1e-3})
+    trainer = SimpleNamespace(sanity_checking=False, global_step=0, current_epoch=0, log_dir=str(tmp_path),
+                              default_root_dir=str(tmp_path), is_global_zero=True, callback_metrics={})
+    export, weights = ExportModel(), {}
+    for step, score, sanity in [(0, 0.1, True), (10, 0.30, False), (20, 0.20, False), (30, float("nan"), False),
+                                (40, 0.25, False)]:
+        with torch.no_grad():  # new weights at every validation
+            for p in module.model.parameters():
+                p.add_(torch.randn_like(p))
+        weights[step] = {k: v.clone() for k, v in module.model.state_dict().items()}
+        trainer.global_step, trainer.sanity_checking = step, sanity
+        trainer.callback_metrics = {"val/abs_rel": torch.tensor(score)}
+        export.on_validation_end(trainer, module)
+    trainer.global_step = 45
+
+    resumed = ExportModel()
+    resumed.load_state_dict(export.state_dict())  # the checkpoint's round trip
+    resumed.on_fit_end(trainer, module)
+    saved = torch.load(resumed.path, weights_only=False)
+    assert saved["meta"]["selected"] == {"weights": "lowest val/abs_rel", "global_step": 20,
+                                         "val/abs_rel": pytest.approx(0.2)}
+    assert saved["meta"]["global_step"] == 45
+    for k, v in weights[20].items():
+        torch.testing.assert_close(saved["state_dict"][k], v.float() if v.is_floating_point() else v)
+    assert any(not torch.equal(saved["state_dict"][k], v) for k, v in weights[40].items() if v.is_floating_point())
+
+    unvalidated = ExportModel("last.pt")
+    unvalidated.on_fit_end(trainer, module)
+    last = torch.load(unvalidated.path, weights_only=False)
+    assert last["meta"]["selected"] == {"weights": "last", "global_step": 45}
+    for k, v in module.model.state_dict().items():
+        torch.testing.assert_close(last["state_dict"][k], v.float() if v.is_floating_point() else v)
 
 
 @pytest.mark.parametrize("align, precision", [((), "32-true"), ((2, 2), "32-true"), ((2, 2), "bf16-mixed")])
