@@ -50,7 +50,8 @@ def run(args) -> int:
         raise InputError(f"--rpe-delta must be >= 1, got {args.rpe_delta}")
     model, sequence = open_inputs(args)
     results = evaluate_model(model, sequence, args.device, args.batch_size, args.workers, progress=None,
-                             align=args.align, flip=args.flip, min_depth=args.min_depth, max_depth=args.max_depth, rpe_delta=args.rpe_delta)
+                             align=args.align, flip=args.flip, min_depth=args.min_depth, max_depth=args.max_depth,
+                             rpe_delta=args.rpe_delta)
     out = Path(args.out)
     folder = Path(args.trajectories) if args.trajectories else out.with_name(out.stem + "_trajectories")
     doc = {"sequence": str(sequence.path), "layout": sequence.layout, "frames": len(sequence),
