@@ -42,6 +42,8 @@ class SnippetDataModule(pl.LightningDataModule):
     training resolution. ``offsets``: source frames relative to the target. ``static_threshold``: drop snippets
     with less image motion. ``augmentation``: None disables it. ``seed``: the split, the shuffling and the
     workers' augmentation draws (without workers, augmentation uses torch's global RNG: ``seed_everything``).
+    ``cache_mb``: decoded frames kept in memory by each loader process and set (0: none); every frame is read by
+    several snippets an epoch. 512 MB hold the synthetic presets' 4,800 frames at 64x208 with their depth.
     """
 
     def __init__(
@@ -59,6 +61,7 @@ class SnippetDataModule(pl.LightningDataModule):
         batch_size: int = 4,
         num_workers: int = 0,
         seed: int = 0,
+        cache_mb: float = 512.0,
     ):
         super().__init__()
         self.save_hyperparameters()
@@ -86,7 +89,7 @@ class SnippetDataModule(pl.LightningDataModule):
     def _dataset(self, paths: list[Path], transform) -> SnippetDataset:
         h = self.hparams
         sequences = [open_sequence(p, h.cameras, h.intrinsics) for p in paths]
-        dataset = SnippetDataset(sequences, h.offsets, (h.height, h.width), h.static_threshold, transform)
+        dataset = SnippetDataset(sequences, h.offsets, (h.height, h.width), h.static_threshold, transform, h.cache_mb)
         if not len(dataset):
             raise InputError(f"{paths[0]}: no snippets with offsets {list(h.offsets)} in {len(paths)} sequence(s) "
                              "(too few frames, or all filtered as static)")

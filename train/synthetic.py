@@ -70,6 +70,7 @@ class SyntheticDataModule(SnippetDataModule):
         batch_size: int = 4,
         num_workers: int = 0,
         seed: int = 0,
+        cache_mb: float = 512.0,
     ):
         if not isinstance(presets, dict):  # a list of presets sharing ``seeds`` / ``val_seeds`` (older configs)
             if seeds is None:
@@ -87,7 +88,8 @@ class SyntheticDataModule(SnippetDataModule):
         folders = dict(sequences=[folder(*r) for r in self.renders],
                        val_sequences=[folder(*r) for r in self.val_renders] or None, val_fraction=0.0)
         super().__init__(**folders, height=height, width=width, offsets=offsets, static_threshold=static_threshold,
-                         augmentation=augmentation, batch_size=batch_size, num_workers=num_workers, seed=seed)
+                         augmentation=augmentation, batch_size=batch_size, num_workers=num_workers, seed=seed,
+                         cache_mb=cache_mb)
         self.hparams.update(folders, cameras=None, intrinsics=None)  # save_hyperparameters saw this class's arguments
         self.root, self.render_workers = root, render_workers
 

@@ -17,6 +17,7 @@ from torch import Tensor
 from ocalib.errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff")
+_PIXEL_SCALE = {np.uint8: 255.0, np.uint16: 65535.0}  # full scale of the pixel types read
 
 
 def _imread(path: Path) -> np.ndarray:
@@ -31,17 +32,27 @@ def read_image(path: str | Path, size: tuple[int, int] | None = None,
     """Read an image -> (3, H, W) float32 in [0, 1]. ``size`` (H, W), if given, must match the file;
     ``out_size`` (H', W') resizes it (cv2: area when shrinking, else bilinear; pixel centres map as
     u -> (u + 0.5) s - 0.5, see :func:`ocalib.data.intrinsics.resize_intrinsics`)."""
+    return image_tensor(decode_image(path, size, out_size))
+
+
+def decode_image(path: str | Path, size: tuple[int, int] | None = None,
+                 out_size: tuple[int, int] | None = None) -> np.ndarray:
+    """:func:`read_image` before the conversion: (H, W, 3) RGB or (H, W) grey, uint8 or uint16."""
     path = Path(path)
     array = _checked_size(_imread(path), size, path, "image")
-    scale = {np.uint8: 255.0, np.uint16: 65535.0}.get(array.dtype.type)
-    if scale is None:
+    if array.dtype.type not in _PIXEL_SCALE:
         raise InputError(f"{path}: unsupported pixel type {array.dtype} (expected 8 or 16 bit)")
     if array.ndim == 3:  # BGR(A) -> RGB; grey + alpha -> grey
         array = cv2.cvtColor(array[:, :, :3], cv2.COLOR_BGR2RGB) if array.shape[2] >= 3 else array[:, :, 0]
     if out_size is not None and tuple(out_size) != array.shape[:2]:
         shrink = out_size[0] <= array.shape[0] and out_size[1] <= array.shape[1]
         array = cv2.resize(array, (out_size[1], out_size[0]), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-    image = torch.from_numpy(array.astype(np.float32) / scale)
+    return array
+
+
+def image_tensor(array: np.ndarray) -> Tensor:
+    """A decoded image (:func:`decode_image`) -> (3, H, W) float32 in [0, 1] (grey expanded to 3 channels)."""
+    image = torch.from_numpy(array.astype(np.float32) / _PIXEL_SCALE[array.dtype.type])
     return image.permute(2, 0, 1).contiguous() if image.ndim == 3 else image.expand(3, -1, -1).contiguous()
 
 
@@ -49,12 +60,23 @@ def read_depth(path: str | Path, scale: float = 256.0, size: tuple[int, int] | N
                out_size: tuple[int, int] | None = None) -> Tensor:
     """Read a uint16 depth PNG (metres x ``scale``, 0 = no surface) -> (1, H, W) float32 metres; ``size`` and
     ``out_size`` as :func:`read_image`, resizing by nearest neighbour (``INTER_NEAREST_EXACT``)."""
+    return depth_tensor(decode_depth(path, size, out_size), scale)
+
+
+def decode_depth(path: str | Path, size: tuple[int, int] | None = None,
+                 out_size: tuple[int, int] | None = None) -> np.ndarray:
+    """:func:`read_depth` before the conversion: (H, W) uint16."""
     path = Path(path)
     array = _checked_size(_imread(path), size, path, "depth")
     if array.dtype != np.uint16 or array.ndim != 2:
         raise InputError(f"{path}: depth must be a single-channel uint16 image, got {array.dtype} {array.shape}")
     if out_size is not None and tuple(out_size) != array.shape:
         array = cv2.resize(array, (out_size[1], out_size[0]), interpolation=cv2.INTER_NEAREST_EXACT)
+    return array
+
+
+def depth_tensor(array: np.ndarray, scale: float = 256.0) -> Tensor:
+    """A decoded depth map (:func:`decode_depth`) -> (1, H, W) float32 metres."""
     return torch.from_numpy(array.astype(np.float32) / scale)[None]
 
 

@@ -20,7 +20,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, default_collate
 
-from ocalib.data.image_io import read_depth, read_image
+from ocalib.data.frame_cache import FrameCache
+from ocalib.data.image_io import decode_depth, decode_image, depth_tensor, image_tensor
 from ocalib.data.intrinsics import resize_intrinsics
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import snippet_motion, thumbnails
@@ -32,15 +33,18 @@ class SnippetDataset(Dataset):
 
     ``size`` (H, W): output resolution (None keeps each camera's own). ``static_threshold`` > 0 drops
     snippets whose motion (:func:`ocalib.data.static.snippet_motion`) is below it. ``transform`` maps a
-    sample to a sample (e.g. :class:`ocalib.data.augment.SnippetAugmentation`).
+    sample to a sample (e.g. :class:`ocalib.data.augment.SnippetAugmentation`). ``cache_mb``: decoded frames
+    (at the output size) kept in memory, per process (:class:`ocalib.data.frame_cache.FrameCache`; 0: none).
     """
 
     def __init__(self, sequences: list[Sequence], offsets=(-1, 1), size: tuple[int, int] | None = None,
-                 static_threshold: float = 0.0, transform: Callable[[dict], dict] | None = None):
+                 static_threshold: float = 0.0, transform: Callable[[dict], dict] | None = None,
+                 cache_mb: float = 0.0):
         self.offsets = [int(o) for o in offsets]
         if not self.offsets or 0 in self.offsets:
             raise InputError(f"snippet offsets must be non-empty and non-zero, got {self.offsets}")
         self.sequences, self.size, self.transform = sequences, size, transform
+        self.cache = FrameCache(int(cache_mb * 2**20))
         self.items = []  # (sequence index, camera index, target frame)
         first, last = max(0, -min(self.offsets)), max(0, max(self.offsets))
         for si, seq in enumerate(sequences):
@@ -62,18 +66,23 @@ class SnippetDataset(Dataset):
         frames = [t] + [t + o for o in self.offsets]
         size = tuple(self.size or cam.size)
         sample = {
-            "image": torch.stack([read_image(cam.images[f], cam.size, size) for f in frames]),
+            "image": torch.stack([image_tensor(self._decoded(decode_image, cam.images[f], cam.size, size))
+                                  for f in frames]),
             "K": resize_intrinsics(torch.from_numpy(cam.K), cam.size, size).float(),
             "sequence": seq.name,
             "camera": cam.name,
             "frame": t,
         }
         if cam.depth is not None:
-            sample["depth"] = torch.stack([read_depth(cam.depth[f], cam.depth_scale, cam.size, size) for f in frames])
+            sample["depth"] = torch.stack([depth_tensor(self._decoded(decode_depth, cam.depth[f], cam.size, size),
+                                                        cam.depth_scale) for f in frames])
         if cam.poses is not None:
             poses = np.linalg.inv(cam.poses[t]) @ cam.poses[frames]
             sample["poses"] = torch.from_numpy(poses).float()
         return self.transform(sample) if self.transform else sample
+
+    def _decoded(self, decode, path, camera_size, size):
+        return self.cache((str(path), size), lambda: decode(path, camera_size, size))
 
 
 def collate_snippets(samples: list[dict]) -> dict:

@@ -9,6 +9,7 @@ import torch
 from data_fixtures import H, K, W, noise_image, trajectory, write_kitti_odometry, write_kitti_raw, write_png, \
     write_rig
 from ocalib.data import RigStream, SnippetAugmentation, SnippetDataset, collate_snippets, open_sequence
+from ocalib.data.frame_cache import FrameCache
 from ocalib.data.intrinsics import flip_pose
 from ocalib.errors import InputError
 
@@ -152,3 +153,28 @@ def test_augmentation_updates_K_and_poses(flip_p):
         for s in range(3):
             expected = project(out["K"].double(), torch.linalg.inv(out["poses"][s].double()) @ seen.double())
             np.testing.assert_allclose(centroid(out["image"][s, 0]), expected, atol=0.05)
+
+
+def test_frame_cache_keeps_frames_up_to_its_limit():
+    loads = []
+
+    def load(n):
+        loads.append(n)
+        return np.full(10, n, np.uint8)  # 10 bytes
+
+    cache = FrameCache(25)
+    assert [cache(k, lambda k=k: load(k))[0] for k in (1, 2, 3, 1, 2, 3)] == [1, 2, 3, 1, 2, 3]
+    assert loads == [1, 2, 3, 3]  # two fit; the third is decoded every time
+    assert len(cache) == 2 and cache.nbytes == 20
+
+
+def test_cached_snippets_equal_decoded_ones(tmp_path):
+    write_rig(tmp_path, n=6)
+    seq = open_sequence(tmp_path)
+    plain, cached = SnippetDataset([seq], size=(12, 40)), SnippetDataset([seq], size=(12, 40), cache_mb=1)
+    for epoch in range(2):  # the second epoch reads every frame from the cache
+        for i in range(len(plain)):
+            a, b = plain[i], cached[i]
+            assert torch.equal(a["image"], b["image"]) and torch.equal(a["depth"], b["depth"])
+    assert len(cached.cache) == 2 * 6 * 2  # every frame of both cameras, image and depth
+    assert len(plain.cache) == 0
