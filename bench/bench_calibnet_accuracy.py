@@ -13,6 +13,7 @@ relative to the baseline after scaling camera 0's trajectory to metres. Prints a
 from __future__ import annotations
 
 import argparse
+import shutil
 import time
 from pathlib import Path
 
@@ -41,8 +42,11 @@ def ensure(root: Path, name: str, frames: int) -> Path:
         if not seed.isdigit() or int(seed) < 1000:
             raise SystemExit(f"{name}: no sequence there, and its name is not PRESET-SEED with a held-out seed "
                              "(>= 1000; lower seeds are training worlds), e.g. front-left-1008")
-        render_sequence(preset(kind).with_overrides(frames=frames, seed=int(seed), height=128, width=416), path,
+        partial = path.with_name(path.name + ".partial")  # an interrupted render leaves no rig.yaml at path
+        shutil.rmtree(partial, ignore_errors=True)
+        render_sequence(preset(kind).with_overrides(frames=frames, seed=int(seed), height=128, width=416), partial,
                         workers=2)
+        partial.rename(path)
     return path
 
 
