@@ -15,7 +15,7 @@ class FrameCache:
     """``cache(key, load)``: the array stored under ``key``, else ``load()``, stored while the cache holds at
     most ``limit_bytes``. Nothing is evicted: under random access a fixed subset is hit as often as a
     least-recently-used one. Each ``DataLoader`` worker process holds its own copy (``limit_bytes`` each).
-    Stored arrays are shared: callers must not write into them.
+    Stored arrays are shared, so they are made read-only: writing into one raises instead of changing later reads.
     """
 
     def __init__(self, limit_bytes: int):
@@ -28,6 +28,7 @@ class FrameCache:
         if array is None:
             array = load()
             if self.nbytes + array.nbytes <= self.limit_bytes:
+                array.setflags(write=False)
                 self.frames[key] = array
                 self.nbytes += array.nbytes
         return array

@@ -166,6 +166,8 @@ def test_frame_cache_keeps_frames_up_to_its_limit():
     assert [cache(k, lambda k=k: load(k))[0] for k in (1, 2, 3, 1, 2, 3)] == [1, 2, 3, 1, 2, 3]
     assert loads == [1, 2, 3, 3]  # two fit; the third is decoded every time
     assert len(cache) == 2 and cache.nbytes == 20
+    with pytest.raises(ValueError):  # a stored frame is shared by every later read: it cannot be written
+        cache(1, lambda: load(1))[0] = 7
 
 
 def test_cached_snippets_equal_decoded_ones(tmp_path):
