@@ -36,7 +36,7 @@ from ocalib.data.layout import open_sequence
 from ocalib.data.snippets import SnippetDataset, collate_snippets
 from ocalib.eval.pose_metrics import rotation_gain
 from ocalib.models import EgoMotionModel, load_model, save_model
-from train.module import EgoMotionModule
+from ocalib.train.module import EgoMotionModule
 
 LR, EXTRINSIC_LR, BATCH = 1e-4, 1e-3, 2  # network and extrinsic learning rates; synchronised frames a step
 RIG_WEIGHTS = (2.0, 0.05)  # rotation, translation residual weights (100 / 1 collapsed the motions to zero)

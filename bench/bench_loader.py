@@ -18,7 +18,7 @@ import time
 import torch
 
 from common import write_json
-from train.synthetic import SyntheticDataModule
+from ocalib.train.synthetic import SyntheticDataModule
 
 PRESETS = {"handheld": [0, 1, 8, 9], "front-left": [2, 3, 10, 11], "front-rear": [4, 5, 12, 13], "stereo": [6, 7, 14, 15]}
 

@@ -26,7 +26,7 @@ import torch
 from common import write_json
 from ocalib.losses import ssim_error
 from ocalib.models import EgoMotionModel
-from train.module import EgoMotionModule
+from ocalib.train.module import EgoMotionModule
 
 
 def timed(fn, repeats: int, device: str) -> float:

@@ -1,8 +1,8 @@
 """The training command line: a LightningCLI over :class:`EgoMotionModule` and any snippet data module.
 
-``python -m train fit --config configs/train/synthetic-cpu.yaml`` (or ``ocalib train fit ...``); also
+``python -m ocalib.train fit --config configs/train/synthetic-cpu.yaml`` (or ``ocalib train fit ...``); also
 ``validate``, ``test`` and resuming with ``--ckpt_path``. Every run checkpoints ``last.ckpt``, logs the learning
-rate and writes the slim ``model.pt`` at the end: the weights of its best validation (see :mod:`train.callbacks`).
+rate and writes the slim ``model.pt`` at the end: the weights of its best validation (see :mod:`ocalib.train.callbacks`).
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import torch
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.cli import LightningCLI
 
-from train.callbacks import ExportModel, ReleaseProcessGroup
-from train.datamodule import SnippetDataModule
-from train.module import EgoMotionModule
+from ocalib.train.callbacks import ExportModel, ReleaseProcessGroup
+from ocalib.train.datamodule import SnippetDataModule
+from ocalib.train.module import EgoMotionModule
 
 
 class EgoMotionCLI(LightningCLI):

@@ -27,7 +27,7 @@ from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.losses.motion import motion_distance
 from ocalib.losses.selfsup import identity_errors, self_supervised_loss
 from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth
-from train.visuals import colorize, trajectory_figure
+from ocalib.train.visuals import colorize, trajectory_figure
 
 
 def pair_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3) -> tuple[np.ndarray, ...]:

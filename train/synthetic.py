@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ocalib.data.augment import SnippetAugmentation
 from ocalib.errors import InputError
-from train.datamodule import SnippetDataModule
+from ocalib.train.datamodule import SnippetDataModule
 
 HELD_OUT_SEEDS = 1000  # seeds >= this are never trained or validated on
 

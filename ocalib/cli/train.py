@@ -18,7 +18,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 def run(args) -> int:
     import sys
 
-    from train.cli import main
+    from ocalib.train.cli import main
 
     argv, sys.argv = sys.argv, ["ocalib train", *args.args]  # the LightningCLI reads sys.argv (warns when given both)
     try:

@@ -12,7 +12,7 @@ from jsonargparse import ArgumentParser
 from ocalib.data.rig import CameraSpec, RigSpec, write_rig_yaml
 from ocalib.errors import InputError
 from ocalib.io.poses import write_kitti
-from train.datamodule import SnippetDataModule, split_by_sequence
+from ocalib.train.datamodule import SnippetDataModule, split_by_sequence
 
 H, W = 48, 160
 K = np.array([[60.0, 0, 79.5], [0, 60, 23.5], [0, 0, 1]])

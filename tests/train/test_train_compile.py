@@ -8,7 +8,7 @@ eager kernels. ``fullgraph=True`` turns a graph break (a slower step, part of it
 import pytest
 import torch
 
-from train.module import EgoMotionModule
+from ocalib.train.module import EgoMotionModule
 
 H, W = 32, 96
 

@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from train.cli import main
-from train.datamodule import SnippetDataModule
-from train.synthetic import SyntheticDataModule
+from ocalib.train.cli import main
+from ocalib.train.datamodule import SnippetDataModule
+from ocalib.train.synthetic import SyntheticDataModule
 
 CONFIGS = sorted((Path(__file__).parents[2] / "configs" / "train").glob("*.yaml"))
 CPU = ["--trainer.accelerator=cpu", "--trainer.devices=1", "--trainer.strategy=auto", "--trainer.precision=32-true",

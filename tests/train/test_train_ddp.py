@@ -10,8 +10,8 @@ from conftest import tiny_args
 from lightning.pytorch.trainer.states import TrainerStatus
 
 from ocalib.models import load_model
-from train.callbacks import ReleaseProcessGroup
-from train.cli import main
+from ocalib.train.callbacks import ReleaseProcessGroup
+from ocalib.train.cli import main
 
 
 def test_two_process_ddp_fit(tiny_synth, tmp_path):

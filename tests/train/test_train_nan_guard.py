@@ -4,7 +4,7 @@ import lightning.pytorch as pl
 import torch
 from torch.utils.data import DataLoader
 
-from train.module import EgoMotionModule
+from ocalib.train.module import EgoMotionModule
 
 H, W = 32, 96
 

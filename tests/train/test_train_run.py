@@ -11,9 +11,9 @@ from conftest import tiny_args
 from ocalib.cli import main as ocalib_main
 from ocalib.errors import InputError
 from ocalib.models import load_model
-from train.cli import main
-from train.module import EgoMotionModule
-from train.synthetic import SyntheticDataModule
+from ocalib.train.cli import main
+from ocalib.train.module import EgoMotionModule
+from ocalib.train.synthetic import SyntheticDataModule
 
 
 def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
@@ -58,7 +58,7 @@ def test_export_writes_the_best_validated_weights(tmp_path):
     from types import SimpleNamespace
 
     from ocalib.models import EgoMotionModel
-    from train.callbacks import ExportModel
+    from ocalib.train.callbacks import ExportModel
 
     torch.manual_seed(0)
     module = SimpleNamespace(model=EgoMotionModel("small", 32, 96), hparams={"lr": 1e-3})

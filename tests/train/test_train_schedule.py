@@ -6,8 +6,8 @@ import lightning.pytorch as pl
 import pytest
 from lightning.pytorch.callbacks import Timer
 
-from train.module import EgoMotionModule, lr_factor
-from train.synthetic import SyntheticDataModule
+from ocalib.train.module import EgoMotionModule, lr_factor
+from ocalib.train.synthetic import SyntheticDataModule
 
 
 def cosine(progress: float, low: float) -> float:
