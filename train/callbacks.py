@@ -43,6 +43,15 @@ class ExportModel(pl.Callback):
         self.filename = filename
         self.path: Path | None = None
         self.best: dict | None = None  # {"score", "global_step", "state": the model's state_dict on the CPU}
+        self.interrupted: str | None = None  # after Ctrl-C: what the run had written
+
+    def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
+        if isinstance(exception, KeyboardInterrupt):
+            folder = trainer.log_dir or trainer.default_root_dir
+            last = Path(folder) / "checkpoints" / "last.ckpt"
+            saved = f"{last} (resume with --ckpt_path)" if last.is_file() else "no checkpoint yet"
+            self.interrupted = (f"at step {trainer.global_step}; written so far: the logs under {folder}, {saved}; "
+                                f"no {self.filename} (written when a fit ends)")
 
     def on_validation_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         score = trainer.callback_metrics.get(self.monitor)

@@ -7,9 +7,15 @@ rate and writes the slim ``model.pt`` at the end: the weights of its best valida
 
 from __future__ import annotations
 
+import sys
+
 import torch
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from jsonargparse import ArgumentError
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch.cli import LightningCLI
+
+from ocalib.errors import InputError, read_text
 
 from ocalib.train.callbacks import ExportModel, ReleaseProcessGroup
 from ocalib.train.datamodule import SnippetDataModule
@@ -25,22 +31,45 @@ class EgoMotionCLI(LightningCLI):
         parser.add_argument("--threads", type=int | None, default=None,
                             help="torch intra-op threads (measured: 1 is several times faster than 2 on a busy 2-core CPU)")
 
+    def instantiate_classes(self) -> None:
+        """The classes of the configuration; a value they refuse (an unavailable accelerator, a bad option) is an
+        :class:`InputError`, printed by ``ocalib train`` as one line."""
+        try:
+            super().instantiate_classes()
+        except (MisconfigurationException, ValueError) as err:
+            if isinstance(err, InputError):
+                raise
+            raise InputError(f"configuration: {str(err).splitlines()[0]}") from None
+
     def before_instantiate_classes(self) -> None:
         config = self.config[self.subcommand] if self.subcommand else self.config
         if config.get("threads"):
             torch.set_num_threads(config["threads"])
 
 
-def trainer_defaults() -> dict:
+def trainer_defaults(export: ExportModel | None = None) -> dict:
     return {
         "callbacks": [ModelCheckpoint(save_last=True, every_n_train_steps=500), LearningRateMonitor("step"),
-                      ExportModel(), ReleaseProcessGroup()],
+                      export or ExportModel(), ReleaseProcessGroup()],
         "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger", "init_args": {"save_dir": "runs"}},
     }
 
 
 def main(args: list[str] | None = None, run: bool = True) -> EgoMotionCLI:
-    """Run the CLI on ``args`` (None: ``sys.argv[1:]``)."""
-    return EgoMotionCLI(EgoMotionModule, SnippetDataModule, subclass_mode_data=True, seed_everything_default=0,
-                        trainer_defaults=trainer_defaults(), save_config_kwargs={"overwrite": True}, args=args,
-                        run=run, parser_kwargs={"prog": "ocalib train"})
+    """Run the CLI on ``args`` (None: ``sys.argv[1:]``). A command line the parser refuses, or a config file that is
+    missing, a folder or binary, is an :class:`InputError` (one line, where argparse would print the usage)."""
+    argv = sys.argv[1:] if args is None else args
+    for option, value in zip(argv, [*argv[1:], ""]):
+        if option == "--config" or option.startswith("--config="):
+            read_text(option.partition("=")[2] or value, "config file")
+    export = ExportModel()
+    try:
+        return EgoMotionCLI(EgoMotionModule, SnippetDataModule, subclass_mode_data=True, seed_everything_default=0,
+                            trainer_defaults=trainer_defaults(export), save_config_kwargs={"overwrite": True},
+                            args=args, run=run, parser_kwargs={"prog": "ocalib train", "exit_on_error": False})
+    except ArgumentError as err:
+        raise InputError(" ".join(str(err).split())) from None
+    except SystemExit:
+        if export.interrupted is not None:  # Lightning turns Ctrl-C into exit code 1 after its shutdown
+            raise KeyboardInterrupt(export.interrupted) from None
+        raise

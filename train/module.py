@@ -19,6 +19,7 @@ from lightning.pytorch.callbacks import Timer
 from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor
 
+from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors
 from ocalib.eval.pose_metrics import rotation_angle_deg, rotation_gain
 from ocalib.frontend.align import align_motion
@@ -69,7 +70,7 @@ class EgoMotionModule(pl.LightningModule):
                  trajectory_frames: int = 200, compile: bool = False):
         super().__init__()
         if distill < 0 or (distill > 0 and not align):
-            raise ValueError(f"model.distill={distill}: needs to be >= 0, and > 0 only with model.align (it pulls the "
+            raise InputError(f"model.distill={distill}: needs to be >= 0, and > 0 only with model.align (it pulls the "
                              "pose network towards the aligned motions)")
         self.save_hyperparameters()
         self.model = EgoMotionModel(size, height, width)

@@ -96,6 +96,8 @@ def calibrate_sequence(
     rig_align = align if rig_align is None else rig_align
     if rig_align and not align:
         raise InputError("rig-align re-aligns the photometrically aligned motions: it needs align")
+    if not 0 < forgetting <= 1:
+        raise InputError(f"forgetting must be in (0, 1], got {forgetting}")
     sequence = open_sequence(path, cameras, intrinsics)
     if len(sequence.cameras) < 2:
         raise InputError(f"{path}: calibration needs at least two cameras, the sequence has "

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import time
+from pathlib import Path
 
 from ocalib.errors import InputError
 
@@ -39,22 +41,72 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# options naming what a command writes: listed after a Ctrl-C when they were written to
+OUTPUT_OPTIONS = ("out", "trace", "plot", "plots", "tensorboard", "trajectories")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 1
+    start = time.time()
     try:
+        if getattr(args, "device", None) is not None:
+            check_device(args.device)
         return int(args._run(args) or 0)
-    except (InputError, FileNotFoundError) as err:
+    except (InputError, OSError) as err:
         print(f"ocalib {args.command}: error: {error_message(err)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as err:  # Ctrl-C; a command may say what it had written in the exception's message
+        written = written_since(args, start)
+        what = str(err) or (f"written so far (incomplete): {', '.join(written)}" if written else "nothing written")
+        print(f"\nocalib {args.command}: interrupted; {what}", file=sys.stderr)
+        return 130
+
+
+def check_device(device: str) -> None:
+    """An :class:`InputError` unless ``device`` names a torch device that this machine has."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise InputError(f"--device {device}: not a torch device (cpu, cuda, cuda:N)") from None
+    if dev.type == "cpu":
+        return
+    module = getattr(torch, dev.type, None)
+    available = getattr(module, "is_available", None)
+    if dev.type == "mps":
+        available = torch.backends.mps.is_available
+    if available is None or not available():
+        hint = " (this torch is a CPU build)" if dev.type == "cuda" and torch.version.cuda is None else ""
+        raise InputError(f"--device {device}: no {dev.type.upper()} device on this machine{hint}; use --device cpu")
+    count = getattr(module, "device_count", None)
+    if dev.index is not None and count is not None and dev.index >= count():
+        raise InputError(f"--device {device}: this machine has {count()} {dev.type.upper()} device(s)")
+
+
+def written_since(args: argparse.Namespace, start: float) -> list[str]:
+    """The output paths of ``args`` (:data:`OUTPUT_OPTIONS`) holding a file modified since ``start``."""
+    written = []
+    for option in OUTPUT_OPTIONS:
+        value = getattr(args, option, None)
+        if not value:
+            continue
+        path = Path(value)
+        files = [path] if path.is_file() else (p for p in path.rglob("*") if p.is_file()) if path.is_dir() else []
+        if any(f.stat().st_mtime >= start - 1 for f in files):
+            written.append(str(path))
+    return written
 
 
 def error_message(err: Exception) -> str:
     """The message of ``err``; for an error re-raised from a DataLoader worker (whose message is the worker's
-    whole traceback), the original message only."""
+    whole traceback), the original message only; for an OS error, the file and what is wrong with it."""
+    if isinstance(err, OSError) and err.filename is not None and err.strerror:
+        return f"{err.filename}: {err.strerror[0].lower()}{err.strerror[1:]}"
     text = str(err)
     if "Original Traceback" in text:
         prefix = f"{type(err).__module__}.{type(err).__name__}: "

@@ -70,6 +70,8 @@ def run(args) -> int:
 
     if args.solver == "batch" and args.plot:
         raise InputError("--plot shows per-frame estimates, which --solver batch does not make; use exact or rls")
+    if args.max_dt is not None and not args.max_dt > 0:
+        raise InputError(f"--max-dt must be a positive number of seconds, got {args.max_dt}")
     result = calibrate_files(
         args.files, args.format, args.times, args.time_offset, args.max_dt,
         args.motion, args.solver, args.forgetting, REFINE_CHOICES[args.refine], progress=None, sync=args.sync,

@@ -45,15 +45,14 @@ def add_model_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def open_inputs(args):
-    """(model, sequence) of the parsed arguments; errors are InputErrors naming the file."""
-    import torch
-
+    """(model, sequence) of the parsed arguments (the device checked by the command line); errors are InputErrors
+    naming the file."""
     from ocalib.data.layout import open_sequence
     from ocalib.errors import InputError
     from ocalib.models import load_model
 
-    if str(args.device).startswith("cuda") and not torch.cuda.is_available():
-        raise InputError(f"--device {args.device}: CUDA is not available on this machine")
+    if args.workers < 0:
+        raise InputError(f"--workers must be >= 0, got {args.workers}")
     sequence = open_sequence(args.sequence, args.cameras, args.intrinsics)
     return load_model(args.checkpoint), sequence
 

@@ -39,11 +39,6 @@ def run(args) -> int:
     cfg = load_config(args.config) if args.config else preset(args.preset or "front-rear")
     cfg = cfg.with_overrides(frames=args.frames, seed=args.seed, height=args.height, width=args.width,
                              photometric=args.photometric)
-    if args.device.startswith("cuda"):
-        import torch
-
-        if not torch.cuda.is_available():
-            raise InputError(f"--device {args.device}: CUDA is not available")
     out = Path(args.out) if args.out else Path("data") / "synth" / cfg.name
     render_sequence(cfg, out, device=args.device, overwrite=args.overwrite, workers=args.workers)
     print(f"wrote {cfg.frames} frames x {len(cfg.cameras)} cameras ({cfg.height}x{cfg.width}) to {out}")

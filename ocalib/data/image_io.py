@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ocalib.errors import InputError
+from ocalib.errors import InputError, read_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff")
 _PIXEL_SCALE = {np.uint8: 255.0, np.uint16: 65535.0}  # full scale of the pixel types read
@@ -122,7 +122,7 @@ def read_numbers(path: str | Path, columns: int | None = None) -> np.ndarray:
     """A text file of numbers, one row a line (blank and ``#`` lines skipped) -> (N, columns) float64."""
     path = Path(path)
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(read_text(path).splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         try:

@@ -16,7 +16,7 @@ import torch
 import yaml
 from torch import Tensor
 
-from ocalib.errors import InputError
+from ocalib.errors import InputError, read_text
 from ocalib.data.image_io import read_numbers
 
 
@@ -88,7 +88,7 @@ def read_intrinsics(path: str | Path, size: tuple[int, int] | None = None) -> np
             raise InputError(f"{path}: expected 9 numbers (a 3x3 K), got {values.size}")
         return _checked(values.reshape(3, 3), path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text(path, "intrinsics file"))
     except yaml.YAMLError as err:
         raise InputError(f"{path}: not valid YAML ({err})") from None
     if not isinstance(data, dict):

@@ -23,7 +23,7 @@ import numpy as np
 from ocalib.data.image_io import image_size, list_frames, read_numbers
 from ocalib.data.intrinsics import intrinsics_from_projection
 from ocalib.data.sequence import Camera, Sequence
-from ocalib.errors import InputError
+from ocalib.errors import InputError, read_text
 
 EARTH_RADIUS = 6378137.0  # metres, as the KITTI devkit
 
@@ -32,7 +32,7 @@ def read_calib_file(path: str | Path) -> dict[str, tuple[int, str]]:
     """A ``key: values`` calibration file -> {key: (line number, values text)}; parse with :func:`calib_matrix`."""
     path = Path(path)
     entries = {}
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(read_text(path, "calibration file").splitlines(), 1):
         if not line.strip():
             continue
         key, sep, value = line.partition(":")
@@ -94,7 +94,7 @@ def _rot(angle: np.ndarray, axis: int) -> np.ndarray:
 def read_timestamps(path: Path) -> np.ndarray:
     """KITTI ``timestamps.txt`` (``2011-09-26 13:02:25.964389445``) -> (N,) float64 seconds since the epoch (UTC)."""
     times = []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(read_text(path, "calibration file").splitlines(), 1):
         if not line.strip():
             continue
         try:

@@ -7,22 +7,24 @@ cameras:
     width: 416
     height: 128
     K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]     # pixels, integer pixel centres
-    T_cam0_cam: [[...4 rows of 4...]]            # pose of this camera in camera 0's frame
+    T_cam0_cam: [[...4 rows of 4...]]            # optional: the true pose of this camera in camera 0's frame
 ```
 
 Convention: ``T_cam0_cam`` maps points of this camera into camera 0 (``p_cam0 = R p_cam + t``); it is
-the identity for camera 0. A camera's pose in the world is camera 0's pose times ``T_cam0_cam``.
+the identity for camera 0. A camera's pose in the world is camera 0's pose times ``T_cam0_cam``. It is the
+ground truth of a calibration, known for rendered or surveyed rigs only: a camera without it has none (None),
+and nothing is compared against it. Where another camera has one, camera 0's may be left out (the identity).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from ocalib.errors import InputError
+from ocalib.errors import InputError, read_text
 
 
 @dataclass
@@ -31,7 +33,7 @@ class CameraSpec:
     width: int
     height: int
     K: np.ndarray  # (3, 3) float64, pixels
-    T_cam0_cam: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) float64
+    T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, the true extrinsic where known
 
 
 @dataclass
@@ -55,8 +57,8 @@ def write_rig_yaml(path: str | Path, rig: RigSpec) -> None:
                 "width": int(c.width),
                 "height": int(c.height),
                 "K": np.asarray(c.K, dtype=float).tolist(),
-                "T_cam0_cam": np.asarray(c.T_cam0_cam, dtype=float).tolist(),
             }
+            | ({} if c.T_cam0_cam is None else {"T_cam0_cam": np.asarray(c.T_cam0_cam, dtype=float).tolist()})
             for c in rig.cameras
         ],
     }
@@ -67,7 +69,7 @@ def read_rig_yaml(path: str | Path) -> RigSpec:
     """Read ``rig.yaml``; every problem is an :class:`InputError` naming the file and field."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text(path, "rig description (rig.yaml)"))
     except yaml.YAMLError as err:
         raise InputError(f"{path}: not valid YAML ({err})") from None
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), list) or not data["cameras"]:
@@ -77,11 +79,15 @@ def read_rig_yaml(path: str | Path) -> RigSpec:
         where = f"{path}: cameras[{i}]"
         try:
             K = np.asarray(c["K"], dtype=np.float64)
-            T = np.asarray(c.get("T_cam0_cam", np.eye(4)), dtype=np.float64)
+            T = None if c.get("T_cam0_cam") is None else np.asarray(c["T_cam0_cam"], dtype=np.float64)
             cam = CameraSpec(str(c["name"]), int(c["width"]), int(c["height"]), K, T)
-        except (KeyError, TypeError, ValueError) as err:
+        except (AttributeError, KeyError, TypeError, ValueError) as err:
             raise InputError(f"{where}: missing or malformed field ({err})") from None
-        if K.shape != (3, 3) or T.shape != (4, 4) or not (np.isfinite(K).all() and np.isfinite(T).all()):
-            raise InputError(f"{where}: K must be 3x3 and T_cam0_cam 4x4, all finite")
+        if K.shape != (3, 3) or not np.isfinite(K).all():
+            raise InputError(f"{where}: K must be 3x3, all finite")
+        if T is not None and (T.shape != (4, 4) or not np.isfinite(T).all()):
+            raise InputError(f"{where}: T_cam0_cam must be 4x4, all finite")
         cameras.append(cam)
+    if cameras[0].T_cam0_cam is None and any(c.T_cam0_cam is not None for c in cameras[1:]):
+        cameras[0].T_cam0_cam = np.eye(4)
     return RigSpec(cameras, float(data.get("frame_rate", 10.0)))

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ocalib.data.folder import open_folder
 from ocalib.data.sequence import Sequence
-from ocalib.errors import InputError
+from ocalib.errors import InputError, read_text
 
 
 def open_sfmlearner_scene(path: str | Path) -> Sequence:
@@ -30,7 +30,7 @@ def read_split(path: str | Path) -> list[Path]:
     if not path.is_file():
         raise InputError(f"{path}: split file not found")
     scenes = []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(read_text(path, "split file").splitlines(), 1):
         if line.strip():
             scene = path.parent / line.strip()
             if not scene.is_dir():

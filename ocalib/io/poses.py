@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ocalib.errors import InputError
+from ocalib.errors import InputError, read_text
 from ocalib.geometry import orthonormality_error, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 KITTI_COLUMNS = 12
@@ -57,7 +57,7 @@ def _read_rows(path: str | Path, columns: int | None = None) -> tuple[np.ndarray
     ``columns=None`` takes the count of the first data line, which must be 12 (KITTI) or 8 (TUM).
     """
     path = Path(path)
-    text = path.read_text()
+    text = read_text(path, "pose file")
     fast = _read_rows_fast(text, columns)
     if fast is not None:
         return fast
@@ -215,6 +215,7 @@ def read_poses(path: str | Path, format: str = "auto", times: str | Path | None 
     path = Path(path)
     if format not in FORMATS:
         raise InputError(f"{path}: unknown pose format {format!r} ({', '.join(FORMATS)})")
+    read_text(path, "pose file")  # a missing, folder or binary file named as such before the format is sniffed
     if format == "auto" and _w_first_header(path):
         format = "euroc"
     if format == "euroc":

@@ -6,6 +6,7 @@ Slim file (``torch.save``): ``{"kind": "ocalib-egomotion", "version": 1, "size",
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import torch
@@ -51,10 +52,14 @@ def load_model(path=None) -> EgoMotionModel:
                              "`ocalib train fit --config configs/train/synthetic-cpu.yaml` and pass --checkpoint "
                              "<log dir>/model.pt")
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a folder, not a checkpoint file")
     if not path.is_file():
         raise InputError(f"{path}: no such checkpoint file")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise InputError(f"{path}: not a torch checkpoint (a corrupt file or another kind of file)") from None
     except Exception as err:  # noqa: BLE001 - torch raises many kinds for a foreign or corrupt file
         raise InputError(f"{path}: not a readable torch checkpoint ({type(err).__name__}: "
                          f"{str(err).splitlines()[0] if str(err) else 'corrupt'})") from None

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ocalib.errors import InputError
+from ocalib.errors import InputError, read_text
 
 TRAJECTORIES = ("drive", "handheld", "lds")  # see ocalib.synth.trajectory; options: speed (m/s), height (m)
 
@@ -156,7 +156,7 @@ def load_config(path: str | Path) -> SynthConfig:
     if not path.is_file():
         raise InputError(f"{path}: no such config file")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text(path, "YAML config"))
     except yaml.YAMLError as err:
         raise InputError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
     return config_from_dict(data, str(path))

@@ -6,7 +6,10 @@ Convention: camera 0's poses come from the trajectory; every camera's world pose
 
 from __future__ import annotations
 
+import contextlib
 import shutil
+import signal
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,6 +96,23 @@ def render_rig(cfg: SynthConfig, device="cpu", progress: bool = False) -> SynthS
     return SynthSequence(torch.stack(images, 1).cpu(), torch.stack(depths, 1).cpu(), poses, times, rig_spec(cfg))
 
 
+def _ignore_interrupt() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _interrupt_ignored():
+    """SIGINT ignored inside (in the main thread; elsewhere Python's handler is not this thread's to change)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _write_frames(job) -> int:
     """Worker: render and write frames ``indices`` of ``cfg`` with one torch thread; returns the count."""
     cfg, out, device, indices = job
@@ -144,7 +164,11 @@ def render_sequence(cfg: SynthConfig, out_dir, device="cpu", progress: bool = Tr
 
         chunk = max(8, -(-cfg.frames // (4 * workers)))  # each job builds the world once (~0.1 s)
         jobs = [(cfg, out, device, list(range(i, min(i + chunk, cfg.frames)))) for i in range(0, cfg.frames, chunk)]
-        with multiprocessing.get_context("spawn").Pool(workers) as pool:
+        # Ctrl-C reaches the whole process group: the workers ignore it (from their start: they inherit the
+        # ignored signal) and the main process stops them
+        with _interrupt_ignored():
+            pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_ignore_interrupt)
+        with pool:
             for done in pool.imap_unordered(_write_frames, jobs):
                 if bar is not None:
                     bar.update(done)

@@ -1,0 +1,204 @@
+"""A user's mistakes on every command: one line naming what is wrong and exit code 2, never a traceback; Ctrl-C
+stops with one line and exit code 130, saying what had been written; a rig without a ground truth is compared
+with none."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from ocalib.cli import main
+from ocalib.data.rig import CameraSpec, RigSpec, read_rig_yaml, write_rig_yaml
+from ocalib.models import EgoMotionModel, save_model
+from ocalib.synth import preset, render_sequence
+
+ROOT = Path(__file__).resolve().parents[2]
+NO_CUDA = pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+
+
+def error_line(capsys, command: str) -> str:
+    """The one line the command printed on stderr, which must be an error of ``command``."""
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"ocalib {command}: error: "), lines
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    root = tmp_path_factory.mktemp("mistakes")
+    (root / "binary.bin").write_bytes(bytes(range(256)) * 8)
+    (root / "folder").mkdir()
+    (root / "empty.txt").write_text("")
+    (root / "nan.txt").write_text("nan 0 0 0 0 1 0 0 0 0 1 0\n" * 5)
+    eye = "1 0 0 0 0 1 0 0 0 0 1 0\n"
+    (root / "good.txt").write_text(eye * 5)
+    return root
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """A rendered 12-frame rig at 32x96, an untrained model at that size, and the same images played forwards and
+    backwards for 240 frames as a user's rig: rig.yaml with names and intrinsics only, no poses."""
+    root = tmp_path_factory.mktemp("rig")
+    seq = render_sequence(preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003), root / "seq",
+                          progress=False)
+    torch.manual_seed(0)
+    model = save_model(EgoMotionModel("small", height=32, width=96), root / "model.pt")
+    spec = read_rig_yaml(seq / "rig.yaml")
+    user = root / "user"
+    order = [*range(12), *range(10, 0, -1)] * 11  # 242 frames, continuous motion
+    for cam in spec.cameras:
+        (user / cam.name / "images").mkdir(parents=True)
+        for t, i in enumerate(order):
+            (user / cam.name / "images" / f"{t:06d}.png").symlink_to(seq / cam.name / "images" / f"{i:06d}.png")
+    write_rig_yaml(user / "rig.yaml", RigSpec([CameraSpec(c.name, c.width, c.height, c.K) for c in spec.cameras]))
+    return seq, model, user
+
+
+@NO_CUDA
+@pytest.mark.parametrize("device", ["cuda", "cuda:1", "foo", "cpu:x"])
+@pytest.mark.parametrize("command", [
+    ["calibrate", "--sequence", "S"], ["predict", "--sequence", "S", "--out", "O"],
+    ["evaluate", "--sequence", "S", "--out", "O"], ["synth", "--preset", "handheld"], ["demo"],
+])  # fmt: skip
+def test_an_unavailable_device_is_one_line(command, device, capsys, tmp_path):
+    assert main([*command, "--device", device]) == 2
+    assert f"--device {device}: " in error_line(capsys, command[0])
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("name, message", [
+    ("binary.bin", "binary.bin: not a pose file (binary data at byte 0)"),
+    ("folder", "folder: a folder, not a pose file"),
+    ("missing.txt", "missing.txt: no such pose file"),
+    ("empty.txt", "empty.txt: no poses in the file"),
+    ("nan.txt", "too few frames: 0 with every pose valid"),
+])  # fmt: skip
+def test_a_bad_pose_file_is_one_line(files, name, message, capsys):
+    assert main(["calibrate-poses", str(files / "good.txt"), str(files / name)]) == 2
+    assert message in error_line(capsys, "calibrate-poses")
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--plot", "folder"], "folder: a folder; give the image's file name"),
+    (["--out", "folder"], "folder: is a directory"),
+    (["--times", "binary.bin", "binary.bin"], "binary.bin: not a"),
+    (["--max-dt", "-1"], "--max-dt must be a positive number of seconds"),
+])  # fmt: skip
+def test_a_bad_option_of_calibrate_poses_is_one_line(files, option, message, capsys, monkeypatch):
+    monkeypatch.chdir(files)
+    assert main(["calibrate-poses", "good.txt", "good.txt", "--format", "kitti", *option]) == 2
+    assert message in error_line(capsys, "calibrate-poses")
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--checkpoint", "binary.bin"], "binary.bin: not a torch checkpoint"),
+    (["--checkpoint", "folder"], "folder: a folder, not a checkpoint file"),
+    (["--forgetting", "2"], "forgetting must be in (0, 1], got 2.0"),
+    (["--cameras", "cam0", "nocam"], "no camera 'nocam'"),
+])  # fmt: skip
+def test_a_bad_option_of_calibrate_is_one_line(rig, files, option, message, capsys, monkeypatch):
+    seq, model, _ = rig
+    monkeypatch.chdir(files)
+    args = ["calibrate", "--sequence", str(seq)]
+    assert main(args + (option if option[0] == "--checkpoint" else ["--checkpoint", str(model), *option])) == 2
+    assert message in error_line(capsys, "calibrate")
+
+
+def test_a_folder_or_binary_file_as_sequence_or_config(files, capsys):
+    assert main(["calibrate", "--sequence", str(files / "folder")]) == 2
+    assert "folder: the folder is empty" in error_line(capsys, "calibrate")
+    assert main(["predict", "--sequence", str(files / "binary.bin"), "--out", str(files / "p")]) == 2
+    assert "binary.bin: not a sequence folder" in error_line(capsys, "predict")
+    assert main(["synth", "--config", str(files / "binary.bin"), "--out", str(files / "s")]) == 2
+    assert "binary.bin: not a YAML config (binary data at byte 0)" in error_line(capsys, "synth")
+    assert main(["predict", "--sequence", "S", "--out", "O", "--workers", "-1"]) == 2
+    assert "--workers must be >= 0" in error_line(capsys, "predict")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--config", "missing.yaml"], "missing.yaml: no such config file"),
+    (["--config", "binary.bin"], "binary.bin: not a config file (binary data at byte 0)"),
+    (["--config=folder"], "folder: a folder, not a config file"),
+    (["--config", str(ROOT / "configs/train/synthetic-cpu.yaml"), "--nonsense", "3"], "unrecognized arguments"),
+    (["--config", str(ROOT / "configs/train/synthetic-cpu.yaml"), "--trainer.accelerator", "foo"],
+     "configuration: You selected an invalid accelerator name"),
+])  # fmt: skip
+def test_a_bad_training_command_is_one_line(files, args, message, capsys, monkeypatch):
+    monkeypatch.chdir(files)
+    assert main(["train", "fit", *args]) == 2  # caught: an uncaught exception would fail the test here
+    last = capsys.readouterr().err.strip().splitlines()[-1]  # after Lightning's log lines
+    assert message in last and last.startswith("ocalib train: error: ")
+
+
+def test_a_rig_without_truth_is_compared_with_none(rig, tmp_path, capsys):
+    """rig.yaml with names and intrinsics only: no extrinsic is taken for the truth, nothing is compared."""
+    seq, model, user = rig
+    spec = read_rig_yaml(user / "rig.yaml")
+    assert [c.T_cam0_cam for c in spec.cameras] == [None, None]
+    assert "T_cam0_cam" not in (user / "rig.yaml").read_text()
+    out = tmp_path / "r.json"
+    assert main(["calibrate", "--sequence", str(user), "--checkpoint", str(model), "--max-frames", "20",
+                 "--out", str(out), "--plot", str(tmp_path / "p.png")]) == 0
+    assert "ground truth" not in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert "ground_truth_errors" not in doc and doc["extrinsics"][0]["camera"] == "cam1"
+    # the rendered rig, which has a truth, is compared with it
+    assert main(["calibrate", "--sequence", str(seq), "--checkpoint", str(model), "--out", str(out)]) == 0
+    assert "errors against the ground truth" in capsys.readouterr().out
+    assert len(json.loads(out.read_text())["ground_truth_errors"]) == 1
+
+
+def test_camera_0_is_the_identity_where_another_camera_has_a_truth(tmp_path):
+    T = np.eye(4)
+    T[:3, 3] = [0.5, 0, 0]
+    K = np.array([[100.0, 0, 47.5], [0, 100, 15.5], [0, 0, 1]])
+    write_rig_yaml(tmp_path / "rig.yaml", RigSpec([CameraSpec("a", 96, 32, K), CameraSpec("b", 96, 32, K, T)]))
+    spec = read_rig_yaml(tmp_path / "rig.yaml")
+    np.testing.assert_array_equal(spec.cameras[0].T_cam0_cam, np.eye(4))
+    np.testing.assert_array_equal(spec.cameras[1].T_cam0_cam, T)
+
+
+def _children(pid: int) -> list[str]:
+    try:
+        return Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
+
+
+def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """Run ``ocalib ARGS`` and press Ctrl-C (SIGINT to its process group, as a terminal does) once it has started
+    its worker processes (the image loader, the renderer's pool)."""
+    proc = subprocess.Popen([sys.executable, "-m", "ocalib", *args], cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 240
+    while not _children(proc.pid) and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    assert proc.poll() is None, "finished before it could be interrupted"
+    time.sleep(0.3)
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    return subprocess.CompletedProcess(args, proc.returncode, out, err)
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs /proc to see the worker processes")
+def test_ctrl_c_during_calibrate_and_demo(rig, tmp_path):
+    seq, model, user = rig
+    done = interrupt(["calibrate", "--sequence", str(user), "--checkpoint", str(model), "--out", "r.json"], tmp_path)
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 130 and lines == ["ocalib calibrate: interrupted; nothing written"], done.stderr
+    assert not (tmp_path / "r.json").exists()
+
+    done = interrupt(["demo", "--out", "d", "--frames", "3000", "--checkpoint", str(model)], tmp_path)
+    lines = [line for line in done.stderr.splitlines() if line.strip() and "frame/s" not in line]
+    assert done.returncode == 130 and lines == ["ocalib demo: interrupted; written so far (incomplete): d"], done.stderr
