@@ -69,7 +69,7 @@ def truth_table(sequence, doc: dict) -> str:
 
     from ocalib.data.layout import open_sequence
     from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
-    from ocalib.viz.calibration import rpy_deg
+    from ocalib.viz.calibration import angles_text
 
     cams = open_sequence(sequence).cameras
     ref = np.linalg.inv(cams[0].T_cam0_cam)
@@ -79,7 +79,8 @@ def truth_table(sequence, doc: dict) -> str:
         q_true = rotation_matrix_to_quaternion(torch.from_numpy(T[:3, :3])).numpy()
         t, t_true = np.array(e["translation"]), T[:3, 3]
         lines += [
-            f"  {cam.name}: roll/pitch/yaw (deg) {_vec(rpy_deg(np.array(e['quaternion_wxyz'])))} vs {_vec(rpy_deg(q_true))}",
+            f"  {cam.name}: rotation {angles_text(np.array(e['quaternion_wxyz']))}",
+            f"  {'':{len(cam.name)}}     truth {angles_text(q_true)}",
             f"  {'':{len(cam.name)}}  translation direction {_vec(t / max(np.linalg.norm(t), 1e-12))} vs "
             f"{_vec(t_true / np.linalg.norm(t_true))} (true baseline {np.linalg.norm(t_true):.3f} m)",
         ]

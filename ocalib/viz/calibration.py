@@ -36,34 +36,48 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
     fig, axes = plt.subplots(5, K, figsize=(6.5 * K, 13.5), sharex=True, squeeze=False)
     for k in range(K):
         q = trace["quaternion"][:, k]
-        rpy = ", ".join(f"{v:.3f}" for v in rpy_deg(q[-1]))
         ax = axes[0, k]
+        q_true = None if truth is None else rotation_matrix_to_quaternion(torch.from_numpy(truth[k, :3, :3])).numpy()
         if truth is None:
             delta, what = rotation_error_deg(q, q[-1]), "rotation - final (deg)"
         else:
-            delta = rotation_error_deg(q, rotation_matrix_to_quaternion(torch.from_numpy(truth[k, :3, :3])).numpy())
+            delta = rotation_error_deg(q, q_true)
             what = f"rotation error against the truth (deg), final {np.linalg.norm(delta[-1]):.3f} deg"
-        _bands(ax, frames, delta, trace["rotation_std_deg"][:, k], [f"about {a}" for a in AXES])
+        std = trace["rotation_std_deg"][:, k]
+        unobservable = not trace["rotation_observable"][-1, k, 0] and not trace["planar_motion"][-1, k, 0]
+        labels = [f"about {a}" + ("" if unobservable or not np.isfinite(sd) else f", std {sd:.2g}")
+                  for a, sd in zip(AXES, std[-1])]
+        _bands(ax, frames, delta, np.where(unobservable, np.inf, std), labels, min_span=0.02)
         if truth is not None:
-            ax.axhline(0, color="black", lw=0.8)
-        ax.set_title(f"{Path(cameras[k]).name}: {what}\nfinal roll, pitch, yaw = ({rpy}) deg", fontsize=9)
+            ax.axhline(0, color="black", lw=0.8, label="truth")
+        title = f"{Path(cameras[k]).name}: {what}\n{angles_text(q[-1])}"
+        if q_true is not None:
+            title += f"\ntruth: {angles_text(q_true)}"
+        ax.set_title(title, fontsize=9)
+        if unobservable:
+            ax.text(0.5, 0.5, "ROTATION UNOBSERVABLE\n(the motion does not determine it)", transform=ax.transAxes,
+                    ha="center", va="center", color="red", fontsize=11, alpha=0.8)
 
         ax = axes[1, k]
         t = trace["translation"][:, k]
         t_std = trace["translation_std"][:, k]
         labels = [f"t{a} = {v:.4f}" + ("" if np.isfinite(sd) else " (unobservable)") for a, v, sd in zip(AXES, t[-1], t_std[-1])]
-        _bands(ax, frames, t, t_std, labels)
         title = "translation in camera 0's frame (camera-0 units)"
         if truth is not None:
             true_t = truth[k, :3, 3]
+            direction = true_t / max(np.linalg.norm(true_t), 1e-300)
+            for i in range(3):  # the true direction at the final estimate's length (the units differ)
+                ax.axhline(direction[i] * np.linalg.norm(t[-1]), color=COLORS[i], lw=1, ls="--")
+            labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, direction * np.linalg.norm(t[-1]))]
             cos = t[-1] @ true_t / max(np.linalg.norm(t[-1]) * np.linalg.norm(true_t), 1e-300)
-            title += f"\ntrue direction ({', '.join(f'{v:+.3f}' for v in true_t / np.linalg.norm(true_t))}), final " \
+            title += f"\ntruth (dashed): the true direction at the final length; final " \
                      f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
+        _bands(ax, frames, t, t_std, labels, min_span=1e-3 * max(np.abs(t[-1]).max(), 1e-3))
         ax.set_title(title, fontsize=9)
 
         ax = axes[2, k]
         s = trace["scale"][:, k]
-        _bands(ax, frames, s, trace["scale_std"][:, k], [f"scale = {s[-1, 0]:.5f}"])
+        _bands(ax, frames, s, trace["scale_std"][:, k], [f"scale = {s[-1, 0]:.5f}"], min_span=1e-3)
         ax.set_title("scale (camera-k units -> camera-0 units)", fontsize=9)
 
         ax = axes[3, k]
@@ -86,10 +100,11 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
 
         ax = axes[4, k]
         if "rotation_residual_deg" in trace:
-            ax.plot(frames, trace["rotation_residual_deg"][:, k, 0], color=COLORS[0], lw=1, label="rotation (deg)")
-            ax.plot(frames, 100 * trace["translation_residual"][:, k, 0], color=COLORS[2], lw=1,
-                    label="translation (% of camera 0's motion)")
-            ax.set_yscale("log")
+            residuals = trace["rotation_residual_deg"][:, k, 0], 100 * trace["translation_residual"][:, k, 0]
+            ax.plot(frames, residuals[0], color=COLORS[0], lw=1, label="rotation (deg)")
+            ax.plot(frames, residuals[1], color=COLORS[2], lw=1, label="translation (% of camera 0's motion)")
+            if any((r[np.isfinite(r)] > 0).any() for r in residuals):
+                ax.set_yscale("log")
         ax.set_title("fit residuals, RMS over the motion pairs (absolute poses: frames) so far", fontsize=9)
         ax.set_xlabel("frame")
     for ax in axes.flat:
@@ -101,8 +116,9 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
     save_figure(fig, path, dpi=110)
 
 
-def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str]) -> None:
-    """Lines y (F, n) with +-1 sigma bands (infinite sigma: no band); y-limits from the last 90% of frames."""
+def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str], min_span: float = 0.0) -> None:
+    """Lines y (F, n) with +-1 sigma bands (infinite sigma: no band); y-limits from the last 90% of frames, at least
+    ``min_span`` apart (so that a constant line is not drawn on an axis of 1e-7 steps)."""
     for i, label in enumerate(labels):
         color = COLORS[i] if y.shape[1] > 1 else "black"
         ax.plot(x, y[:, i], color=color, lw=1, label=label)
@@ -112,6 +128,8 @@ def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str])
     s = np.where(np.isfinite(std[tail]), std[tail], 0.0)
     lo, hi = np.nanmin(y[tail] - s), np.nanmax(y[tail] + s)
     if np.isfinite(lo) and np.isfinite(hi):
+        if hi - lo < min_span:
+            lo, hi = (lo + hi - min_span) / 2, (lo + hi + min_span) / 2
         pad = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), 1.0)) * 0.15
         ax.set_ylim(lo - pad, hi + pad)
 
@@ -138,6 +156,16 @@ def rotation_vector(q: np.ndarray) -> np.ndarray:
     norm = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
     angle = 2 * np.arctan2(norm, q[..., :1])
     return q[..., 1:] * np.where(norm > 1e-12, angle / np.maximum(norm, 1e-300), 2.0)
+
+
+def angles_text(q: np.ndarray) -> str:
+    """``120.02 deg about (+0.002, +1.000, +0.000); roll, pitch, yaw +179.8, +60.0, +179.7 deg`` of a (w, x, y, z)
+    quaternion: the rotation's angle and axis, then its roll, pitch and yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
+    rv = np.rad2deg(rotation_vector(np.asarray(q, dtype=np.float64)))
+    angle = float(np.linalg.norm(rv))
+    axis = rv / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
+    return (f"{angle:.2f} deg about ({', '.join(f'{v:+.3f}' for v in axis)}); roll, pitch, yaw "
+            f"{', '.join(f'{v:+.1f}' for v in np.where(rpy_deg(q) <= -179.95, 180.0, rpy_deg(q)))} deg")
 
 
 def rpy_deg(q: np.ndarray) -> np.ndarray:

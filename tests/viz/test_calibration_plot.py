@@ -37,3 +37,50 @@ def test_plot_with_truth_writes_a_png(tmp_path):
         path = tmp_path / f"trace_{truth is None}.png"
         plot_trace(trace, ["cam1.txt"], path, truth=truth)
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _figure_texts(monkeypatch, trace, truth) -> list[str]:
+    """Every title, legend label and text of the figure plot_trace draws."""
+    import ocalib.viz.calibration as module
+
+    figures = []
+    monkeypatch.setattr(module, "save_figure", lambda fig, path, dpi=90: figures.append(fig))
+    plot_trace(trace, ["cam1.txt"], "unused.png", truth=truth)
+    texts = []
+    for ax in figures[0].axes:
+        texts += [ax.get_title(), *ax.get_legend_handles_labels()[1], *(t.get_text() for t in ax.texts)]
+    return texts
+
+
+def _trace(F: int, q: np.ndarray, observable: bool) -> dict:
+    K = 1
+    return {
+        "frame": np.arange(F), "time": np.full(F, np.nan), "quaternion": np.tile(q, (F, K, 1)),
+        "translation": np.tile([0.5, 0.0, -0.2], (F, K, 1)),
+        "rotation_std_deg": np.full((F, K, 3), 0.1 if observable else 0.0),
+        "translation_std": np.full((F, K, 3), 0.01), "scale": np.ones((F, K, 1)), "scale_std": np.full((F, K, 1), 0.01),
+        "rotation_singular_values": np.tile([1.0, 0.8, 0.5 if observable else 0.0, 0.0], (F, K, 1)),
+        "rotation_observable": np.full((F, K, 1), float(observable)), "planar_motion": np.zeros((F, K, 1)),
+        "rotation_residual_deg": np.zeros((F, K, 1)), "translation_residual": np.zeros((F, K, 1)),
+    }  # fmt: skip
+
+
+def test_plot_shows_the_truth_beside_the_estimate(monkeypatch):
+    """The true rotation's angle, axis and roll/pitch/yaw in the title, beside the estimate's (a rotation of 120 deg
+    about y, whose roll and yaw are 180: printed +180, never -180), and the true translation direction."""
+    X = np.eye(4)
+    X[:3, :3] = cv2.Rodrigues(np.array([0.0, np.radians(120), 0.0]))[0]
+    X[:3, 3] = [0.6, 0.0, -0.8]
+    q = rotation_matrix_to_quaternion(torch.from_numpy(X[:3, :3])).numpy()
+    texts = "\n".join(_figure_texts(monkeypatch, _trace(20, q, True), X[None]))
+    assert "truth: 120.00 deg about (+0.000, +1.000, +0.000); roll, pitch, yaw +180.0, +60.0, +180.0 deg" in texts
+    assert "about x, std 0.1" in texts
+    assert f"tx = 0.5000, truth {0.6 * np.hypot(0.5, 0.2):+.4f}" in texts  # the true direction at the final length
+    texts = "\n".join(_figure_texts(monkeypatch, _trace(20, q, True), None))
+    assert "truth" not in texts
+
+
+def test_plot_shows_an_unobservable_rotation_as_such(monkeypatch):
+    texts = _figure_texts(monkeypatch, _trace(20, np.array([1.0, 0, 0, 0]), False), None)
+    assert any(t.startswith("ROTATION UNOBSERVABLE") for t in texts)
+    assert not any("std" in t for t in texts if t.startswith("about"))
