@@ -1,4 +1,4 @@
-"""Does adapting the pose network to the new rig help calibration? (issue 5's ``--adapt`` study)
+"""Does adapting the pose network to the new rig help calibration? (the ``--adapt`` study, docs/calibnet.md)
 
 For each held-out sequence, calibrates camera 1 against camera 0 from images with the checkpoint as it is, then
 with copies of the network adapted on the sequence's own frames (test-time training, no ground truth):

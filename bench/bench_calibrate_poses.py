@@ -1,6 +1,6 @@
 """Throughput of ``ocalib calibrate-poses`` on 20,000 frames beside one OpenCV ``calibrateHandEye`` call on 1,000.
 
-The issue's target: calibrate-poses on 20,000 frames faster than one ``calibrateHandEye`` call on 1,000
+The target: calibrate-poses on 20,000 frames faster than one ``calibrateHandEye`` call on 1,000
 poses. Both run in the same process on the same simulated rig (the paper's linear dynamic system, noise
 0.001 on every pose, camera 1 in units of scale 2). The pose files are written to a temporary folder
 first (not timed); then timed: the pipeline in-process (read + associate, stream every frame through

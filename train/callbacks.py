@@ -32,7 +32,7 @@ class ExportModel(pl.Callback):
     validation sequences), or the last weights where no validation measured it (data without depth, no validation
     set). Only validated weights compete, so a config's ``val_check_interval`` should divide its ``max_steps`` (a
     run stopped by ``max_time`` is validated when it stops). The best weights travel in the checkpoints, so a
-    resumed run keeps them. Measured (session 26): a run of the default config validated at
+    resumed run keeps them. Measured: a run of the default config validated at
     0.143 at step 6,000 and at 0.150 when it stopped (step 6,288); the step-6,000 weights were better on seven of
     the eight held-out cameras' depth.
     """

@@ -45,13 +45,13 @@ class OnlineCalibrationNet(nn.Module):
         align: refine every motion of the network by direct photometric alignment on the network's depth of the
             previous frame, started from the network's motion and from the camera's previous refined motion
             (:class:`~ocalib.frontend.align.StreamAligner`; accepted corrections counted in ``aligned``); rotation
-            and translation both (README, issue 5).
+            and translation both (docs/results-calibrate.md).
         rig_align: with ``align``, re-align the translation of every camera k >= 1 with its rotation held to the
             rig's, R_X^T R_0 R_X (R_0: camera 0's refined rotation, R_X: the head's estimate of the previous frame),
             and the depth's inverse tilt solved with it (:func:`~ocalib.frontend.align.align_translation`). The
             head still gets camera k's own refined rotation, so its rotation rows stay independent of R_X; on
             planar motion R_X^T R_0 R_X does not depend on the unobservable yaw. Measured on the held-out cars
-            (README, issue 5).
+            (docs/results-calibrate.md).
         head_options: passed to :class:`OnlineCalibrator` (``motion``, ``solver``, ``forgetting``, ...).
     """
 

@@ -41,7 +41,7 @@ class SnippetAugmentation:
     ``brightness``: additive shift in [-b, b]; ``contrast``, ``saturation``: factors in [1 - c, 1 + c];
     ``hue``: rotation in [-h, h] turns; ``flip_p``: probability of a horizontal flip; ``max_zoom``: the crop
     is 1/z of the image in each direction, z uniform in [1, max_zoom], resized back to the input size.
-    Measured (session 23, docs/results-egomotion.md): without the zoom the hand-held rigs' held-out depth was worse
+    Measured (docs/results-egomotion.md): without the zoom the hand-held rigs' held-out depth was worse
     and its scale wandered more from frame to frame; 1.3 was not better than 1.15.
     """
 

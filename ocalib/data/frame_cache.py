@@ -1,7 +1,7 @@
 """Decoded frames kept in memory, up to a byte limit, for data loaders that read every frame many times.
 
 A training snippet reads its target and source frames, so every frame is decoded by several snippets in every
-epoch. Measured (session 27, the synthetic presets at 64x208): PNG decoding was a third of the loader's time.
+epoch. Measured (the synthetic presets at 64x208): PNG decoding was a third of the loader's time.
 """
 
 from __future__ import annotations

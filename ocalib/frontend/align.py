@@ -1,22 +1,22 @@
 """Direct photometric alignment: refine a frame-to-frame motion on a depth map by minimising the photometric error.
 
 The pose network's motions are biased: it under-reports rotation, least about the optical axis (rotation gains
-0.6-0.9, README, issue 4), and the calibration's rotation follows that bias. With the network's own depth, the
+0.6-0.9, docs/results-egomotion.md), and the calibration's rotation follows that bias. With the network's own depth, the
 motion that best explains the two images is found directly: the source image is warped into the target view and
 the grey-level residual over the valid pixels (in front of the source camera, inside its image) is minimised over
 a 6-DoF correction by Gauss-Newton, coarse to fine, with Huber weights, the whole batch at once (analytic
 Jacobian: the source's Sobel gradient times the projection's derivative). Rotational flow does not depend on
 depth, so the rotation comes out nearly unbiased even from a rough depth map; the translation direction improves
 less where the depth is poor (a camera moving sideways trades its translation against a yaw rotation through the
-depth's relative errors). Measured on held-out synthetic rigs: README, issues 4 and 5.
+depth's relative errors). Measured on held-out synthetic rigs: docs/results-egomotion.md, docs/results-calibrate.md.
 
 A correction is kept only where it lowers the residual and rotates by at most ``max_rotation_deg``: a wider basin
 (a textureless view, a large occlusion) keeps the network's motion. Over a stream (:class:`StreamAligner`) each
 problem also starts from its previous refined motion (constant velocity): on a car's sideways camera the network's
-translation is tens of degrees off, outside the basin (session 13: the median direction error there fell from 11
+translation is tens of degrees off, outside the basin (measured: the median direction error there fell from 11
 to 7 deg). The iterations run on the input's device with no host synchronisation. :func:`align_translation`
 refines the translation alone, for a camera whose rotation is known from a rig's other camera, with the depth's
-error across the image solved as a tilt (session 15: the car's sideways camera's direction 5.5-8.2 -> 1.6-2.9 deg
+error across the image solved as a tilt (measured: the car's sideways camera's direction 5.5-8.2 -> 1.6-2.9 deg
 a frame).
 
 Convention: ``T_source_target`` (B, 4, 4) maps target-camera points into the source camera
@@ -93,7 +93,7 @@ def align_translation(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, 
     the image, ~13 % from edge to edge on the car's left camera) biases that trade; with the rotation held the
     translation is left, and the depth's error across the image is solved with it as a tilt of the inverse depth,
     rho' = rho (1 + a x + b y) (x, y: normalised image coordinates, |a|, |b| <= :data:`MAX_TILT`). Measured on
-    the held-out cars: README, issue 5. Gradients flow to ``T_source_target`` through the correction held fixed.
+    the held-out cars: docs/results-calibrate.md. Gradients flow to ``T_source_target`` through the correction held fixed.
     """
     _check_shapes(target, source, depth, K, T_source_target, None)
     with torch.no_grad(), torch.autocast(target.device.type, enabled=False):

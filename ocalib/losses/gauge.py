@@ -1,7 +1,7 @@
 """The scale gauge of a monocular depth network: a penalty that keeps its depth in the middle of its range.
 
 Self-supervision fixes depth and motion only up to one common scale, so the network's scale is free and drifts
-while it trains. Measured (session 17): without the gauge, in the range [0.1, 100], the median depth drifted from
+while it trains. Measured: without the gauge, in the range [0.1, 100], the median depth drifted from
 ~1 to 30-50 and up to a tenth of the pixels sat at the far end of the range (the far field crushed against it: -51 % at
 40-80 m after median scaling); in the range [0.1, 1000] the whole map collapsed to the minimum depth within 3,000
 steps. The penalty is zero while the mean log depth of a batch lies within a factor ``band`` of the range's

@@ -19,7 +19,7 @@ def ssim_error(x: Tensor, y: Tensor) -> Tensor:
     forward + backward on CPU, than kornia's ``ssim_loss`` with a 3x3 window and than ``avg_pool2d``); the
     one-pixel border repeats its neighbour (no reflection padding of the inputs: its backward is slow on CPU).
     At least float32, also under mixed precision: the variances ``E[x^2] - E[x]^2`` cancel, and in bfloat16 the
-    denominator reached zero (non-finite gradients on every step after a few, measured in session 16).
+    denominator reached zero (measured: non-finite gradients on every step after a few).
     """
     n, dtype = x.shape[1], torch.promote_types(torch.promote_types(x.dtype, y.dtype), torch.float32)
     with torch.autocast(x.device.type, enabled=False):

@@ -48,7 +48,7 @@ class EgoMotionModel(nn.Module):
         ``flip``: average the disparity with that of the mirrored image, mirrored back (test-time flipping, like
         monodepth2's post-processing without its edge ramps; the networks train with random flips). Twice the
         depth network's cost; measured on the eight held-out cameras: abs rel 0.001-0.007 lower on every one, the
-        aligned motions no better (docs/results-egomotion.md, session 26).
+        aligned motions no better (docs/results-egomotion.md).
         """
         if not flip:
             return disp_to_depth(self.depth_net(image)[0], MIN_DEPTH, MAX_DEPTH)

@@ -28,7 +28,7 @@ def test_default_checkpoint_loads_and_beats_the_no_rotation_baseline():
 
 
 def test_alignment_removes_most_of_the_default_checkpoints_rotation_error():
-    """Direct photometric alignment on the network's own depth (the README's issue-4 and issue-5 tables)."""
+    """Direct photometric alignment on the network's own depth (the tables of docs/results-egomotion.md and docs/results-calibrate.md)."""
     from ocalib.frontend.align import align_motion
     from ocalib.geometry.pose import invert_pose
 

@@ -128,7 +128,7 @@ def test_scale_modes_under_constant_and_drifting_network_scale():
 def test_normalise_keeps_the_lever_arm_of_a_car_rig():
     """In a turn, a camera beside the car steps longer or shorter than camera 0: the translation is solved from
     that. On exact planar motions the default window keeps it (the head alone is exact); a 20-frame window (momentum
-    0.95, the default until session 19) normalises most of it away."""
+    0.95, an earlier default) normalises most of it away."""
     g = torch.Generator().manual_seed(0)
     left = make_pose(so3_exp(torch.tensor([0.0, -math.pi / 2, 0.0], dtype=torch.float64)),
                      torch.tensor([-0.8, 0.0, -1.1], dtype=torch.float64))  # looking left, 1.4 behind and beside

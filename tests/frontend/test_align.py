@@ -21,7 +21,7 @@ from ocalib.losses import inverse_warp
 from ocalib.models.pose import motion_to_pose
 from ocalib.synth import preset, render_rig
 
-# 1 degree about a tilted axis and 3 cm: a typical error of the pose network on one frame (README, issue 4)
+# 1 degree about a tilted axis and 3 cm: a typical error of the pose network on one frame (docs/results-egomotion.md)
 AXIS = torch.tensor([0.3, 1.0, 0.2], dtype=torch.float64)
 PERTURBATION = make_pose(torch.linalg.matrix_exp(torch.cross(torch.eye(3, dtype=torch.float64),
                                                              (math.radians(1) * AXIS / AXIS.norm()).expand(3, 3),
@@ -84,7 +84,7 @@ def test_image_gradient_is_kornias_sobel(device, dtype):
 
 def test_align_does_not_read_the_host(pair, device):
     """No host round-trip inside the alignment (CUDA: torch raises on any synchronising call in this mode;
-    measured on an H100 in session 16: none left in the aligned graph but the head's ``linalg.eigh``)."""
+    measured on an H100: none left in the aligned graph but the head's ``linalg.eigh``)."""
     if device.type != "cuda":
         pytest.skip("host reads are a CUDA matter")
     target, source, depth, K, T = (x.to(device) for x in pair)
@@ -154,7 +154,7 @@ def test_a_non_finite_motion_does_not_poison_the_stream(pair):
     after, accepted = aligner(target, source, depth, K, PERTURBATION @ T)
     alone, _ = align_motion(target, source, depth, K, PERTURBATION @ T)
     # equal up to rounding: the stream solves its two starts in one batch (bitwise equal on this CPU; on a 16-core
-    # host with torch 2.11 the batched products round differently, session 16)
+    # host with torch 2.11 the batched products round differently)
     assert bool(accepted[0]) and torch.allclose(after, alone, atol=1e-6, rtol=0)
 
 
