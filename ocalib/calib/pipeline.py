@@ -52,12 +52,12 @@ POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is inv
 SOLVERS = ("exact", "rls", "batch")
 # A translation residual above this share of camera 0's motion (RMS) is reported. Measured on the held-out rigs
 # (docs/calibnet.md): true poses with VO-like drift 0.002-0.005 leave 1-12 %, OpenCV VO 11-60 %, the aligned pose
-# network 26-49 % (session 13; 81-98 % before alignment); the translations of the last two are 0.4-25 baselines off.
+# network 26-49 % (81-98 % before alignment); the translations of the last two are 0.4-25 baselines off.
 TRANSLATION_RESIDUAL_WARNING = 0.15
 UNPAIRED_WARNING = 0.1  # camera-0 stamps left without a camera-k pose inside its span, as a share of the frames kept
 SYNC_MODES = ("interpolate", "nearest")  # how timestamped cameras meet camera 0's stamps (see load_rig)
 
-# The per-camera keys of the result JSON, in the order of the issue's format.
+# The per-camera keys of the result JSON, in their documented order (README).
 CAMERA_KEYS = (
     "camera", "rotation", "quaternion_wxyz", "translation", "scale", "time_offset", "frames_used",
     "frames_rejected", "rotation_std_deg", "translation_std", "scale_std", "observability",
@@ -235,7 +235,7 @@ class CalibrationRun:
     warnings: list[str]
 
     def result_json(self) -> dict:
-        """The result in the issue's format, plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
+        """The result JSON (README), plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
         extrinsics = []
         for k, f in enumerate(self.rig.files[1:]):
             cam = self.final.camera_json(0, k)

@@ -33,10 +33,10 @@ from ocalib.io.jsonable import finite_or_null
 
 FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
-# The rotation on planar (car-like) motion, six held-out cars (README, issue 5, session 15): network front end with
+# The rotation on planar (car-like) motion, six held-out cars (docs/results-calibrate.md): network front end with
 # the rig-held alignment 0.82-2.16 deg, OpenCV VO 0.52-2.49 (five within 2 deg each; OpenCV lower on five).
 PLANAR_ADVICE = ("planar motion with the network front end: on six held-out cars its rotation was 0.8-2.2 deg off, "
-                 "OpenCV VO's 0.5-2.5, lower on five of the six (README, issue 5); --frontend opencv is worth a try")
+                 "OpenCV VO's 0.5-2.5, lower on five of the six; --frontend opencv is worth a try")
 ALIGNED_WARNING = 0.5  # share of frames with an accepted alignment below which a camera is reported (demo: 99-100 %)
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 
@@ -80,11 +80,11 @@ def calibrate_sequence(
     motion, solver, forgetting, refine: the head's (see :class:`OnlineCalibrator`; ``refine`` defaults to
     ``"unobservable"``: a monocular front end's translation directions must not move an observable rotation, see
     :data:`~ocalib.calib.solve.REFINE_MODES`); scale: see :class:`OnlineCalibrationNet` (the default,
-    ``normalise``, was measured better on the held-out rigs: README, issue 5). align: refine the network's motions
+    ``normalise``, was measured better on the held-out rigs: docs/results-calibrate.md). align: refine the network's motions
     by direct photometric alignment (:class:`~ocalib.frontend.align.StreamAligner`; None: with the
-    network front end, measured better on every held-out rig: README, issue 5). rig_align: camera k's aligned
+    network front end, measured better on every held-out rig: docs/results-calibrate.md). rig_align: camera k's aligned
     translation is re-aligned under the rig's rotation (:class:`OnlineCalibrationNet`; None: with ``align``,
-    measured better on the held-out cars: README, issue 5). max_frames: use only the first
+    measured better on the held-out cars: docs/results-calibrate.md). max_frames: use only the first
     frames. on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the
     current estimate (None: on a terminal).
     """

@@ -28,8 +28,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", metavar="CKPT",
                    help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)")
     p.add_argument("--frontend", choices=("network", "opencv"), default="network",
-                   help="ego-motion front end: the pose network (default) or OpenCV monocular VO (on six held-out "
-                   "cars 0.52-2.49 deg, the network 0.82-2.16, OpenCV lower on five; README, issue 5)")
+                   help="ego-motion front end: the pose network (default) or OpenCV monocular VO (on planar motion "
+                   "often the better of the two: docs/results-calibrate.md)")
     p.add_argument("--out", metavar="JSON", help="write the result JSON here")
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
@@ -46,17 +46,16 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    "biased and would pull an observable rotation off), always, or never")
     p.add_argument("--scale", choices=("head", "normalise"), default="normalise",
                    help="network scale: normalise each camera's steps by their running mean length over ~100 "
-                   "frames (default: on the held-out cars, session 5's checkpoint, it kept the rotation 1.6-4.5 deg "
-                   "off where head gave 6.2-10.5), or trust it per camera and let the head solve the ratio (head)")
+                   "frames (default: measured better on the held-out rigs, docs/calibnet.md), or trust it per camera "
+                   "and let the head solve the ratio (head)")
     p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
                    help="refine each network motion by direct photometric alignment on the network's depth (default "
-                   "with the network front end: on the held-out rigs 0.09-6.6 deg where the network alone gives "
-                   "3.6-80; about 25 ms a camera and frame on 2 CPU cores)")
+                   "with the network front end: more accurate on every held-out rig, docs/results-calibrate.md; "
+                   "most of the time a frame takes)")
     p.add_argument("--rig-align", action=argparse.BooleanOptionalAction, default=None,
                    help="with --align, re-align each camera k's translation with its rotation held to the rig's "
                    "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it "
-                   "(default with --align: on five of six held-out cars the rotation error fell, from 2.8-6.6 to "
-                   "0.82-2.16 deg; 25 %% more time a frame)")
+                   "(default with --align: measured better on the held-out cars, docs/results-calibrate.md)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     return p
