@@ -27,16 +27,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from kornia.geometry.conversions import axis_angle_to_rotation_matrix
-
 from bench_calibnet_accuracy import DEFAULT, ensure
 from common import write_json
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+from ocalib.train.module import EgoMotionModule
+
 from ocalib.calibnet.run import calibrate_sequence
 from ocalib.data.layout import open_sequence
 from ocalib.data.snippets import SnippetDataset, collate_snippets
 from ocalib.eval.pose_metrics import rotation_gain
 from ocalib.models import EgoMotionModel, load_model, save_model
-from ocalib.train.module import EgoMotionModule
 
 LR, EXTRINSIC_LR, BATCH = 1e-4, 1e-3, 2  # network and extrinsic learning rates; synchronised frames a step
 RIG_WEIGHTS = (2.0, 0.05)  # rotation, translation residual weights (100 / 1 collapsed the motions to zero)
@@ -69,7 +69,7 @@ def adapt(model: EgoMotionModel, path: Path, steps: int, rig: dict | None, seed:
             A, B = T[:BATCH].flatten(0, 1), T[BATCH:].flatten(0, 1)
             dR = axis_angle_to_rotation_matrix(omega[None])[0] @ dR0
             rotation = (A[:, :3, :3] @ dR - dR @ B[:, :3, :3]).square().sum((-1, -2)).mean()
-            residual = ((A[:, :3, :3] - torch.eye(3)) @ dT + A[:, :3, 3] - log_s.exp() * B[:, :3, 3] @ dR.mT)
+            residual = (A[:, :3, :3] - torch.eye(3)) @ dT + A[:, :3, 3] - log_s.exp() * B[:, :3, 3] @ dR.mT
             step = A[:, :3, 3].detach().square().sum(-1).mean().clamp_min(1e-8)  # camera 0's squared step length
             translation = residual.square().sum(-1).mean() / step
             loss = loss + RIG_WEIGHTS[0] * rotation + RIG_WEIGHTS[1] * translation
@@ -91,9 +91,14 @@ def calibrate(model: EgoMotionModel, path: Path, frames: int, tmp: Path) -> dict
         pred = np.linalg.inv(trajectory[:-1, c]) @ trajectory[1:, c]
         true = np.linalg.inv(camera.poses[: frames - 1]) @ camera.poses[1:frames]
         gains.append([None if not np.isfinite(g) else round(float(g), 3) for g in rotation_gain(pred, true)])
-    return {"rotation_deg": e["rotation_error_deg"], "direction_deg": e["translation_direction_error_deg"],
-            "translation_rel_baseline": e.get("translation_error_rel_baseline"), "in_plane": e["compared_in_plane"],
-            "rotation_gains_xyz": gains, "extrinsic": {k: cam[k] for k in ("rotation", "translation", "scale")}}
+    return {
+        "rotation_deg": e["rotation_error_deg"],
+        "direction_deg": e["translation_direction_error_deg"],
+        "translation_rel_baseline": e.get("translation_error_rel_baseline"),
+        "in_plane": e["compared_in_plane"],
+        "rotation_gains_xyz": gains,
+        "extrinsic": {k: cam[k] for k in ("rotation", "translation", "scale")},
+    }
 
 
 def main() -> None:
@@ -117,14 +122,20 @@ def main() -> None:
             start = time.perf_counter()
             adapted = adapt(model, path, args.steps, rig)
             res[label] = calibrate(adapted, path, args.frames, tmp) | {"adapt_s": time.perf_counter() - start}
-    print(f"{'sequence':18} {'network':20} {'rot (deg)':>9} {'dir (deg)':>9} {'t/baseline':>10}  rotation gains (cam0 / cam1)")
+    print(
+        f"{'sequence':18} {'network':20} {'rot (deg)':>9} {'dir (deg)':>9} {'t/baseline':>10}  rotation gains (cam0 / cam1)"
+    )
     for name, res in results.items():
         for label, r in res.items():
             rel = r["translation_rel_baseline"]
-            print(f"{name:18} {label:20} {r['rotation_deg']:9.2f} {r['direction_deg']:9.2f} "
-                  f"{'n/a' if rel is None else f'{rel:10.2f}':>10}  {r['rotation_gains_xyz'][0]} / {r['rotation_gains_xyz'][1]}")
-    write_json(args.out, {"frames": args.frames, "steps": args.steps, "checkpoint": args.checkpoint or "default",
-                          "results": results})
+            print(
+                f"{name:18} {label:20} {r['rotation_deg']:9.2f} {r['direction_deg']:9.2f} "
+                f"{'n/a' if rel is None else f'{rel:10.2f}':>10}  {r['rotation_gains_xyz'][0]} / {r['rotation_gains_xyz'][1]}"
+            )
+    write_json(
+        args.out,
+        {"frames": args.frames, "steps": args.steps, "checkpoint": args.checkpoint or "default", "results": results},
+    )
 
 
 if __name__ == "__main__":

@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 import torch
-
 from common import write_json
+
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.models import EgoMotionModel, load_model
@@ -86,8 +86,10 @@ def main() -> None:
         model = EgoMotionModel("small")
     devices = [torch.device(d) for d in args.devices.split(",") if d != "cuda" or torch.cuda.is_available()]
     runs = [bench(model, d, args.cameras, args.frames) for d in devices]
-    print(f"on-line calibration net, {args.cameras} cameras, model {model.size} at {model.height}x{model.width}, "
-          f"{args.threads} CPU threads, median of {args.frames} frames")
+    print(
+        f"on-line calibration net, {args.cameras} cameras, model {model.size} at {model.height}x{model.width}, "
+        f"{args.threads} CPU threads, median of {args.frames} frames"
+    )
     print(f"{'device':8} {'case':14} {'ms/frame':>10} {'frames/s':>10}")
     for r in runs:
         for name, c in r["cases"].items():

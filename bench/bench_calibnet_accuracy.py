@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from common import write_json
+
 from ocalib.calib.pipeline import RigPoses, calibrate_rig
 from ocalib.calibnet.run import calibrate_sequence
 from ocalib.calibnet.truth import extrinsic_errors
@@ -40,12 +40,15 @@ def ensure(root: Path, name: str, frames: int) -> Path:
     if not (path / "rig.yaml").exists():
         kind, _, seed = path.name.rpartition("-")
         if not seed.isdigit() or int(seed) < 1000:
-            raise SystemExit(f"{name}: no sequence there, and its name is not PRESET-SEED with a held-out seed "
-                             "(>= 1000; lower seeds are training worlds), e.g. front-left-1008")
+            raise SystemExit(
+                f"{name}: no sequence there, and its name is not PRESET-SEED with a held-out seed "
+                "(>= 1000; lower seeds are training worlds), e.g. front-left-1008"
+            )
         partial = path.with_name(path.name + ".partial")  # an interrupted render leaves no rig.yaml at path
         shutil.rmtree(partial, ignore_errors=True)
-        render_sequence(preset(kind).with_overrides(frames=frames, seed=int(seed), height=128, width=416), partial,
-                        workers=2)
+        render_sequence(
+            preset(kind).with_overrides(frames=frames, seed=int(seed), height=128, width=416), partial, workers=2
+        )
         partial.rename(path)
     return path
 
@@ -64,16 +67,24 @@ def noisy_truth(path: Path, sigma: float, frames: int, seed: int = 0) -> list[di
 
 def row(errors: list[dict], seconds: float, frames: int) -> dict:
     e = errors[0]
-    return {"rotation_deg": e["rotation_error_deg"], "direction_deg": e["translation_direction_error_deg"],
-            "translation_rel_baseline": e.get("translation_error_rel_baseline"), "in_plane": e["compared_in_plane"],
-            "fps": frames / seconds}
+    return {
+        "rotation_deg": e["rotation_error_deg"],
+        "direction_deg": e["translation_direction_error_deg"],
+        "translation_rel_baseline": e.get("translation_error_rel_baseline"),
+        "in_plane": e["compared_in_plane"],
+        "fps": frames / seconds,
+    }
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
-    p.add_argument("--sequences", nargs="+", default=DEFAULT,
-                   help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing")
+    p.add_argument(
+        "--sequences",
+        nargs="+",
+        default=DEFAULT,
+        help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing",
+    )
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--checkpoint")
     p.add_argument("--skip-opencv", action="store_true")
@@ -84,11 +95,18 @@ def main() -> None:
     for name in args.sequences:
         path = ensure(Path(args.root), name, args.frames)
         res = results[path.name] = {}
-        runs = [(f"network ({scale})", dict(frontend="network", scale=scale, align=False)) for scale in ("head", "normalise")]
+        runs = [
+            (f"network ({scale})", dict(frontend="network", scale=scale, align=False))
+            for scale in ("head", "normalise")
+        ]
         if not args.skip_align:
             runs.append(("network (normalise), aligned", dict(frontend="network", scale="normalise", align=True)))
-            runs.append(("network (normalise), aligned, no rig", dict(frontend="network", scale="normalise", align=True,
-                                                                      rig_align=False)))
+            runs.append(
+                (
+                    "network (normalise), aligned, no rig",
+                    dict(frontend="network", scale="normalise", align=True, rig_align=False),
+                )
+            )
         if not args.skip_opencv:
             runs.append(("opencv", dict(frontend="opencv")))
         for label, kw in runs:
@@ -100,14 +118,18 @@ def main() -> None:
             res[label]["rotation_observable"] = bool(flags.rotation_observable[0, 0])
         for sigma in NOISE:
             start = time.perf_counter()
-            res[f"true poses, drift {sigma}"] = row(noisy_truth(path, sigma, args.frames),
-                                                    time.perf_counter() - start, args.frames)
+            res[f"true poses, drift {sigma}"] = row(
+                noisy_truth(path, sigma, args.frames), time.perf_counter() - start, args.frames
+            )
     print(f"{'sequence':18} {'front end':26} {'rot (deg)':>9} {'dir (deg)':>9} {'t/baseline':>10} {'fps':>7}")
     for name, res in results.items():
         for label, r in res.items():
             rel = r["translation_rel_baseline"]
-            print(f"{name:18} {label:26} {r['rotation_deg']:9.3f} {r['direction_deg']:9.2f} "
-                  f"{'n/a' if rel is None else f'{rel:10.3f}':>10} {r['fps']:7.1f}" + ("  (in plane)" if r["in_plane"] else ""))
+            print(
+                f"{name:18} {label:26} {r['rotation_deg']:9.3f} {r['direction_deg']:9.2f} "
+                f"{'n/a' if rel is None else f'{rel:10.3f}':>10} {r['fps']:7.1f}"
+                + ("  (in plane)" if r["in_plane"] else "")
+            )
     write_json(args.out, {"frames": args.frames, "checkpoint": args.checkpoint or "default", "results": results})
 
 

@@ -30,8 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-
 from common import write_json
+
 from ocalib.calib.pipeline import calibrate_rig, load_rig
 from ocalib.io.poses import write_kitti
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
@@ -88,7 +88,10 @@ def run_opencv(poses: np.ndarray, X: np.ndarray) -> dict[str, dict]:
     for name, method in OPENCV.items():
         t = time.perf_counter()
         R, tr = cv2.calibrateHandEye(
-            list(cam0[:, :3, :3]), list(cam0[:, :3, 3]), list(target2cam[:, :3, :3]), list(target2cam[:, :3, 3]),
+            list(cam0[:, :3, :3]),
+            list(cam0[:, :3, 3]),
+            list(target2cam[:, :3, :3]),
+            list(target2cam[:, :3, 3]),
             method=method,
         )
         seconds = time.perf_counter() - t

@@ -31,8 +31,8 @@ import cv2
 import numba
 import numpy as np
 import torch
-
 from common import write_json
+
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.sequence import calibrate_sequence
@@ -45,7 +45,10 @@ THREADS = numba.get_num_threads()  # the kernel's default: one per core
 def rig_sequence(frames: int, rigs: int, seed: int = 0) -> torch.Tensor:
     """(frames, rigs, 2, 4, 4) noisy LDS trajectories of random rigs."""
     g = torch.Generator().manual_seed(seed)
-    seqs = [add_noise(rig_trajectories(lds_trajectory(frames, g), random_rig(g)[None]), 0.01, g) for _ in range(min(rigs, 8))]
+    seqs = [
+        add_noise(rig_trajectories(lds_trajectory(frames, g), random_rig(g)[None]), 0.01, g)
+        for _ in range(min(rigs, 8))
+    ]
     return torch.stack([seqs[i % len(seqs)] for i in range(rigs)], 1)
 
 
@@ -107,7 +110,10 @@ def main() -> None:
     repeats = 1 if args.quick else args.repeats
     frames = {1: 300, 64: 200, 4096: 16} if not args.quick else {1: 40, 64: 30, 4096: 4}
     data = {rigs: rig_sequence(n + 20, rigs) for rigs, n in frames.items()}
-    sequences = {1: rig_sequence(2000 if not args.quick else 200, 1), 4096: rig_sequence(32 if not args.quick else 8, 4096)}
+    sequences = {
+        1: rig_sequence(2000 if not args.quick else 200, 1),
+        4096: rig_sequence(32 if not args.quick else 8, 4096),
+    }
     samples: dict[tuple, list[float]] = {}
     with torch.inference_mode():  # compile the kernel (or load it from numba's cache) before timing
         OnlineCalibrator(2, batch_size=64)(data[64][0])
@@ -131,7 +137,9 @@ def main() -> None:
 
     print(f"torch {torch.__version__} ({torch.get_num_threads()} thread), numba {numba.__version__} ({THREADS} threads), "
           f"opencv {cv2.__version__}, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cpus")  # fmt: skip
-    for (kind, rigs, refine, threads), times in sorted(samples.items(), key=lambda kv: (kv[0][0] == "sequence", kv[0][1])):
+    for (kind, rigs, refine, threads), times in sorted(
+        samples.items(), key=lambda kv: (kv[0][0] == "sequence", kv[0][1])
+    ):
         label = "refined" if refine else "closed form"
         if kind == "auto":
             add(f"head, kernel, {rigs} rig(s), {label}, {threads} thr", "frame", times, "backend='auto' (the default)")
@@ -155,7 +163,8 @@ def main() -> None:
         "torch_one_rig_us": ms["head, PyTorch, 1 rig(s), refined"] * 1e3,
         "torch_rigs_4096_ms": ms["head, PyTorch, 4096 rig(s), refined"],
         "kernel_speedup_one_rig": ms["head, PyTorch, 1 rig(s), refined"] / one,
-        "kernel_speedup_4096_rigs": ms["head, PyTorch, 4096 rig(s), refined"] / ms[f"head, kernel, 4096 rig(s), refined, {THREADS} thr"],
+        "kernel_speedup_4096_rigs": ms["head, PyTorch, 4096 rig(s), refined"]
+        / ms[f"head, kernel, 4096 rig(s), refined, {THREADS} thr"],
         "kernel_threads": THREADS,
         "sequence_1_rig_us_per_frame": ms["whole-sequence path, 1 rig(s)"] * 1e3,
         "sequence_4096_rigs_ms_per_frame": ms["whole-sequence path, 4096 rig(s)"],

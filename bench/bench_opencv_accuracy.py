@@ -25,8 +25,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-
 from common import write_json
+
 from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
@@ -97,7 +97,10 @@ def errors(est, true, vertical=None):
     also the translation error across it (the part observable on planar motion)."""
     dR = np.einsum("nji,njk->nik", est[:, :3, :3], true[:, :3, :3])
     sin = np.linalg.norm(dR - dR.transpose(0, 2, 1), axis=(1, 2)) / (2 * math.sqrt(2))
-    out = {"rotation_deg": np.degrees(np.arctan2(sin, (np.trace(dR, axis1=1, axis2=2) - 1) / 2)), "translation": np.linalg.norm(est[:, :3, 3] - true[:, :3, 3], axis=1)}
+    out = {
+        "rotation_deg": np.degrees(np.arctan2(sin, (np.trace(dR, axis1=1, axis2=2) - 1) / 2)),
+        "translation": np.linalg.norm(est[:, :3, 3] - true[:, :3, 3], axis=1),
+    }
     if vertical is not None:
         d = est[:, :3, 3] - true[:, :3, 3]
         out["translation_horizontal"] = np.linalg.norm(d - (d * vertical).sum(1, keepdims=True) * vertical, axis=1)
@@ -109,10 +112,13 @@ def stats(errs):
     out = {}
     for name, e in errs.items():
         finite = e[np.isfinite(e)]
-        out[name] = {"median": float(np.median(e)) if finite.size == e.size else float(np.nanmedian(e)) if finite.size else None,
-                     "mean": float(finite.mean()) if finite.size else None,
-                     "max": float(finite.max()) if finite.size else None, "failures": int(e.size - finite.size),
-                     "raw": e}
+        out[name] = {
+            "median": float(np.median(e)) if finite.size == e.size else float(np.nanmedian(e)) if finite.size else None,
+            "mean": float(finite.mean()) if finite.size else None,
+            "max": float(finite.max()) if finite.size else None,
+            "failures": int(e.size - finite.size),
+            "raw": e,
+        }
     return out
 
 
@@ -157,8 +163,11 @@ def run_planar(trials=20, frames=128, sigma=0.001, pitch_roll=0.0):
     for seed in range(trials):
         g = torch.Generator().manual_seed(seed)
         rig = random_rig(g)
-        p = add_noise(rig_trajectories(car_trajectory(frames, g, pitch_roll=pitch_roll), rig[None]), sigma,
-                      torch.Generator().manual_seed(1000 + seed))
+        p = add_noise(
+            rig_trajectories(car_trajectory(frames, g, pitch_roll=pitch_roll), rig[None]),
+            sigma,
+            torch.Generator().manual_seed(1000 + seed),
+        )
         poses.append(p)
         X.append(rig.numpy())
         sub = p[::8].numpy()
@@ -185,8 +194,14 @@ def fmt(x, digits=4):
 
 
 def markdown(results, large, planar, setup):
-    best_rot = min((n for n in results["noise"] if n.startswith("OpenCV")), key=lambda n: results["noise"][n]["rotation_deg"]["median"])
-    best_t = min((n for n in results["noise"] if n.startswith("OpenCV")), key=lambda n: results["noise"][n]["translation"]["median"])
+    best_rot = min(
+        (n for n in results["noise"] if n.startswith("OpenCV")),
+        key=lambda n: results["noise"][n]["rotation_deg"]["median"],
+    )
+    best_t = min(
+        (n for n in results["noise"] if n.startswith("OpenCV")),
+        key=lambda n: results["noise"][n]["translation"]["median"],
+    )
     lines = [
         "OpenCV's test protocol (10 poses x 100 trials, noise 0.002 rad / 0.005 on target-to-camera, "
         "0.001 / 0.001 on gripper-to-base); rotation error = angle of R_est^T R_true, translation error = |t_est - t_true|.",
@@ -196,9 +211,11 @@ def markdown(results, large, planar, setup):
     ]
     for name, r in results["noise"].items():
         c = results["noise-free"][name]
-        lines.append(f"| {name} | {fmt(c['rotation_deg']['max'], 2)} | {fmt(c['translation']['max'], 2)} | "
-                     f"{fmt(r['rotation_deg']['median'])} | {fmt(r['rotation_deg']['mean'])} | {fmt(r['rotation_deg']['max'])} | "
-                     f"{fmt(r['translation']['median'])} | {fmt(r['translation']['mean'])} | {fmt(r['translation']['max'])} |")
+        lines.append(
+            f"| {name} | {fmt(c['rotation_deg']['max'], 2)} | {fmt(c['translation']['max'], 2)} | "
+            f"{fmt(r['rotation_deg']['median'])} | {fmt(r['rotation_deg']['mean'])} | {fmt(r['rotation_deg']['max'])} | "
+            f"{fmt(r['translation']['median'])} | {fmt(r['translation']['mean'])} | {fmt(r['translation']['max'])} |"
+        )
     n = setup["large"]["trials"]
     lines += [
         "",
@@ -212,11 +229,16 @@ def markdown(results, large, planar, setup):
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, r in large.items():
-        ratios = [draw_ratios(large, name, best, e) for best, e in ((best_rot, "rotation_deg"), (best_t, "translation"))]
-        lines.append(f"| {name} | {fmt(r['rotation_deg']['median'])} | {fmt(r['rotation_deg']['mean'])} | {fmt(r['rotation_deg']['max'])} | "
-                     f"{fmt(r['translation']['median'])} | {fmt(r['translation']['mean'])} | {fmt(r['translation']['max'])} | "
-                     f"{paired(large, name, best_rot, 'rotation_deg'):.0%} | {paired(large, name, best_t, 'translation'):.0%} | "
-                     + " | ".join(f"{m:.3f} ({lo:.2f}-{hi:.2f}), <= 1 in {w:.0%}" for m, lo, hi, w in ratios) + " |")
+        ratios = [
+            draw_ratios(large, name, best, e) for best, e in ((best_rot, "rotation_deg"), (best_t, "translation"))
+        ]
+        lines.append(
+            f"| {name} | {fmt(r['rotation_deg']['median'])} | {fmt(r['rotation_deg']['mean'])} | {fmt(r['rotation_deg']['max'])} | "
+            f"{fmt(r['translation']['median'])} | {fmt(r['translation']['mean'])} | {fmt(r['translation']['max'])} | "
+            f"{paired(large, name, best_rot, 'rotation_deg'):.0%} | {paired(large, name, best_t, 'translation'):.0%} | "
+            + " | ".join(f"{m:.3f} ({lo:.2f}-{hi:.2f}), <= 1 in {w:.0%}" for m, lo, hi, w in ratios)
+            + " |"
+        )
     lines += [
         "",
         f"Planar motion: car trajectory ({setup['planar']['frames']} frames, pitch/roll {setup['planar']['pitch_roll']}, "
@@ -228,16 +250,21 @@ def markdown(results, large, planar, setup):
         "|---|---|---|---|---|---|",
     ]
     for name, r in planar.items():
-        lines.append(f"| {name} | {r['rotation_deg']['failures']} | {fmt(r['rotation_deg']['median'])} | "
-                     f"{fmt(r['rotation_deg']['max'])} | {fmt(r['translation']['median'])} | "
-                     f"{fmt(r['translation_horizontal']['median'])} |")
+        lines.append(
+            f"| {name} | {r['rotation_deg']['failures']} | {fmt(r['rotation_deg']['median'])} | "
+            f"{fmt(r['rotation_deg']['max'])} | {fmt(r['translation']['median'])} | "
+            f"{fmt(r['translation_horizontal']['median'])} |"
+        )
     return "\n".join(lines)
 
 
 def main():
     t0 = time.perf_counter()
-    setup = {"protocol": {"trials": 100, "seed": 0}, "large": {"trials": 1000, "seed": 1},
-             "planar": {"trials": 20, "frames": 128, "sigma": 0.001, "pitch_roll": 0.0}}
+    setup = {
+        "protocol": {"trials": 100, "seed": 0},
+        "large": {"trials": 1000, "seed": 1},
+        "planar": {"trials": 20, "frames": 128, "sigma": 0.001, "pitch_roll": 0.0},
+    }
     results = run_protocol(**setup["protocol"])
     clean = results["noise-free"]
     for name, r in clean.items():
@@ -247,8 +274,13 @@ def main():
     table = markdown(results, large, planar, setup)
     print(table)
     print(f"({time.perf_counter() - t0:.1f} s)")
-    drop_raw = lambda res: {k: {e: {s: v for s, v in d.items() if s != "raw"} if isinstance(d, dict) else d  # noqa: E731
-                               for e, d in r.items()} for k, r in res.items()}
+    drop_raw = lambda res: {
+        k: {
+            e: {s: v for s, v in d.items() if s != "raw"} if isinstance(d, dict) else d  # noqa: E731
+            for e, d in r.items()
+        }
+        for k, r in res.items()
+    }
     write_json(ROOT / "bench/results/opencv_accuracy.json",
                {"setup": setup, "protocol": {k: drop_raw(v) for k, v in results.items()}, "large": drop_raw(large),
                 "planar": drop_raw(planar)})  # fmt: skip

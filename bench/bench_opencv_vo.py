@@ -27,8 +27,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from common import write_json
+
 from ocalib.calib.pipeline import calibrate_files
 from ocalib.data import RigStream, open_sequence
 from ocalib.frontend import OpenCVOdometry
@@ -139,24 +139,34 @@ def main(argv=None) -> int:
             for cam, r in zip(seq.cameras, runs):
                 vo_rows.append(vo_row(name, cam, *r))
 
-    print("| preset | camera | frames | rot err med / p90 (deg) | GT rot/frame (deg) | dir err med / p90 (deg) "
-          "| scale CV | drift last/first | degenerate | fps |")
+    print(
+        "| preset | camera | frames | rot err med / p90 (deg) | GT rot/frame (deg) | dir err med / p90 (deg) "
+        "| scale CV | drift last/first | degenerate | fps |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for r in vo_rows:
-        print(f"| {r['preset']} | {r['camera']} | {r['frames']} | {r['rotation_err_deg_median']:.3f} / "
-              f"{r['rotation_err_deg_p90']:.3f} | {r['gt_rotation_deg_median']:.2f} | "
-              f"{r['direction_err_deg_median']:.2f} / {r['direction_err_deg_p90']:.1f} | {r['scale_cv']:.3f} | "
-              f"{r['scale_drift_last_over_first_fifth']:.2f} | {r['degenerate_frames']} | {r['fps']:.1f} |")
+        print(
+            f"| {r['preset']} | {r['camera']} | {r['frames']} | {r['rotation_err_deg_median']:.3f} / "
+            f"{r['rotation_err_deg_p90']:.3f} | {r['gt_rotation_deg_median']:.2f} | "
+            f"{r['direction_err_deg_median']:.2f} / {r['direction_err_deg_p90']:.1f} | {r['scale_cv']:.3f} | "
+            f"{r['scale_drift_last_over_first_fifth']:.2f} | {r['degenerate_frames']} | {r['fps']:.1f} |"
+        )
     if calib_rows:
-        print("\n| preset | poses | frames | rotation err (deg) | translation dir err (deg) | translation err "
-              "(% baseline) | scale (true) | planar |")
+        print(
+            "\n| preset | poses | frames | rotation err (deg) | translation dir err (deg) | translation err "
+            "(% baseline) | scale (true) | planar |"
+        )
         print("|---|---|---|---|---|---|---|---|")
         for r in calib_rows:
             plane = r.get("translation_dir_err_deg_in_plane")
-            direction = f"{r['translation_dir_err_deg']:.1f}" + (f" (in plane {plane:.1f})" if plane is not None else "")
-            print(f"| {r['preset']} | {r['poses']} | {r['frames']} | {r['rotation_err_deg']:.2f} | {direction} | "
-                  f"{r['translation_err_pct_baseline']:.0f} | {r['scale']:.3f} ({r['scale_true']:.3f}) | "
-                  f"{r['planar_motion']} |")
+            direction = f"{r['translation_dir_err_deg']:.1f}" + (
+                f" (in plane {plane:.1f})" if plane is not None else ""
+            )
+            print(
+                f"| {r['preset']} | {r['poses']} | {r['frames']} | {r['rotation_err_deg']:.2f} | {direction} | "
+                f"{r['translation_err_pct_baseline']:.0f} | {r['scale']:.3f} ({r['scale_true']:.3f}) | "
+                f"{r['planar_motion']} |"
+            )
     write_json(args.out, {"settings": vars(args), "vo": vo_rows, "calibration": calib_rows})
     return 0
 

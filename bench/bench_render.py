@@ -14,8 +14,8 @@ import statistics
 import time
 
 import torch
-
 from common import write_json
+
 from ocalib.synth import preset
 from ocalib.synth.render import WorldTensors, render_view
 from ocalib.synth.sequence import camera_poses, world_for
@@ -39,10 +39,18 @@ def bench(name: str, height: int, width: int, frames: int, repeats: int, device:
             torch.cuda.synchronize()
         per_view.append((time.perf_counter() - t0) / (frames * len(Ks)))
     med = statistics.median(per_view)
-    return {"preset": name, "height": height, "width": width, "threads": torch.get_num_threads(), "device": device,
-            "boxes": len(world.boxes), "world_build_s": round(world_s, 3),
-            "ms_per_view_median": round(med * 1000, 2), "ms_per_view_all": [round(v * 1000, 2) for v in per_view],
-            "fps_per_camera_median": round(1 / med, 2)}
+    return {
+        "preset": name,
+        "height": height,
+        "width": width,
+        "threads": torch.get_num_threads(),
+        "device": device,
+        "boxes": len(world.boxes),
+        "world_build_s": round(world_s, 3),
+        "ms_per_view_median": round(med * 1000, 2),
+        "ms_per_view_all": [round(v * 1000, 2) for v in per_view],
+        "fps_per_camera_median": round(1 / med, 2),
+    }
 
 
 def main(argv=None) -> int:
@@ -64,7 +72,9 @@ def main(argv=None) -> int:
                 rows.append(bench(args.preset, h, w, args.frames, args.repeats, args.device))
     print(f"{'size':>9} {'threads':>7} {'ms/view':>8} {'fps/camera':>10}   (median of {args.repeats}; {args.preset})")
     for r in rows:
-        print(f"{r['height']}x{r['width']:<5} {r['threads']:>7} {r['ms_per_view_median']:>8.1f} {r['fps_per_camera_median']:>10.1f}")
+        print(
+            f"{r['height']}x{r['width']:<5} {r['threads']:>7} {r['ms_per_view_median']:>8.1f} {r['fps_per_camera_median']:>10.1f}"
+        )
     write_json(args.out, {"benchmark": "synth render", "results": rows})
     return 0
 

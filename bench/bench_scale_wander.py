@@ -22,17 +22,18 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-
 from bench_calibnet_accuracy import DEFAULT, ensure
 from common import write_json
+
 from ocalib.calibnet.run import calibrate_sequence
 from ocalib.calibnet.truth import WANDER_WINDOW, scale_wander, step_length_errors
 from ocalib.data.layout import open_sequence
 
 
 def measure(path: Path, frames: int, frontend: str, checkpoint: str | None) -> dict:
-    out = calibrate_sequence(path, frontend=frontend, checkpoint=checkpoint, scale="head", max_frames=frames,
-                             progress=False)
+    out = calibrate_sequence(
+        path, frontend=frontend, checkpoint=checkpoint, scale="head", max_frames=frames, progress=False
+    )
     sequence = open_sequence(path)
     truth = np.stack([c.poses[:frames] for c in sequence.cameras], 1)
     truth = np.linalg.inv(truth[:1]) @ truth
@@ -55,10 +56,21 @@ def main() -> None:
     for name in args.sequences:
         path = ensure(Path(args.root), name, args.frames)
         r = results[path.name] = measure(path, args.frames, args.frontend, args.checkpoint)
-        print(f"{path.name:18} {r['wander']:7.3f} {r['signal']:7.3f} {r['wander'] / r['signal']:6.1f} "
-              f"{r['jitter'][0]:9.3f} / {r['jitter'][1]:.3f}", flush=True)
-    write_json(args.out, {"frames": args.frames, "frontend": args.frontend, "window": WANDER_WINDOW,
-                          "checkpoint": args.checkpoint or "default", "results": results})
+        print(
+            f"{path.name:18} {r['wander']:7.3f} {r['signal']:7.3f} {r['wander'] / r['signal']:6.1f} "
+            f"{r['jitter'][0]:9.3f} / {r['jitter'][1]:.3f}",
+            flush=True,
+        )
+    write_json(
+        args.out,
+        {
+            "frames": args.frames,
+            "frontend": args.frontend,
+            "window": WANDER_WINDOW,
+            "checkpoint": args.checkpoint or "default",
+            "results": results,
+        },
+    )
 
 
 if __name__ == "__main__":

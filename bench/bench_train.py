@@ -22,11 +22,11 @@ import time
 
 import kornia
 import torch
-
 from common import write_json
+from ocalib.train.module import EgoMotionModule
+
 from ocalib.losses import ssim_error
 from ocalib.models import EgoMotionModel
-from ocalib.train.module import EgoMotionModule
 
 
 def timed(fn, repeats: int, device: str) -> float:
@@ -52,10 +52,12 @@ def snippet_batch(batch: int, height: int, width: int, device: str) -> dict:
 TRAINING_CASES = {  # label -> EgoMotionModule options
     "SC loss, 4 scales": dict(geometry=0.1),
     "no SC, 4 scales": dict(geometry=0.0),
-    "shipped recipe (1 scale, align 3+3, distill)": dict(geometry=0.0, scales=1, automask=False, align=(3, 3),
-                                                         distill=0.1),
-    "shipped recipe, compiled (model.compile)": dict(geometry=0.0, scales=1, automask=False, align=(3, 3),
-                                                     distill=0.1, compile=True),
+    "shipped recipe (1 scale, align 3+3, distill)": dict(
+        geometry=0.0, scales=1, automask=False, align=(3, 3), distill=0.1
+    ),
+    "shipped recipe, compiled (model.compile)": dict(
+        geometry=0.0, scales=1, automask=False, align=(3, 3), distill=0.1, compile=True
+    ),
 }
 
 
@@ -75,8 +77,14 @@ def bench_training(size, height, width, batch, steps, label, device) -> dict:
     step()  # compiles, when compiled
     first = time.perf_counter() - t0
     seconds = timed(step, steps, device)
-    return {"case": f"train step, {label}", "batch": batch, "ms": seconds * 1e3, "first_step_s": first,
-            "snippets_per_s": batch / seconds, "images_per_s": batch / seconds}
+    return {
+        "case": f"train step, {label}",
+        "batch": batch,
+        "ms": seconds * 1e3,
+        "first_step_s": first,
+        "snippets_per_s": batch / seconds,
+        "images_per_s": batch / seconds,
+    }
 
 
 def bench_inference(size, height, width, repeats, device) -> list[dict]:
@@ -94,8 +102,10 @@ def bench_inference(size, height, width, repeats, device) -> list[dict]:
 def bench_ssim(height, width, repeats, device) -> list[dict]:
     x0, y = torch.rand(2, 8, 3, height, width, device=device)
     rows = []
-    for name, fn in [("ssim box 3x3 (ocalib)", lambda x: ssim_error(x, y)),
-                     ("ssim kornia ssim_loss window 3", lambda x: kornia.losses.ssim_loss(x, y, 3, reduction="none"))]:
+    for name, fn in [
+        ("ssim box 3x3 (ocalib)", lambda x: ssim_error(x, y)),
+        ("ssim kornia ssim_loss window 3", lambda x: kornia.losses.ssim_loss(x, y, 3, reduction="none")),
+    ]:
         x = x0.clone().requires_grad_()
         s = timed(lambda: fn(x).sum().backward(), repeats, device)
         rows.append({"case": name, "batch": 8, "ms": s * 1e3})
@@ -132,10 +142,19 @@ def main(argv=None) -> int:
         unit = "snippets" if "snippets_per_s" in r else "frames" if rate else ""
         text = f"{rate:.1f} {unit}" if rate else ""
         first = f"{r['first_step_s']:.1f}" if "first_step_s" in r else ""
-        print(f"{r['case']:<56} {r['device']:>6} {r['threads']:>7} {r['batch']:>5} {r['ms']:>8.1f} {text:>15} {first:>12}")
-    write_json(args.out, {"benchmark": "ego-motion training", "size": args.size, "height": args.height,
-                          "width": args.width,
-                          "results": [{k: round(v, 2) if isinstance(v, float) else v for k, v in r.items()} for r in rows]})
+        print(
+            f"{r['case']:<56} {r['device']:>6} {r['threads']:>7} {r['batch']:>5} {r['ms']:>8.1f} {text:>15} {first:>12}"
+        )
+    write_json(
+        args.out,
+        {
+            "benchmark": "ego-motion training",
+            "size": args.size,
+            "height": args.height,
+            "width": args.width,
+            "results": [{k: round(v, 2) if isinstance(v, float) else v for k, v in r.items()} for r in rows],
+        },
+    )
     return 0
 
 

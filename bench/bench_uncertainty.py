@@ -14,8 +14,8 @@ import argparse
 
 import numpy as np
 import torch
-
 from common import write_json
+
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.eval.pose_metrics import rotation_matrix_to_axis_angle
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
@@ -55,8 +55,10 @@ def main() -> None:
                     continue
                 r = z_scores(args.rigs, sigma, model, options)
                 rows.append({"noise": model, "sigma": sigma, "head": name, **r})
-                print(f"{model:12} {sigma:6.3f} {name:28} {r['rotation']:9.2f} {r['translation']:11.2f} {r['scale']:7.2f}",
-                      flush=True)
+                print(
+                    f"{model:12} {sigma:6.3f} {name:28} {r['rotation']:9.2f} {r['translation']:11.2f} {r['scale']:7.2f}",
+                    flush=True,
+                )
     write_json(args.out, {"rigs": args.rigs, "frames": 128, "results": rows})
 
 

@@ -23,7 +23,11 @@ def test_every_source_folder_is_a_listed_package():
     mapping = setuptools["package-dir"]
     on_disk = set()
     for folder in [ROOT / "ocalib", *(ROOT / "ocalib").rglob("*")]:
-        if folder.is_dir() and folder.name != "__pycache__" and any(f.suffix in (".py", ".pt") for f in folder.iterdir()):
+        if (
+            folder.is_dir()
+            and folder.name != "__pycache__"
+            and any(f.suffix in (".py", ".pt") for f in folder.iterdir())
+        ):
             on_disk.add(".".join(folder.relative_to(ROOT).parts))
     for name, folder in mapping.items():
         assert (ROOT / folder / "__init__.py").is_file(), f"{name} maps to {folder}, which is not a package"
@@ -35,8 +39,13 @@ def test_every_source_folder_is_a_listed_package():
 def test_train_runs_from_a_folder_holding_train_py(tmp_path):
     for name in ("train.py", "ocalib_train.py"):
         (tmp_path / name).write_text("raise SystemExit('the user file ran')\n")
-    out = subprocess.run([sys.executable, "-m", "ocalib", "train", "fit", "--help"], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-m", "ocalib", "train", "fit", "--help"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert "the user file ran" not in out.stdout + out.stderr
     assert "--model.align" in out.stdout  # the LightningCLI of ocalib.train answered

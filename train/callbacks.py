@@ -50,8 +50,10 @@ class ExportModel(pl.Callback):
             folder = trainer.log_dir or trainer.default_root_dir
             last = Path(folder) / "checkpoints" / "last.ckpt"
             saved = f"{last} (resume with --ckpt_path)" if last.is_file() else "no checkpoint yet"
-            self.interrupted = (f"at step {trainer.global_step}; written so far: the logs under {folder}, {saved}; "
-                                f"no {self.filename} (written when a fit ends)")
+            self.interrupted = (
+                f"at step {trainer.global_step}; written so far: the logs under {folder}, {saved}; "
+                f"no {self.filename} (written when a fit ends)"
+            )
 
     def on_validation_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         score = trainer.callback_metrics.get(self.monitor)
@@ -76,10 +78,17 @@ class ExportModel(pl.Callback):
         if self.best is not None:
             model = copy.deepcopy(model).cpu()
             model.load_state_dict(self.best["state"])
-            selected = {"weights": f"lowest {self.monitor}", "global_step": self.best["global_step"],
-                        self.monitor: self.best["score"]}
-        meta = {"global_step": int(trainer.global_step), "epoch": int(trainer.current_epoch), "selected": selected,
-                "hparams": {k: p for k, v in pl_module.hparams.items() if (p := _plain(v)) is not None}}
+            selected = {
+                "weights": f"lowest {self.monitor}",
+                "global_step": self.best["global_step"],
+                self.monitor: self.best["score"],
+            }
+        meta = {
+            "global_step": int(trainer.global_step),
+            "epoch": int(trainer.current_epoch),
+            "selected": selected,
+            "hparams": {k: p for k, v in pl_module.hparams.items() if (p := _plain(v)) is not None},
+        }
         self.path = save_model(model, folder / self.filename, meta)
         rank_zero_info(f"{self.path}: the weights of step {selected['global_step']} ({selected['weights']})")
 

@@ -10,16 +10,15 @@ from __future__ import annotations
 import sys
 
 import torch
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from jsonargparse import ArgumentError
 from lightning.fabric.utilities.exceptions import MisconfigurationException
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.cli import LightningCLI
-
-from ocalib.errors import InputError, read_text
-
 from ocalib.train.callbacks import ExportModel, ReleaseProcessGroup
 from ocalib.train.datamodule import SnippetDataModule
 from ocalib.train.module import EgoMotionModule
+
+from ocalib.errors import InputError, read_text
 
 
 class EgoMotionCLI(LightningCLI):
@@ -28,8 +27,12 @@ class EgoMotionCLI(LightningCLI):
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data.init_args.height", "model.height")
         parser.link_arguments("data.init_args.width", "model.width")
-        parser.add_argument("--threads", type=int | None, default=None,
-                            help="torch intra-op threads (measured: 1 is several times faster than 2 on a busy 2-core CPU)")
+        parser.add_argument(
+            "--threads",
+            type=int | None,
+            default=None,
+            help="torch intra-op threads (measured: 1 is several times faster than 2 on a busy 2-core CPU)",
+        )
 
     def instantiate_classes(self) -> None:
         """The classes of the configuration; a value they refuse (an unavailable accelerator, a bad option) is an
@@ -49,8 +52,12 @@ class EgoMotionCLI(LightningCLI):
 
 def trainer_defaults(export: ExportModel | None = None) -> dict:
     return {
-        "callbacks": [ModelCheckpoint(save_last=True, every_n_train_steps=500), LearningRateMonitor("step"),
-                      export or ExportModel(), ReleaseProcessGroup()],
+        "callbacks": [
+            ModelCheckpoint(save_last=True, every_n_train_steps=500),
+            LearningRateMonitor("step"),
+            export or ExportModel(),
+            ReleaseProcessGroup(),
+        ],
         "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger", "init_args": {"save_dir": "runs"}},
     }
 
@@ -64,9 +71,17 @@ def main(args: list[str] | None = None, run: bool = True) -> EgoMotionCLI:
             read_text(option.partition("=")[2] or value, "config file")
     export = ExportModel()
     try:
-        return EgoMotionCLI(EgoMotionModule, SnippetDataModule, subclass_mode_data=True, seed_everything_default=0,
-                            trainer_defaults=trainer_defaults(export), save_config_kwargs={"overwrite": True},
-                            args=args, run=run, parser_kwargs={"prog": "ocalib train", "exit_on_error": False})
+        return EgoMotionCLI(
+            EgoMotionModule,
+            SnippetDataModule,
+            subclass_mode_data=True,
+            seed_everything_default=0,
+            trainer_defaults=trainer_defaults(export),
+            save_config_kwargs={"overwrite": True},
+            args=args,
+            run=run,
+            parser_kwargs={"prog": "ocalib train", "exit_on_error": False},
+        )
     except ArgumentError as err:
         raise InputError(" ".join(str(err).split())) from None
     except SystemExit:

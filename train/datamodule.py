@@ -25,8 +25,10 @@ def split_by_sequence(paths: list[Path], val_fraction: float, seed: int) -> tupl
     if val_fraction <= 0:
         return list(paths), []
     if len(paths) < 2:
-        raise InputError(f"{paths[0] if paths else 'sequences'}: splitting by sequence needs at least two "
-                         "sequences; give val_sequences or set val_fraction to 0")
+        raise InputError(
+            f"{paths[0] if paths else 'sequences'}: splitting by sequence needs at least two "
+            "sequences; give val_sequences or set val_fraction to 0"
+        )
     shuffled = sorted(paths)
     random.Random(seed).shuffle(shuffled)
     n_val = min(len(paths) - 1, max(1, round(val_fraction * len(paths))))
@@ -91,15 +93,23 @@ class SnippetDataModule(pl.LightningDataModule):
         sequences = [open_sequence(p, h.cameras, h.intrinsics) for p in paths]
         dataset = SnippetDataset(sequences, h.offsets, (h.height, h.width), h.static_threshold, transform, h.cache_mb)
         if not len(dataset):
-            raise InputError(f"{paths[0]}: no snippets with offsets {list(h.offsets)} in {len(paths)} sequence(s) "
-                             "(too few frames, or all filtered as static)")
+            raise InputError(
+                f"{paths[0]}: no snippets with offsets {list(h.offsets)} in {len(paths)} sequence(s) "
+                "(too few frames, or all filtered as static)"
+            )
         return dataset
 
     def _loader(self, dataset: SnippetDataset, shuffle: bool) -> DataLoader:
         h = self.hparams
-        return DataLoader(dataset, batch_size=h.batch_size, shuffle=shuffle, num_workers=h.num_workers,
-                          collate_fn=collate_snippets, persistent_workers=h.num_workers > 0,
-                          generator=torch.Generator().manual_seed(h.seed))
+        return DataLoader(
+            dataset,
+            batch_size=h.batch_size,
+            shuffle=shuffle,
+            num_workers=h.num_workers,
+            collate_fn=collate_snippets,
+            persistent_workers=h.num_workers > 0,
+            generator=torch.Generator().manual_seed(h.seed),
+        )
 
     def train_dataloader(self) -> DataLoader:
         return self._loader(self.train_set, shuffle=True)

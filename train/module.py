@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import Timer
 from lightning.pytorch.utilities import rank_zero_warn
+from ocalib.train.visuals import colorize, trajectory_figure
 from torch import Tensor
 
 from ocalib.errors import InputError
@@ -28,7 +29,6 @@ from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.losses.motion import motion_distance
 from ocalib.losses.selfsup import identity_errors, self_supervised_loss
 from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth
-from ocalib.train.visuals import colorize, trajectory_figure
 
 
 def pair_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3) -> tuple[np.ndarray, ...]:
@@ -63,15 +63,31 @@ class EgoMotionModule(pl.LightningModule):
     warning, on a CPU without a C++ compiler); validation stays eager.
     """
 
-    def __init__(self, size: str = "small", height: int = 64, width: int = 208, lr: float = 3e-4,
-                 weight_decay: float = 0.0, warmup_steps: int = 200, min_lr_ratio: float = 0.05,
-                 automask: bool = True, smoothness: float = 1e-3, geometry: float = 0.1, scales: int = 4,
-                 align: tuple[int, ...] = (), distill: float = 0.0, image_interval: int = 250,
-                 trajectory_frames: int = 200, compile: bool = False):
+    def __init__(
+        self,
+        size: str = "small",
+        height: int = 64,
+        width: int = 208,
+        lr: float = 3e-4,
+        weight_decay: float = 0.0,
+        warmup_steps: int = 200,
+        min_lr_ratio: float = 0.05,
+        automask: bool = True,
+        smoothness: float = 1e-3,
+        geometry: float = 0.1,
+        scales: int = 4,
+        align: tuple[int, ...] = (),
+        distill: float = 0.0,
+        image_interval: int = 250,
+        trajectory_frames: int = 200,
+        compile: bool = False,
+    ):
         super().__init__()
         if distill < 0 or (distill > 0 and not align):
-            raise InputError(f"model.distill={distill}: needs to be >= 0, and > 0 only with model.align (it pulls the "
-                             "pose network towards the aligned motions)")
+            raise InputError(
+                f"model.distill={distill}: needs to be >= 0, and > 0 only with model.align (it pulls the "
+                "pose network towards the aligned motions)"
+            )
         self.save_hyperparameters()
         self.model = EgoMotionModel(size, height, width)
         self.loss = SelfSupervisedLoss(automask, smoothness, geometry)
@@ -96,13 +112,27 @@ class EgoMotionModule(pl.LightningModule):
         if not (self.hparams.align and self.training):
             return self.loss(images, K, disps, invert_pose(T), source_depths), disps[0], T
         depth = disp_to_depth(disps[0]).repeat_interleave(S - 1, 0)
-        refined, _ = align_motion(targets, images[:, 1:].flatten(0, 1), depth, K.repeat_interleave(S - 1, 0),
-                                  invert_pose(T.detach()).flatten(0, 1), iterations=tuple(self.hparams.align),
-                                  max_rotation_deg=math.inf)
+        refined, _ = align_motion(
+            targets,
+            images[:, 1:].flatten(0, 1),
+            depth,
+            K.repeat_interleave(S - 1, 0),
+            invert_pose(T.detach()).flatten(0, 1),
+            iterations=tuple(self.hparams.align),
+            max_rotation_deg=math.inf,
+        )
         identity = identity_errors(images, self.loss.ssim, self.loss.automask)  # shared by the two terms
         out = self.loss(images, K, disps, refined.unflatten(0, (B, S - 1)), source_depths, identity)
-        pose = self_supervised_loss(images, K, [disps[0].detach()], invert_pose(T), automask=self.loss.automask,
-                                    smoothness=0.0, ssim=self.loss.ssim, identity=identity)
+        pose = self_supervised_loss(
+            images,
+            K,
+            [disps[0].detach()],
+            invert_pose(T),
+            automask=self.loss.automask,
+            smoothness=0.0,
+            ssim=self.loss.ssim,
+            identity=identity,
+        )
         out.terms["pose_photometric"] = pose.terms["photometric"]
         out.total = out.total + pose.terms["photometric"]  # not pose.total: its gauge is a constant (detached depth)
         if self.hparams.distill > 0:
@@ -142,15 +172,19 @@ class EgoMotionModule(pl.LightningModule):
         generates C++), a warning and the eager ``self.step``."""
         compilers = (os.environ.get("CXX"), "c++", "g++", "clang++")
         if self.device.type == "cpu" and not any(c and shutil.which(c) for c in compilers):
-            rank_zero_warn("model.compile: torch.compile needs a C++ compiler on the CPU and none was found (CXX, c++, "
-                           "g++, clang++): training with the eager step (the same computation, ~1.4x slower a step)")
+            rank_zero_warn(
+                "model.compile: torch.compile needs a C++ compiler on the CPU and none was found (CXX, c++, "
+                "g++, clang++): training with the eager step (the same computation, ~1.4x slower a step)"
+            )
             return self.step
         return torch.compile(self.step)
 
     def on_before_optimizer_step(self, optimizer) -> None:
         """NaN guard for gradients: a step with a non-finite gradient updates nothing."""
         params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
-        if params and not torch.nn.utils.get_total_norm([p.grad for p in params]).isfinite():  # one check, not one a tensor
+        if (
+            params and not torch.nn.utils.get_total_norm([p.grad for p in params]).isfinite()
+        ):  # one check, not one a tensor
             for p in params:
                 p.grad = None
             if not self._skipped:  # (a non-finite loss was counted already)
@@ -219,8 +253,11 @@ class EgoMotionModule(pl.LightningModule):
         experiment = getattr(self.logger, "experiment", None)
         if not hasattr(experiment, "add_images"):
             return
-        pictures = {"target": batch["image"][:n, 0], "disparity": colorize(disp[:n]),
-                    **{k: v[:n] for k, v in out.images.items()}}
+        pictures = {
+            "target": batch["image"][:n, 0],
+            "disparity": colorize(disp[:n]),
+            **{k: v[:n] for k, v in out.images.items()},
+        }
         for name, picture in pictures.items():
             experiment.add_images(f"{stage}/{name}", picture.detach().float().cpu().clamp(0, 1), self.global_step)
 
@@ -229,7 +266,8 @@ class EgoMotionModule(pl.LightningModule):
         optimizer = torch.optim.Adam(self.parameters(), lr=h.lr, weight_decay=h.weight_decay, fused=True)
         total = max(1, int(self.trainer.estimated_stepping_batches))
         schedule = torch.optim.lr_scheduler.LambdaLR(
-            optimizer, lambda step: lr_factor(step, total, h.warmup_steps, h.min_lr_ratio, self._time_spent()))
+            optimizer, lambda step: lr_factor(step, total, h.warmup_steps, h.min_lr_ratio, self._time_spent())
+        )
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
 
     def _time_spent(self) -> float:

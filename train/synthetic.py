@@ -10,9 +10,10 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from ocalib.train.datamodule import SnippetDataModule
+
 from ocalib.data.augment import SnippetAugmentation
 from ocalib.errors import InputError
-from ocalib.train.datamodule import SnippetDataModule
 
 HELD_OUT_SEEDS = 1000  # seeds >= this are never trained or validated on
 
@@ -52,10 +53,18 @@ class SyntheticDataModule(SnippetDataModule):
 
     def __init__(
         self,
-        presets: dict[str, list[int]] | list[str] = {"handheld": [0, 1], "front-left": [2, 3],  # noqa: B006
-                                                     "front-rear": [4, 5], "stereo": [6, 7]},
-        val_presets: dict[str, list[int]] | None = {"handheld": [500], "front-left": [501],  # noqa: B006
-                                                    "front-rear": [502], "stereo": [503]},
+        presets: dict[str, list[int]] | list[str] = {  # noqa: B006 - read only
+            "handheld": [0, 1],
+            "front-left": [2, 3],
+            "front-rear": [4, 5],
+            "stereo": [6, 7],
+        },
+        val_presets: dict[str, list[int]] | None = {  # noqa: B006 - read only
+            "handheld": [500],
+            "front-left": [501],
+            "front-rear": [502],
+            "stereo": [503],
+        },
         seeds: list[int] | None = None,
         val_seeds: list[int] | None = None,
         frames: int = 150,
@@ -74,22 +83,38 @@ class SyntheticDataModule(SnippetDataModule):
     ):
         if not isinstance(presets, dict):  # a list of presets sharing ``seeds`` / ``val_seeds`` (older configs)
             if seeds is None:
-                raise InputError(f"synthetic presets {list(presets)}: a list of presets needs seeds (or map each preset to its seeds)")
+                raise InputError(
+                    f"synthetic presets {list(presets)}: a list of presets needs seeds (or map each preset to its seeds)"
+                )
             presets, val_presets = {p: list(seeds) for p in presets}, {p: list(val_seeds or []) for p in presets}
         self.renders = [(p, s, frames) for p, ss in presets.items() for s in ss]
         self.val_renders = [(p, s, val_frames) for p, ss in (val_presets or {}).items() for s in ss]
         for p, s, _ in self.renders + self.val_renders:
             if s >= HELD_OUT_SEEDS:
-                raise InputError(f"synthetic seed {s} ({p}): seeds >= {HELD_OUT_SEEDS} are reserved for held-out evaluation")
+                raise InputError(
+                    f"synthetic seed {s} ({p}): seeds >= {HELD_OUT_SEEDS} are reserved for held-out evaluation"
+                )
         both = {(p, s) for p, s, _ in self.renders} & {(p, s) for p, s, _ in self.val_renders}
         if both:
             raise InputError(f"synthetic sequences {sorted(both)} are in both presets and val_presets")
         folder = lambda p, s, n: str(synthetic_folder(root, p, s, height, width, n))  # noqa: E731
-        folders = dict(sequences=[folder(*r) for r in self.renders],
-                       val_sequences=[folder(*r) for r in self.val_renders] or None, val_fraction=0.0)
-        super().__init__(**folders, height=height, width=width, offsets=offsets, static_threshold=static_threshold,
-                         augmentation=augmentation, batch_size=batch_size, num_workers=num_workers, seed=seed,
-                         cache_mb=cache_mb)
+        folders = dict(
+            sequences=[folder(*r) for r in self.renders],
+            val_sequences=[folder(*r) for r in self.val_renders] or None,
+            val_fraction=0.0,
+        )
+        super().__init__(
+            **folders,
+            height=height,
+            width=width,
+            offsets=offsets,
+            static_threshold=static_threshold,
+            augmentation=augmentation,
+            batch_size=batch_size,
+            num_workers=num_workers,
+            seed=seed,
+            cache_mb=cache_mb,
+        )
         self.hparams.update(folders, cameras=None, intrinsics=None)  # save_hyperparameters saw this class's arguments
         self.root, self.render_workers = root, render_workers
 

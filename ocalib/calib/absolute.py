@@ -137,10 +137,16 @@ def local_derivatives(K, M, R, Ry, x, wr, wt) -> tuple[Tensor, Tensor]:
 
 
 def _apply(R, Ry, x, step):
-    return R @ axis_angle_to_rotation_matrix(step[:, :3]), Ry @ axis_angle_to_rotation_matrix(step[:, 3:6]), x + step[:, 6:]
+    return (
+        R @ axis_angle_to_rotation_matrix(step[:, :3]),
+        Ry @ axis_angle_to_rotation_matrix(step[:, 3:6]),
+        x + step[:, 6:],
+    )
 
 
-def solve_absolute(K: Tensor, M: Tensor, n: Tensor, sigma: Tensor | None = None, steps: int = NEWTON_STEPS) -> dict[str, Tensor]:
+def solve_absolute(
+    K: Tensor, M: Tensor, n: Tensor, sigma: Tensor | None = None, steps: int = NEWTON_STEPS
+) -> dict[str, Tensor]:
     """Calibrate from the sums of :func:`absolute_rows`: ``K`` (..., 9, 9), ``M`` (..., 16, 16) and ``n`` (...)
     weighted frames. ``sigma`` (..., 2): the noise ``(sr, st)`` that weighs the two costs (radians, camera-0
     units); default: the closed form's residuals.
@@ -170,7 +176,9 @@ def solve_absolute(K: Tensor, M: Tensor, n: Tensor, sigma: Tensor | None = None,
         active = observable & (n >= 3)
         if sigma is None:
             tiny = torch.finfo(K.dtype).tiny / torch.finfo(K.dtype).eps
-            sigma = torch.stack([Er.clamp_min(0) / (3 * n - 6).clamp_min(1), Et.clamp_min(0) / (3 * n - 7).clamp_min(1)], -1)
+            sigma = torch.stack(
+                [Er.clamp_min(0) / (3 * n - 6).clamp_min(1), Et.clamp_min(0) / (3 * n - 7).clamp_min(1)], -1
+            )
             sigma = sigma.clamp_min(tiny).sqrt()
         sigma = sigma.detach().reshape(-1, 2).to(K)
         wr, wt = sigma[:, 0] ** -2, sigma[:, 1] ** -2
@@ -202,9 +210,20 @@ def solve_absolute(K: Tensor, M: Tensor, n: Tensor, sigma: Tensor | None = None,
     # chi-square form: sum r^2 / sigma^2 = (wr Er + wt Et) / scale, whose Hessian is H / scale: cov = 2 (H / scale)^-1
     cov = 2 * torch.linalg.inv_ex(H.detach() / scale[:, None, None])[0]
     cov = torch.where(active[:, None, None] & cov.isfinite(), cov, math.inf)
-    out = {"sigma": sigma, "rotation": R, "scale": x[:, 0], "translation": x[:, 1:4], "world_rotation": Ry, "world_translation": x[:, 4:],
-           "singular_values": S, "rotation_observable": observable, "refined": active, "covariance": cov,
-           "rotation_cost": Er, "translation_cost": Et}
+    out = {
+        "sigma": sigma,
+        "rotation": R,
+        "scale": x[:, 0],
+        "translation": x[:, 1:4],
+        "world_rotation": Ry,
+        "world_translation": x[:, 4:],
+        "singular_values": S,
+        "rotation_observable": observable,
+        "refined": active,
+        "covariance": cov,
+        "rotation_cost": Er,
+        "translation_cost": Et,
+    }
     return {k: v.reshape(*shape, *v.shape[1:]) for k, v in out.items()}
 
 
@@ -286,35 +305,41 @@ class AbsoluteCalibration:
         ``translation_relative``, the translation residual over ``camera0_spread`` (0: explained; about 1: no
         better than no translation)."""
         n = self.frames.clamp_min(1e-300)
-        return {"rotation_deg": torch.rad2deg((self.rotation_cost.clamp_min(0) / n).sqrt()),
-                "translation_relative": (self.translation_cost.clamp_min(0) / n).sqrt() / self.camera0_spread}
+        return {
+            "rotation_deg": torch.rad2deg((self.rotation_cost.clamp_min(0) / n).sqrt()),
+            "translation_relative": (self.translation_cost.clamp_min(0) / n).sqrt() / self.camera0_spread,
+        }
 
     def camera_json(self, b: int, k: int) -> dict:
         """The JSON object of camera k+1 of rig b, in the schema of :class:`~ocalib.calib.result.Calibration`'s,
         with the world pose ``T_world0_worldk`` added."""
         get = lambda name: getattr(self, name)[b, k].detach().cpu().double()  # noqa: E731
         unobservable, directions = get("translation_unobservable").bool(), get("translation_directions")
-        return finite_or_null({
-            "rotation": get("rotation").tolist(),
-            "quaternion_wxyz": get("quaternion").tolist(),
-            "translation": get("translation").tolist(),
-            "scale": float(get("scale")),
-            "world_rotation": get("world_rotation").tolist(),
-            "world_translation": get("world_translation").tolist(),
-            "frames_used": int(get("frames_used")),
-            "frames_rejected": int(get("frames_rejected")),
-            "rotation_std_deg": torch.rad2deg(get("rotation_std")).tolist(),
-            "translation_std": get("translation_std").tolist(),
-            "scale_std": float(get("scale_std")),
-            "residuals": {name: float(v[b, k]) for name, v in self.residuals.items()},
-            "observability": {
-                "rotation_singular_values": get("rotation_singular_values").tolist(),
-                "rotation_observable": bool(get("rotation_observable")),
-                "planar_motion": False,
-                "unobservable_translation_directions": [directions[:, j].tolist() for j in range(3) if unobservable[j]],
-                "weakest_translation_direction": directions[:, 0].tolist(),
-            },
-        })
+        return finite_or_null(
+            {
+                "rotation": get("rotation").tolist(),
+                "quaternion_wxyz": get("quaternion").tolist(),
+                "translation": get("translation").tolist(),
+                "scale": float(get("scale")),
+                "world_rotation": get("world_rotation").tolist(),
+                "world_translation": get("world_translation").tolist(),
+                "frames_used": int(get("frames_used")),
+                "frames_rejected": int(get("frames_rejected")),
+                "rotation_std_deg": torch.rad2deg(get("rotation_std")).tolist(),
+                "translation_std": get("translation_std").tolist(),
+                "scale_std": float(get("scale_std")),
+                "residuals": {name: float(v[b, k]) for name, v in self.residuals.items()},
+                "observability": {
+                    "rotation_singular_values": get("rotation_singular_values").tolist(),
+                    "rotation_observable": bool(get("rotation_observable")),
+                    "planar_motion": False,
+                    "unobservable_translation_directions": [
+                        directions[:, j].tolist() for j in range(3) if unobservable[j]
+                    ],
+                    "weakest_translation_direction": directions[:, 0].tolist(),
+                },
+            }
+        )
 
 
 class AbsoluteCalibrator(nn.Module):
@@ -346,7 +371,12 @@ class AbsoluteCalibrator(nn.Module):
         self.pose_error = pose_error
         if not 0 < forgetting <= 1:
             raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
-        self.num_cameras, self.batch_size, self.forgetting, self.pose_tolerance = num_cameras, batch_size, forgetting, pose_tolerance
+        self.num_cameras, self.batch_size, self.forgetting, self.pose_tolerance = (
+            num_cameras,
+            batch_size,
+            forgetting,
+            pose_tolerance,
+        )
         B, K = batch_size, num_cameras - 1
         f = dict(dtype=dtype, device=device)
         self.register_buffer("K", torch.zeros(B, K, 9, 9, **f))
@@ -364,7 +394,9 @@ class AbsoluteCalibrator(nn.Module):
         if poses.dim() == 3:
             poses = poses.unsqueeze(0)
         if poses.shape != (self.batch_size, self.num_cameras, 4, 4):
-            raise ValueError(f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}")
+            raise ValueError(
+                f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}"
+            )
         poses = poses.to(self.K.dtype)
         eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
         valid = poses.isfinite().flatten(-2).all(-1)

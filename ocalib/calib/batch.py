@@ -78,8 +78,9 @@ def batch_calibrate(
         pairs = w.sum(-1)
         refined = rotation_observable(S, pairs) & ~planar_motion(S, pairs) & (pairs >= 3)
         for k in torch.nonzero(refined).flatten().tolist():
-            quat[k], x[k] = _refine(w[k].sqrt()[:, None, None] * A[k], R0[k], t0[k], t1[k], sw[k], quat[k], x[k],
-                                    float(pairs[k]))
+            quat[k], x[k] = _refine(
+                w[k].sqrt()[:, None, None] * A[k], R0[k], t0[k], t1[k], sw[k], quat[k], x[k], float(pairs[k])
+            )
         dR = quaternion_to_rotation_matrix(quat)
     return {
         "quaternion": quat,

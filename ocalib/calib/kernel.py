@@ -29,12 +29,11 @@ from __future__ import annotations
 import math
 import sys
 
+import numba
 import numpy as np
 import torch
-from torch import Tensor
-
-import numba
 from numba import njit, prange
+from torch import Tensor
 
 from ocalib.calib.gating import MAD_TO_STD, SCREW_MAX_SAMPLES, SCREW_MIN_SAMPLES
 from ocalib.calib.pairing import GAP_PRIOR_DOF, GAP_WEIGHT_POWER, NOISE_FLOOR
@@ -44,15 +43,31 @@ from ocalib.calib.translation import RANK_TOLERANCE
 PARALLEL_MIN_RIGS = 16  # fewer rigs run on the calling thread (starting the thread pool costs more)
 REFINE_CODES = {False: 0, True: 1, "unobservable": 2}
 # The head's buffers the kernel reads and updates, in the order of its ``state`` tuple (after the poses).
-STATE = ("history", "history_valid", "first", "first_valid", "gap_S2", "gap_V", "gap_rotation_rows", "gap_Z",
-         "gap_translation_rows", "S2", "V", "rotation_rows", "screw_scale", "screw_count", "frames_used",
-         "frames_rejected")
+STATE = (
+    "history",
+    "history_valid",
+    "first",
+    "first_valid",
+    "gap_S2",
+    "gap_V",
+    "gap_rotation_rows",
+    "gap_Z",
+    "gap_translation_rows",
+    "S2",
+    "V",
+    "rotation_rows",
+    "screw_scale",
+    "screw_count",
+    "frames_used",
+    "frames_rejected",
+)
 JACOBI_SWEEPS = 30
 JACOBI_TOLERANCE = 1e-16  # an off-diagonal entry below this times sqrt(a_pp a_qq) is treated as zero
 _EPS2 = float(np.finfo(np.float64).eps) ** 2
 
 
 _jit = njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
+
 
 # ---------------------------------------------------------------------------------------------- small algebra
 @_jit
@@ -75,6 +90,7 @@ def _eigh(A, n, w, V, a):
             break
     _sort(w, V, a, n)
 
+
 @_jit
 def _rotation(a, p, q):
     """Jacobi rotation ``(c, s, t)`` that zeroes ``a[p, q]``; ``(1, 0, 0)`` where it is negligible (it moves no
@@ -88,6 +104,7 @@ def _rotation(a, p, q):
         t = -t
     c = 1.0 / math.sqrt(t * t + 1.0)
     return c, t * c, t
+
 
 @_jit
 def _rotate(a, V, p, q, c, s, t, n):
@@ -104,6 +121,7 @@ def _rotate(a, V, p, q, c, s, t, n):
     for k in range(n):
         vkp, vkq = V[k, p], V[k, q]
         V[k, p], V[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
+
 
 @_jit
 def _eigh4(A, w, V, a):
@@ -130,6 +148,7 @@ def _eigh4(A, w, V, a):
             break
     _sort(w, V, a, 4)
 
+
 @_jit
 def _sort(w, V, a, n):
     """Eigenvalues ``w`` from the diagonal of ``a``, ascending, with the columns of ``V`` (insertion sort, stable)."""
@@ -142,6 +161,7 @@ def _sort(w, V, a, n):
             for k in range(n):
                 V[k, j - 1], V[k, j] = V[k, j], V[k, j - 1]
             j -= 1
+
 
 @_jit
 def _pinv_solve(H, g, n, x, w, V, a):
@@ -158,6 +178,7 @@ def _pinv_solve(H, g, n, x, w, V, a):
             c /= w[k]
             for i in range(n):
                 x[i] += c * V[i, k]
+
 
 @_jit
 def _spd_solve(H, g, n, x, w, V, a):
@@ -205,6 +226,7 @@ def _spd_solve(H, g, n, x, w, V, a):
             acc -= Lc[k, i] * x[k]
         x[i] = acc / Lc[i, i]
 
+
 @_jit
 def _lu_solve(H, b, n, x):
     """Solve ``H x = b`` (n x n) by LU with partial pivoting; ``H`` and ``b`` are overwritten."""
@@ -228,6 +250,7 @@ def _lu_solve(H, b, n, x):
             s -= H[i, k] * x[k]
         x[i] = s / H[i, i]
 
+
 @_jit
 def _quat_to_rot(q, R):
     """Rotation matrix ``R`` (3x3) of the quaternion ``q`` (any norm > 0)."""
@@ -242,6 +265,7 @@ def _quat_to_rot(q, R):
     R[2, 0] = 2.0 * (x * z - w * y)
     R[2, 1] = 2.0 * (y * z + w * x)
     R[2, 2] = w * w - x * x - y * y + z * z
+
 
 @_jit
 def _rot_to_quat(R, q):
@@ -270,12 +294,14 @@ def _rot_to_quat(R, q):
         n = -n
     q[0], q[1], q[2], q[3] = a / n, b / n, c / n, d / n
 
+
 @_jit
 def _excited(S, rows, i, significance):
     """:func:`~ocalib.calib.rotation.excited` of singular values ``S`` (4)."""
     floor = S[3] * S[3]
     excess = (S[i] * S[i] - floor) * math.sqrt(max(2.0 * rows - 3.0, 1.0))
     return S[i] > ROTATION_OBSERVABLE_MIN_SV and excess > significance * floor
+
 
 @_jit
 def _quadratic(Z, P, p):
@@ -303,6 +329,7 @@ def _quadratic(Z, P, p):
         for j in range(3):
             p[3 + 3 * r + j] = Z[9 + j, 12 + r]
     return Z[12, 12] + Z[13, 13] + Z[14, 14]
+
 
 @_jit
 def _normal_equations(P, p, maps, m, H, g):
@@ -332,6 +359,7 @@ def _normal_equations(P, p, maps, m, H, g):
                     s += li * P[3 + i, 3 + j] * maps[l, j // 3, j % 3]
             H[3 + k, 3 + l] = s
 
+
 @_jit
 def _apply_P(P, y, out):
     """``out = P y`` for the translation quadratic's ``P`` (12x12), whose lower-right block is ``I (x) Z_t1t1``."""
@@ -345,6 +373,7 @@ def _apply_P(P, y, out):
             i = 3 + 3 * a + b
             out[i] = (P[i, 0] * y[0] + P[i, 1] * y[1] + P[i, 2] * y[2]
                       + P[i, 3 + 3 * a] * y[3 + 3 * a] + P[i, 4 + 3 * a] * y[4 + 3 * a] + P[i, 5 + 3 * a] * y[5 + 3 * a])  # fmt: skip
+
 
 @_jit
 def _costs(M, P, p, c, q, x, R, y, Py):
@@ -364,6 +393,7 @@ def _costs(M, P, p, c, q, x, R, y, Py):
         Et += y[i] * (Py[i] - 2.0 * p[i])
     return Er, Et
 
+
 @_jit
 def _left(q, L):
     """``L(q)`` (4x4): ``q * p = L(q) p``."""
@@ -373,12 +403,14 @@ def _left(q, L):
     L[2, 0], L[2, 1], L[2, 2], L[2, 3] = y, z, w, -x
     L[3, 0], L[3, 1], L[3, 2], L[3, 3] = z, -y, x, w
 
+
 @_jit
 def _refine_workspace():
     """Scratch arrays of :func:`_joint_refine` (allocated once per thread, not per rig)."""
     return (np.empty((3, 3)), np.empty(12), np.empty((9, 4)), np.empty(12), np.empty((12, 7)), np.empty((7, 7)),
             np.empty(7), np.empty(7), np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 4)), np.empty(4),
             np.empty((3, 3)), np.empty(4), np.empty(3), np.empty(4), np.empty(12))  # fmt: skip
+
 
 @_jit
 def _joint_refine(M, P, p, c, quat, x, rotation_rows, translation_rows, steps, out_q, out_x, work):
@@ -494,6 +526,7 @@ def _joint_refine(M, P, p, c, quat, x, rotation_rows, translation_rows, steps, o
         out_x[:] = xr
     return ok
 
+
 # --------------------------------------------------------------------------------------------- one rig, one frame
 @_jit
 def _workspace(C, n_pairs):
@@ -505,6 +538,7 @@ def _workspace(C, n_pairs):
             np.empty(n_pairs, dtype=np.bool_), np.empty(n_pairs), np.empty((4, 4)), np.empty(4),
             np.empty(4), np.empty((3, 3)), np.empty((12, 12)), np.empty(12), np.empty((3, 3, 3)), np.empty((6, 6)),
             np.empty(6), np.empty(6), np.empty(4), np.empty(3), np.empty(4), np.empty(4), _refine_workspace())  # fmt: skip
+
 
 @_jit
 def _read_poses(poses, b, pose, valid, pose_tolerance):
@@ -536,9 +570,25 @@ def _read_poses(poses, b, pose, valid, pose_tolerance):
                 for j in range(4):
                     pose[cam, i, j] = 1.0 if i == j else 0.0
 
+
 @_jit
-def _motion_pairs(b, pose, valid, history, history_valid, first, first_valid, gaps, has_first, frame, motion, prev,
-                  prev_valid, quat, angle):
+def _motion_pairs(
+    b,
+    pose,
+    valid,
+    history,
+    history_valid,
+    first,
+    first_valid,
+    gaps,
+    has_first,
+    frame,
+    motion,
+    prev,
+    prev_valid,
+    quat,
+    angle,
+):
     """Every camera's motion pairs (C, n_pairs, 4, 4) ``inv(earlier) @ pose``: gap g from frame t - g, then the pair
     with the first valid frame (kept in ``first``); their quaternions ``quat`` (w, x, y, z) and angles ``angle``."""
     C = pose.shape[0]
@@ -575,6 +625,7 @@ def _motion_pairs(b, pose, valid, history, history_valid, first, first_valid, ga
             qv = quat[cam, j]
             angle[cam, j] = 2.0 * math.atan2(math.sqrt(qv[1] * qv[1] + qv[2] * qv[2] + qv[3] * qv[3]), abs(qv[0]))
 
+
 @_jit
 def _screw_gate(b, k, n_pairs, valid, prev_valid, angle, screw_scale, screw_count, screw_sigma, screw_gate, pair_ok):
     """Screw congruence of camera k + 1 against camera 0: ``pair_ok`` (n_pairs,) for the pairs whose rotation angles
@@ -598,10 +649,39 @@ def _screw_gate(b, k, n_pairs, valid, prev_valid, angle, screw_scale, screw_coun
     screw_count[b, k] = count
     return used
 
+
 @_jit
-def _update_gaps(b, k, n_pairs, quat, angle, motion, pair_ok, S2_state, V_state, rotation_rows_state, gap_S2, gap_V,
-                 gap_rotation_rows, gap_Z, gap_translation_rows, lam, min_rotation, robust, symmetric, S, qs, A, WV,
-                 gram, w4, E4, a7, newV, z):
+def _update_gaps(
+    b,
+    k,
+    n_pairs,
+    quat,
+    angle,
+    motion,
+    pair_ok,
+    S2_state,
+    V_state,
+    rotation_rows_state,
+    gap_S2,
+    gap_V,
+    gap_rotation_rows,
+    gap_Z,
+    gap_translation_rows,
+    lam,
+    min_rotation,
+    robust,
+    symmetric,
+    S,
+    qs,
+    A,
+    WV,
+    gram,
+    w4,
+    E4,
+    a7,
+    newV,
+    z,
+):
     """Add this frame's pairs of camera k + 1 to each gap's statistics: the rotation rows (robust weights under the
     last frame's combined estimate) by incremental SVD, the translation rows to the gap's 15x15 moment."""
     ck = k + 1
@@ -690,9 +770,29 @@ def _update_gaps(b, k, n_pairs, quat, angle, motion, pair_ok, S2_state, V_state,
                         Zg[l, i] = Zg[i, l]
         gap_translation_rows[b, k, j] = lam * gap_translation_rows[b, k, j] + w_tr
 
+
 @_jit
-def _combine_gaps(b, k, n_pairs, gap_S2, gap_V, gap_rotation_rows, gap_Z, gap_translation_rows, S2_state, V_state,
-                  Zc, gw, Mc, WV, gram, w4, E4, a7, newV):
+def _combine_gaps(
+    b,
+    k,
+    n_pairs,
+    gap_S2,
+    gap_V,
+    gap_rotation_rows,
+    gap_Z,
+    gap_translation_rows,
+    S2_state,
+    V_state,
+    Zc,
+    gw,
+    Mc,
+    WV,
+    gram,
+    w4,
+    E4,
+    a7,
+    newV,
+):
     """The gaps' statistics weighted by their noise (pairing.gap_weights, combine_statistics) into the rotation
     system (``S2_state``, ``V_state``) and the translation moment ``Zc`` (15, 15). Returns the weighted rotation and
     translation row counts."""
@@ -764,16 +864,59 @@ def _combine_gaps(b, k, n_pairs, gap_S2, gap_V, gap_rotation_rows, gap_Z, gap_tr
         _eigh4(gram, w4, E4, a7)
         for i in range(4):
             for m in range(4):
-                newV[i, m] = Vb[i, 0] * E4[0, 3 - m] + Vb[i, 1] * E4[1, 3 - m] + Vb[i, 2] * E4[2, 3 - m] + Vb[i, 3] * E4[3, 3 - m]
+                newV[i, m] = (
+                    Vb[i, 0] * E4[0, 3 - m]
+                    + Vb[i, 1] * E4[1, 3 - m]
+                    + Vb[i, 2] * E4[2, 3 - m]
+                    + Vb[i, 3] * E4[3, 3 - m]
+                )
         for i in range(4):
             S2_state[b, k, i] = w4[3 - i]
         Vb[:, :] = newV
     return rows, trows
 
+
 @_jit
-def _estimate(b, k, rows, trows, S2_state, V_state, Zc, refine, refine_steps, out_rotation, out_quaternion,
-              out_translation, out_scale, out_sv, out_observable, out_planar, out_axis, out_refined, S, qs, dR, P, p,
-              maps, Hn, gn, xn, x, axis, q_closed, x_closed, refine_work, Mc, w4, E4, w7, V7, a7):
+def _estimate(
+    b,
+    k,
+    rows,
+    trows,
+    S2_state,
+    V_state,
+    Zc,
+    refine,
+    refine_steps,
+    out_rotation,
+    out_quaternion,
+    out_translation,
+    out_scale,
+    out_sv,
+    out_observable,
+    out_planar,
+    out_axis,
+    out_refined,
+    S,
+    qs,
+    dR,
+    P,
+    p,
+    maps,
+    Hn,
+    gn,
+    xn,
+    x,
+    axis,
+    q_closed,
+    x_closed,
+    refine_work,
+    Mc,
+    w4,
+    E4,
+    w7,
+    V7,
+    a7,
+):
     """Camera k + 1's estimate from the combined statistics (solve.estimate): the rotation (through the translation
     rows on planar motion), the translation and scale, and the joint refinement where asked."""
     for i in range(4):
@@ -854,37 +997,165 @@ def _estimate(b, k, rows, trows, S2_state, V_state, Zc, refine, refine_steps, ou
     out_planar[b, k] = planar
     out_refined[b, k] = refined
 
+
 @_jit
 def _rig_step(b, state, config, out, work):
     """One frame of rig ``b``: ``state`` the head's buffers (updated), ``config`` its settings, ``out`` the
     estimate's arrays (written); see :func:`step` for their order. ``work``: :func:`_workspace`."""
-    (poses, history, history_valid, first, first_valid, gap_S2, gap_V, gap_rotation_rows, gap_Z,
-     gap_translation_rows, S2_state, V_state, rotation_rows_state, screw_scale, screw_count, frames_used,
-     frames_rejected) = state
-    (gaps, has_first, frame, symmetric, lam, min_rotation, screw_gate, screw_sigma, robust, pose_tolerance,
-     refine, refine_steps) = config
+    (
+        poses,
+        history,
+        history_valid,
+        first,
+        first_valid,
+        gap_S2,
+        gap_V,
+        gap_rotation_rows,
+        gap_Z,
+        gap_translation_rows,
+        S2_state,
+        V_state,
+        rotation_rows_state,
+        screw_scale,
+        screw_count,
+        frames_used,
+        frames_rejected,
+    ) = state
+    (
+        gaps,
+        has_first,
+        frame,
+        symmetric,
+        lam,
+        min_rotation,
+        screw_gate,
+        screw_sigma,
+        robust,
+        pose_tolerance,
+        refine,
+        refine_steps,
+    ) = config
     (out_rotation, out_quaternion, out_translation, out_scale, out_sv, out_observable, out_planar, out_axis,
      out_Z, out_translation_rows, out_refined) = out  # fmt: skip
     (pose, valid, motion, prev_valid, prev, quat, angle, A, WV, gram, w4, E4, a7, V7, w7, newV, z, pair_ok, gw, Mc, S, qs, dR, P, p, maps, Hn, gn, xn, x, axis, q_closed, x_closed, refine_work) = work  # fmt: skip
     C = poses.shape[1]
     n_pairs = gaps.shape[0] + (1 if has_first else 0)
     _read_poses(poses, b, pose, valid, pose_tolerance)
-    _motion_pairs(b, pose, valid, history, history_valid, first, first_valid, gaps, has_first, frame, motion, prev,
-                  prev_valid, quat, angle)
+    _motion_pairs(
+        b,
+        pose,
+        valid,
+        history,
+        history_valid,
+        first,
+        first_valid,
+        gaps,
+        has_first,
+        frame,
+        motion,
+        prev,
+        prev_valid,
+        quat,
+        angle,
+    )
     for k in range(C - 1):
-        used = _screw_gate(b, k, n_pairs, valid, prev_valid, angle, screw_scale, screw_count, screw_sigma, screw_gate,
-                           pair_ok)
-        _update_gaps(b, k, n_pairs, quat, angle, motion, pair_ok, S2_state, V_state, rotation_rows_state, gap_S2,
-                     gap_V, gap_rotation_rows, gap_Z, gap_translation_rows, lam, min_rotation, robust, symmetric, S, qs,
-                     A, WV, gram, w4, E4, a7, newV, z)
-        rows, trows = _combine_gaps(b, k, n_pairs, gap_S2, gap_V, gap_rotation_rows, gap_Z, gap_translation_rows,
-                                    S2_state, V_state, out_Z[b, k], gw, Mc, WV, gram, w4, E4, a7, newV)
+        used = _screw_gate(
+            b, k, n_pairs, valid, prev_valid, angle, screw_scale, screw_count, screw_sigma, screw_gate, pair_ok
+        )
+        _update_gaps(
+            b,
+            k,
+            n_pairs,
+            quat,
+            angle,
+            motion,
+            pair_ok,
+            S2_state,
+            V_state,
+            rotation_rows_state,
+            gap_S2,
+            gap_V,
+            gap_rotation_rows,
+            gap_Z,
+            gap_translation_rows,
+            lam,
+            min_rotation,
+            robust,
+            symmetric,
+            S,
+            qs,
+            A,
+            WV,
+            gram,
+            w4,
+            E4,
+            a7,
+            newV,
+            z,
+        )
+        rows, trows = _combine_gaps(
+            b,
+            k,
+            n_pairs,
+            gap_S2,
+            gap_V,
+            gap_rotation_rows,
+            gap_Z,
+            gap_translation_rows,
+            S2_state,
+            V_state,
+            out_Z[b, k],
+            gw,
+            Mc,
+            WV,
+            gram,
+            w4,
+            E4,
+            a7,
+            newV,
+        )
         rotation_rows_state[b, k] = rows
         out_translation_rows[b, k] = trows
-        _estimate(b, k, rows, trows, S2_state, V_state, out_Z[b, k], refine, refine_steps, out_rotation,
-                  out_quaternion, out_translation, out_scale, out_sv, out_observable, out_planar, out_axis,
-                  out_refined, S, qs, dR, P, p, maps, Hn, gn, xn, x, axis, q_closed, x_closed, refine_work, Mc, w4,
-                  E4, w7, V7, a7)
+        _estimate(
+            b,
+            k,
+            rows,
+            trows,
+            S2_state,
+            V_state,
+            out_Z[b, k],
+            refine,
+            refine_steps,
+            out_rotation,
+            out_quaternion,
+            out_translation,
+            out_scale,
+            out_sv,
+            out_observable,
+            out_planar,
+            out_axis,
+            out_refined,
+            S,
+            qs,
+            dR,
+            P,
+            p,
+            maps,
+            Hn,
+            gn,
+            xn,
+            x,
+            axis,
+            q_closed,
+            x_closed,
+            refine_work,
+            Mc,
+            w4,
+            E4,
+            w7,
+            V7,
+            a7,
+        )
         frames_used[b, k] += 1 if used else 0
         frames_rejected[b, k] += 1 if (not used and frame > 0) else 0
 
@@ -893,11 +1164,13 @@ def _rig_step(b, state, config, out, work):
         history[b, cam, slot] = pose[cam]
         history_valid[b, cam, slot] = valid[cam]
 
+
 @_jit
 def _serial(state, config, out):
     work = _workspace(state[0].shape[1], config[0].shape[0] + config[1])
     for b in range(state[0].shape[0]):
         _rig_step(b, state, config, out, work)
+
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"}, parallel=True)
 def _parallel(state, config, out, chunks):
@@ -934,9 +1207,20 @@ def step(head, poses: Tensor) -> dict[str, Tensor]:
     frame = int(st["frame"])
     out = _outputs(head, B, K)
     state = (poses.detach().to(torch.float64).contiguous().numpy(),) + tuple(st[name].numpy() for name in STATE)
-    config = (st["gap_tensor"].numpy(), 0 in head.gaps, frame, head.symmetric, float(head.forgetting), head.min_rotation,
-              head.screw_gate, head.screw_gate_sigma, head.robust, head.pose_tolerance, REFINE_CODES[head.refine],
-              3)  # the refinement's steps, as solve.estimate's
+    config = (
+        st["gap_tensor"].numpy(),
+        0 in head.gaps,
+        frame,
+        head.symmetric,
+        float(head.forgetting),
+        head.min_rotation,
+        head.screw_gate,
+        head.screw_gate_sigma,
+        head.robust,
+        head.pose_tolerance,
+        REFINE_CODES[head.refine],
+        3,
+    )  # the refinement's steps, as solve.estimate's
     threads = numba.get_num_threads()
     if B >= PARALLEL_MIN_RIGS and threads > 1:
         _parallel(state, config, tuple(out.values()), min(B, 8 * threads))

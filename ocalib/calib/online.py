@@ -13,16 +13,15 @@ import math
 import torch
 from torch import Tensor, nn
 
-from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
-from ocalib.calib.result import Calibration
 from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
+from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
 from ocalib.calib.pairing import MOTIONS, combine_statistics
+from ocalib.calib.result import Calibration
 from ocalib.calib.rotation import incremental_svd_update
 from ocalib.calib.solve import REFINE_MODES, estimate
 from ocalib.calib.translation import rls_update
 from ocalib.geometry.pose import invert_pose, orthonormality_error
 from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
-
 
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU kernel's compiler
 
@@ -184,14 +183,18 @@ class OnlineCalibrator(nn.Module):
         screw = (angle[:, :1] - angle[:, 1:]).abs()
         thr = screw_threshold(st["screw_scale"], st["screw_count"], self.screw_gate, self.screw_gate_sigma)
         ok = pair_valid & (screw <= thr.unsqueeze(-1))
-        st["screw_scale"], st["screw_count"] = update_screw_scale(st["screw_scale"], st["screw_count"], screw, pair_valid)
+        st["screw_scale"], st["screw_count"] = update_screw_scale(
+            st["screw_scale"], st["screw_count"], screw, pair_valid
+        )
 
         # Rotation: incremental SVD of each gap's weighted blocks. Translation: each gap's moment.
         A = rotation_block(q[:, :1].expand_as(q[:, 1:]), q[:, 1:])  # (B, K, P, 4, 4)
         moving = (angle[:, :1] + angle[:, 1:]) / 2 >= self.min_rotation
         w_rot = (ok & moving).to(poses.dtype) * robust_weight(st["S2"], st["V"], st["rotation_rows"], A, self.robust)
         lam = self.forgetting
-        st["gap_S2"], st["gap_V"] = incremental_svd_update(st["gap_S2"], st["gap_V"], w_rot.sqrt()[..., None, None] * A, lam)
+        st["gap_S2"], st["gap_V"] = incremental_svd_update(
+            st["gap_S2"], st["gap_V"], w_rot.sqrt()[..., None, None] * A, lam
+        )
         st["gap_rotation_rows"] = lam * st["gap_rotation_rows"] + w_rot
         w_tr = ok.to(poses.dtype)
         z = pair_features(motion[:, :1].expand_as(motion[:, 1:]), motion[:, 1:], self.symmetric)  # (B, K, P, D, 15)
@@ -209,7 +212,8 @@ class OnlineCalibrator(nn.Module):
         else:
             gap_M = (st["gap_V"] * st["gap_S2"].unsqueeze(-2)) @ st["gap_V"].mT
             S2, V, rotation_rows, Z, trans_rows, gap_w = combine_statistics(
-                gap_M, st["gap_S2"], st["gap_rotation_rows"], st["gap_Z"], st["gap_translation_rows"])
+                gap_M, st["gap_S2"], st["gap_rotation_rows"], st["gap_Z"], st["gap_translation_rows"]
+            )
         st["S2"], st["V"], st["rotation_rows"] = S2, V, rotation_rows
 
         est = estimate(S2, V, Z, rotation_rows, trans_rows, self.refine)

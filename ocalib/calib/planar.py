@@ -20,8 +20,12 @@ from torch import Tensor
 
 from ocalib.calib.handeye import normal_equations
 from ocalib.calib.translation import pinv_solve
-from ocalib.geometry.quaternion import (left_product_matrix, quaternion_conjugate, quaternion_multiply,
-                                        quaternion_to_rotation_matrix)
+from ocalib.geometry.quaternion import (
+    left_product_matrix,
+    quaternion_conjugate,
+    quaternion_multiply,
+    quaternion_to_rotation_matrix,
+)
 
 
 def skew(v: Tensor) -> Tensor:
@@ -59,7 +63,11 @@ def planar_rotation(quadratic: tuple[Tensor, Tensor, Tensor], V: Tensor) -> tupl
 
 
 def planar_rotation_std(
-    quadratic: tuple[Tensor, Tensor, Tensor], S: Tensor, V: Tensor, quat: Tensor, rotation_rows: Tensor,
+    quadratic: tuple[Tensor, Tensor, Tensor],
+    S: Tensor,
+    V: Tensor,
+    quat: Tensor,
+    rotation_rows: Tensor,
     translation_rows: Tensor,
 ) -> Tensor:
     """1-sigma rotation error (..., 3) in radians about camera k's axes, for the planar route.

@@ -67,8 +67,14 @@ def joint_refine(
         H, g, dR, Jq, r, Mq = _system(M, P, p, q, s_, dT, wr, wt)
         if step > 0:  # Newton: the second derivatives of m and q, contracted with the gradient
             D = (dR.mT @ r[..., 3:].unflatten(-1, (3, 3))).flatten(-2)  # dR^T R, R = gradient in s dR
-            H = H + (s_ * D @ newton_s + D @ newton_1 - 0.25 * (Mq * q).sum(-1, keepdim=True) * newton_r).unflatten(-1, (7, 7))
-        H = torch.where(active[..., None, None], H + 1e-14 * H.diagonal(dim1=-2, dim2=-1).abs().mean(-1)[..., None, None] * eye7, eye7)
+            H = H + (s_ * D @ newton_s + D @ newton_1 - 0.25 * (Mq * q).sum(-1, keepdim=True) * newton_r).unflatten(
+                -1, (7, 7)
+            )
+        H = torch.where(
+            active[..., None, None],
+            H + 1e-14 * H.diagonal(dim1=-2, dim2=-1).abs().mean(-1)[..., None, None] * eye7,
+            eye7,
+        )
         d, _ = torch.linalg.solve_ex(H, -torch.where(active[..., None], g, 0.0))
         q = q + (Jq @ d[..., :3].unsqueeze(-1)).squeeze(-1)
         q = q / q.norm(dim=-1, keepdim=True)
@@ -81,7 +87,11 @@ def joint_refine(
 
 
 def joint_covariance(
-    M: Tensor, quadratic: tuple[Tensor, Tensor, Tensor], quat: Tensor, x: Tensor, rotation_rows: Tensor,
+    M: Tensor,
+    quadratic: tuple[Tensor, Tensor, Tensor],
+    quat: Tensor,
+    x: Tensor,
+    rotation_rows: Tensor,
     translation_rows: Tensor,
 ) -> Tensor:
     """Covariance (..., 7, 7) of the refined estimate, unknowns ordered (d, s, dT) with ``d`` the rotation

@@ -158,4 +158,3 @@ class Calibration:
                 "weakest_translation_direction": dirs[:, 0].tolist(),
             },
         }
-

@@ -132,7 +132,8 @@ def _chunk(head, st, poses, valid, index, pair_valid, frames, M, lam) -> tuple[d
             Z, translation_rows = gap_Z[..., 0, :, :], gap_translation_rows[..., 0]
         else:  # each gap's eigenvalues for its weight, then one eigen-decomposition of the weighted sum
             S2, V, rotation_rows, Z, translation_rows, _ = combine_statistics(
-                gap_M, torch.linalg.eigvalsh(gap_M).flip(-1), gap_rotation_rows, gap_Z, gap_translation_rows)
+                gap_M, torch.linalg.eigvalsh(gap_M).flip(-1), gap_rotation_rows, gap_Z, gap_translation_rows
+            )
         previous = [torch.cat([b, x[:-1]]) for b, x in zip(before, (S2, V, rotation_rows))]
         new = robust_weight(*previous, A, head.robust)
         if bool((new - weight).abs().max() <= WEIGHT_TOLERANCE):

@@ -24,7 +24,6 @@ from ocalib.calib.rotation import excited, planar_motion, rotation_observable, r
 from ocalib.calib.translation import solve_translation
 from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
-
 # The joint refinement lets the translation rows move the rotation. Where those rows are trustworthy (poses from
 # SLAM, metric VO) that makes it more accurate (docs/simulation.md: 0.137 vs 0.191 deg on OpenCV's protocol). A
 # monocular front end (OpenCV VO, a pose network) gets translation directions wrong in a biased way (the

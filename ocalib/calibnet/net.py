@@ -55,9 +55,18 @@ class OnlineCalibrationNet(nn.Module):
         head_options: passed to :class:`OnlineCalibrator` (``motion``, ``solver``, ``forgetting``, ...).
     """
 
-    def __init__(self, model: nn.Module, num_cameras: int = 2, batch_size: int = 1, scale: str = "head",
-                 scale_momentum: float = 0.99, intrinsics: Tensor | None = None, align: bool = False,
-                 rig_align: bool = True, **head_options):
+    def __init__(
+        self,
+        model: nn.Module,
+        num_cameras: int = 2,
+        batch_size: int = 1,
+        scale: str = "head",
+        scale_momentum: float = 0.99,
+        intrinsics: Tensor | None = None,
+        align: bool = False,
+        rig_align: bool = True,
+        **head_options,
+    ):
         super().__init__()
         if scale not in SCALE_MODES:
             raise ValueError(f"scale must be one of {SCALE_MODES}, got {scale!r}")
@@ -68,8 +77,10 @@ class OnlineCalibrationNet(nn.Module):
         if intrinsics is not None:
             intrinsics = torch.as_tensor(intrinsics, dtype=torch.float32)
             if intrinsics.shape not in ((num_cameras, 3, 3), (batch_size, num_cameras, 3, 3)):
-                raise ValueError(f"intrinsics must be ({num_cameras}, 3, 3) or ({batch_size}, {num_cameras}, 3, 3), "
-                                 f"got {tuple(intrinsics.shape)}")
+                raise ValueError(
+                    f"intrinsics must be ({num_cameras}, 3, 3) or ({batch_size}, {num_cameras}, 3, 3), "
+                    f"got {tuple(intrinsics.shape)}"
+                )
             intrinsics = intrinsics.expand(batch_size, num_cameras, 3, 3).clone()
         self.register_buffer("intrinsics", intrinsics)
         self.head = OnlineCalibrator(num_cameras, batch_size, **head_options)
@@ -99,8 +110,10 @@ class OnlineCalibrationNet(nn.Module):
             images = images.unsqueeze(0)
         B, C = self.batch_size, self.num_cameras
         if images.shape != self.previous.shape:
-            raise ValueError(f"expected images of shape {tuple(self.previous.shape)} (B, C, 3, H, W at the model's "
-                             f"resolution), got {tuple(images.shape)}")
+            raise ValueError(
+                f"expected images of shape {tuple(self.previous.shape)} (B, C, 3, H, W at the model's "
+                f"resolution), got {tuple(images.shape)}"
+            )
         previous = torch.where(self.started.unsqueeze(-1), self.previous, images)
         step = self.model.pose(previous.flatten(0, 1), images.flatten(0, 1)).view(B, C, 4, 4).to(torch.float64)
         if self.align:
@@ -133,8 +146,9 @@ class OnlineCalibrationNet(nn.Module):
         R = self.rig_rotation.to(step.dtype)
         start = step[:, 1:].clone()
         start[..., :3, :3] = R.transpose(-1, -2) @ step[:, :1, :3, :3] @ R
-        T, _ = align_translation(others(previous), others(images), others(depth), others(K),
-                                 invert_pose(start.flatten(0, 1)), RIG_ITERATIONS)
+        T, _ = align_translation(
+            others(previous), others(images), others(depth), others(K), invert_pose(start.flatten(0, 1)), RIG_ITERATIONS
+        )
         translation = invert_pose(T).view_as(start)[..., :3, 3]
         out = step.clone()
         out[:, 1:, :3, 3] = torch.where(translation.isfinite().all(-1, keepdim=True), translation, step[:, 1:, :3, 3])

@@ -77,8 +77,9 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(a @ b)))
 
 
-def extrinsic_errors(estimate: Calibration, extrinsics: np.ndarray, trajectory: np.ndarray,
-                     truth: np.ndarray | None) -> list[dict]:
+def extrinsic_errors(
+    estimate: Calibration, extrinsics: np.ndarray, trajectory: np.ndarray, truth: np.ndarray | None
+) -> list[dict]:
     """Per camera k >= 1 of rig 0: the errors of ``estimate`` against the true ``extrinsics`` (C, 4, 4).
 
     ``trajectory`` (T, C, 4, 4): the front end's camera-to-first-frame poses; ``truth`` (T, C, 4, 4) the

@@ -110,7 +110,7 @@ def error_message(err: Exception) -> str:
     text = str(err)
     if "Original Traceback" in text:
         prefix = f"{type(err).__module__}.{type(err).__name__}: "
-        lines = [line[len(prefix):] for line in text.splitlines() if line.startswith(prefix)]
+        lines = [line[len(prefix) :] for line in text.splitlines() if line.startswith(prefix)]
         if lines:
             return lines[-1]
     return text

@@ -28,12 +28,19 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     )
     add_model_arguments(p)
     p.add_argument("--out", required=True, metavar="JSON", help="write the metrics here")
-    p.add_argument("--trajectories", metavar="DIR",
-                   help="write <camera>.txt (predicted) and <camera>_sim3.txt (aligned to the ground truth) here "
-                   "(default: beside the JSON, in <JSON name>_trajectories/)")
+    p.add_argument(
+        "--trajectories",
+        metavar="DIR",
+        help="write <camera>.txt (predicted) and <camera>_sim3.txt (aligned to the ground truth) here "
+        "(default: beside the JSON, in <JSON name>_trajectories/)",
+    )
     p.add_argument("--plots", metavar="DIR", help="write a figure per camera here (<camera>.png)")
-    p.add_argument("--min-depth", type=float, default=1e-3, metavar="M", help="ground-truth depth cap, metres (default 1e-3)")
-    p.add_argument("--max-depth", type=float, default=80.0, metavar="M", help="ground-truth depth cap, metres (default 80)")
+    p.add_argument(
+        "--min-depth", type=float, default=1e-3, metavar="M", help="ground-truth depth cap, metres (default 1e-3)"
+    )
+    p.add_argument(
+        "--max-depth", type=float, default=80.0, metavar="M", help="ground-truth depth cap, metres (default 80)"
+    )
     p.add_argument("--rpe-delta", type=int, default=1, metavar="N", help="frame gap of the RPE (default 1)")
     return p
 
@@ -49,14 +56,30 @@ def run(args) -> int:
     if args.rpe_delta < 1:
         raise InputError(f"--rpe-delta must be >= 1, got {args.rpe_delta}")
     model, sequence = open_inputs(args)
-    results = evaluate_model(model, sequence, args.device, args.batch_size, args.workers, progress=None,
-                             align=args.align, flip=args.flip, min_depth=args.min_depth, max_depth=args.max_depth,
-                             rpe_delta=args.rpe_delta)
+    results = evaluate_model(
+        model,
+        sequence,
+        args.device,
+        args.batch_size,
+        args.workers,
+        progress=None,
+        align=args.align,
+        flip=args.flip,
+        min_depth=args.min_depth,
+        max_depth=args.max_depth,
+        rpe_delta=args.rpe_delta,
+    )
     out = Path(args.out)
     folder = Path(args.trajectories) if args.trajectories else out.with_name(out.stem + "_trajectories")
-    doc = {"sequence": str(sequence.path), "layout": sequence.layout, "frames": len(sequence),
-           "checkpoint": str(args.checkpoint or "default"), "align": args.align, "flip": args.flip,
-           "model": {"size": model.size, "height": model.height, "width": model.width}}
+    doc = {
+        "sequence": str(sequence.path),
+        "layout": sequence.layout,
+        "frames": len(sequence),
+        "checkpoint": str(args.checkpoint or "default"),
+        "align": args.align,
+        "flip": args.flip,
+        "model": {"size": model.size, "height": model.height, "width": model.width},
+    }
     doc |= evaluation_json(results)
     for r in results:
         files = {"predicted": folder / f"{r.name}.txt"}
@@ -84,25 +107,38 @@ def summary(doc: dict) -> str:
         lines.append(f"{name}:")
         if c["depth"]:
             d = c["depth"]
-            lines.append(f"  depth ({d['images']} images): abs rel {d['abs_rel']:.4f}, sq rel {d['sq_rel']:.4f}, "
-                         f"RMSE {d['rmse']:.3f}, RMSE log {d['rmse_log']:.4f}, "
-                         f"a1/a2/a3 {d['a1']:.3f}/{d['a2']:.3f}/{d['a3']:.3f}")
+            lines.append(
+                f"  depth ({d['images']} images): abs rel {d['abs_rel']:.4f}, sq rel {d['sq_rel']:.4f}, "
+                f"RMSE {d['rmse']:.3f}, RMSE log {d['rmse_log']:.4f}, "
+                f"a1/a2/a3 {d['a1']:.3f}/{d['a2']:.3f}/{d['a3']:.3f}"
+            )
             if d.get("by_range"):
-                lines.append("  by true depth (m): " + "; ".join(
-                    (f"{r['range_m'][0]:g}-{r['range_m'][1]:g}" if r["range_m"][1] else f">{r['range_m'][0]:g}")
-                    + f": {100 * r['share']:.0f} % of pixels, abs rel "
-                    f"{r['abs_rel']:.3f}, signed {r['signed_rel']:+.3f}" for r in d["by_range"]))
+                lines.append(
+                    "  by true depth (m): "
+                    + "; ".join(
+                        (f"{r['range_m'][0]:g}-{r['range_m'][1]:g}" if r["range_m"][1] else f">{r['range_m'][0]:g}")
+                        + f": {100 * r['share']:.0f} % of pixels, abs rel "
+                        f"{r['abs_rel']:.3f}, signed {r['signed_rel']:+.3f}"
+                        for r in d["by_range"]
+                    )
+                )
         if c["pose"]:
             p = c["pose"]
             fmt = lambda v: "n/a" if v is None else f"{v:.4g}"  # noqa: E731
-            lines.append(f"  pose: SfMLearner 5-frame snippet ATE {fmt(p['sfmlearner_5frame_snippet_ate'])}, "
-                         f"ATE (Sim3) {fmt(p['ate_rmse'])}, RPE {fmt(p['rpe_trans_rmse'])} / "
-                         f"{fmt(p['rpe_rot_rmse_deg'])} deg")
-            lines.append(f"  frame-to-frame: rotation error median {fmt(p['rotation_error_deg_median'])} deg, "
-                         f"translation direction median {fmt(p['direction_error_deg_median'])} deg, "
-                         f"scale ratio CV {fmt(p['scale_ratio_cv'])}, "
-                         f"rotation gain x/y/z {'/'.join(fmt(g) for g in p['rotation_gain_xyz'])}")
-            lines.append(f"  image-blind baselines: no rotation {fmt(p['baseline_zero_rotation_deg_median'])} deg, "
-                         f"fixed direction {fmt(p['baseline_constant_direction_deg_median'])} deg, "
-                         f"fixed step length CV {fmt(p['baseline_constant_step_scale_cv'])}")
+            lines.append(
+                f"  pose: SfMLearner 5-frame snippet ATE {fmt(p['sfmlearner_5frame_snippet_ate'])}, "
+                f"ATE (Sim3) {fmt(p['ate_rmse'])}, RPE {fmt(p['rpe_trans_rmse'])} / "
+                f"{fmt(p['rpe_rot_rmse_deg'])} deg"
+            )
+            lines.append(
+                f"  frame-to-frame: rotation error median {fmt(p['rotation_error_deg_median'])} deg, "
+                f"translation direction median {fmt(p['direction_error_deg_median'])} deg, "
+                f"scale ratio CV {fmt(p['scale_ratio_cv'])}, "
+                f"rotation gain x/y/z {'/'.join(fmt(g) for g in p['rotation_gain_xyz'])}"
+            )
+            lines.append(
+                f"  image-blind baselines: no rotation {fmt(p['baseline_zero_rotation_deg_median'])} deg, "
+                f"fixed direction {fmt(p['baseline_constant_direction_deg_median'])} deg, "
+                f"fixed step length CV {fmt(p['baseline_constant_step_scale_cv'])}"
+            )
     return "\n".join(lines)

@@ -29,19 +29,30 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 def add_model_arguments(p: argparse.ArgumentParser) -> None:
     """Options shared by ``predict`` and ``evaluate``."""
     p.add_argument("--sequence", required=True, metavar="DIR", help="the sequence folder")
-    p.add_argument("--checkpoint", metavar="CKPT",
-                   help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)")
+    p.add_argument(
+        "--checkpoint",
+        metavar="CKPT",
+        help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)",
+    )
     p.add_argument("--cameras", nargs="+", metavar="NAME", help="cameras to use (default: all)")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:1, ...)")
-    p.add_argument("--batch-size", type=int, default=8, metavar="N", help="frames per forward pass, all cameras (default 8)")
+    p.add_argument(
+        "--batch-size", type=int, default=8, metavar="N", help="frames per forward pass, all cameras (default 8)"
+    )
     p.add_argument("--workers", type=int, default=1, metavar="N", help="image-reading processes (default 1; 0: none)")
-    p.add_argument("--align", action="store_true",
-                   help="refine each motion by direct photometric alignment on the network's depth of the previous "
-                   "frame (about 25 ms a camera and frame on 2 CPU cores)")
-    p.add_argument("--flip", action="store_true",
-                   help="average each depth map with that of the mirrored image (test-time flipping: abs rel 0.001-0.007 "
-                   "lower on the held-out synthetic cameras, twice the depth network's time)")
+    p.add_argument(
+        "--align",
+        action="store_true",
+        help="refine each motion by direct photometric alignment on the network's depth of the previous "
+        "frame (about 25 ms a camera and frame on 2 CPU cores)",
+    )
+    p.add_argument(
+        "--flip",
+        action="store_true",
+        help="average each depth map with that of the mirrored image (test-time flipping: abs rel 0.001-0.007 "
+        "lower on the held-out synthetic cameras, twice the depth network's time)",
+    )
 
 
 def open_inputs(args):
@@ -61,8 +72,18 @@ def run(args) -> int:
     from ocalib.eval.export import save_predictions
 
     model, sequence = open_inputs(args)
-    poses = save_predictions(model, sequence, args.out, args.device, args.batch_size, not args.no_depth,
-                             args.workers, progress=None, align=args.align, flip=args.flip)
+    poses = save_predictions(
+        model,
+        sequence,
+        args.out,
+        args.device,
+        args.batch_size,
+        not args.no_depth,
+        args.workers,
+        progress=None,
+        align=args.align,
+        flip=args.flip,
+    )
     for name, P in poses.items():
         length = sum(float(((b - a) ** 2).sum() ** 0.5) for a, b in zip(P[:-1, :3, 3], P[1:, :3, 3]))
         print(f"{name}: {len(P)} frames, path length {length:.4g} (network units) -> {args.out}/{name}/")

@@ -16,20 +16,32 @@ DEFAULT_METHODS = "paper-rls,paper-rls-delay,default"
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
-        name, help="the paper's numerical simulation: error curves over noise levels and seeds",
+        name,
+        help="the paper's numerical simulation: error curves over noise levels and seeds",
         description="Simulate random rigs on random trajectories with noisy poses, calibrate them on-line with "
         "each method, and write error curves (PNG, TensorBoard) and final errors (summary.json).",
     )
     p.add_argument("--noise", default=DEFAULT_NOISE, help=f"comma-separated noise levels (default {DEFAULT_NOISE})")
     p.add_argument("--seeds", type=int, default=20, help="random rigs per noise level (default 20)")
     p.add_argument("--frames", type=int, default=128, help="frames per trajectory (default 128)")
-    p.add_argument("--noise-model", choices=("independent", "drift"), default="independent",
-                   help="noise on each pose (the paper) or on each frame-to-frame motion, accumulated (VO-like)")
-    p.add_argument("--trajectory", choices=("lds", "car", "straight"), default="lds",
-                   help="linear dynamic system (the paper), planar driving with small pitch/roll, or straight")
-    p.add_argument("--methods", default=DEFAULT_METHODS,
-                   help=f"comma-separated: paper-rls, paper-rls-delay, default, first, consecutive, or gaps-G1-G2-... "
-                   f"(default {DEFAULT_METHODS})")
+    p.add_argument(
+        "--noise-model",
+        choices=("independent", "drift"),
+        default="independent",
+        help="noise on each pose (the paper) or on each frame-to-frame motion, accumulated (VO-like)",
+    )
+    p.add_argument(
+        "--trajectory",
+        choices=("lds", "car", "straight"),
+        default="lds",
+        help="linear dynamic system (the paper), planar driving with small pitch/roll, or straight",
+    )
+    p.add_argument(
+        "--methods",
+        default=DEFAULT_METHODS,
+        help=f"comma-separated: paper-rls, paper-rls-delay, default, first, consecutive, or gaps-G1-G2-... "
+        f"(default {DEFAULT_METHODS})",
+    )
     p.add_argument("--out", default="out/simulate", help="output folder (default out/simulate)")
     p.add_argument("--tensorboard", metavar="DIR", help="also write the median error curves as TensorBoard scalars")
     return p

@@ -21,11 +21,19 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="random seed (world, trajectory, photometric)")
     p.add_argument("--height", type=int, help="image height in pixels")
     p.add_argument("--width", type=int, help="image width in pixels")
-    p.add_argument("--photometric", action="store_true", default=None,
-                   help="add per-camera gain, exposure jitter, vignetting and noise")
+    p.add_argument(
+        "--photometric",
+        action="store_true",
+        default=None,
+        help="add per-camera gain, exposure jitter, vignetting and noise",
+    )
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
-    p.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1),
-                   help="CPU processes rendering frames (default: CPUs, at most 4; output does not depend on it)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=min(4, os.cpu_count() or 1),
+        help="CPU processes rendering frames (default: CPUs, at most 4; output does not depend on it)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace a sequence already in --out")
     return p
 
@@ -33,12 +41,12 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 def run(args) -> int:
     from pathlib import Path
 
-    from ocalib.errors import InputError
     from ocalib.synth import load_config, preset, render_sequence
 
     cfg = load_config(args.config) if args.config else preset(args.preset or "front-rear")
-    cfg = cfg.with_overrides(frames=args.frames, seed=args.seed, height=args.height, width=args.width,
-                             photometric=args.photometric)
+    cfg = cfg.with_overrides(
+        frames=args.frames, seed=args.seed, height=args.height, width=args.width, photometric=args.photometric
+    )
     out = Path(args.out) if args.out else Path("data") / "synth" / cfg.name
     render_sequence(cfg, out, device=args.device, overwrite=args.overwrite, workers=args.workers)
     print(f"wrote {cfg.frames} frames x {len(cfg.cameras)} cameras ({cfg.height}x{cfg.width}) to {out}")

@@ -7,7 +7,9 @@ import argparse
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
-        name, add_help=False, prefix_chars="+",  # every option, --help included, belongs to the LightningCLI
+        name,
+        add_help=False,
+        prefix_chars="+",  # every option, --help included, belongs to the LightningCLI
         help="train the depth and pose networks: fit | validate | test --config configs/train/NAME.yaml",
         description="LightningCLI of train/: ocalib train fit --config configs/train/synthetic-cpu.yaml",
     )

@@ -13,8 +13,9 @@ DEPTH_METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
 DEPTH_RANGES = (5.0, 10.0, 20.0, 40.0)  # metres: inner edges of the ground-truth ranges of ``by_range``
 
 
-def depth_errors(pred: np.ndarray, gt: np.ndarray, min_depth: float = 1e-3, max_depth: float = 80.0,
-                 median_scaling: bool = True) -> dict | None:
+def depth_errors(
+    pred: np.ndarray, gt: np.ndarray, min_depth: float = 1e-3, max_depth: float = 80.0, median_scaling: bool = True
+) -> dict | None:
     """Metrics of one predicted depth map against ground truth, both (H, W) -> dict, or None when no pixel is valid.
 
     Keys: :data:`DEPTH_METRICS` (``a_k``: fraction of pixels with ``max(gt/pred, pred/gt) < 1.25^k``),
@@ -68,10 +69,16 @@ def mean_depth_errors(per_image: list[dict | None]) -> dict:
         out[key] = float(np.mean([m[key] for m in used]))
     scales = np.array([m["scale"] for m in used])
     out["scale_cv"] = float(scales.std() / scales.mean())
-    n, a, s = (np.sum([m[k] for m in used], 0)
-               for k in ("range_pixels", "range_abs_rel_sum", "range_signed_rel_sum"))
+    n, a, s = (np.sum([m[k] for m in used], 0) for k in ("range_pixels", "range_abs_rel_sum", "range_signed_rel_sum"))
     edges = (0.0, *DEPTH_RANGES, None)  # the last range is open (up to max_depth)
-    out["by_range"] = [{"range_m": [lo, hi], "share": float(n[i] / n.sum()), "abs_rel": float(a[i] / n[i]),
-                        "signed_rel": float(s[i] / n[i])}
-                       for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])) if n[i] > 0]
+    out["by_range"] = [
+        {
+            "range_m": [lo, hi],
+            "share": float(n[i] / n.sum()),
+            "abs_rel": float(a[i] / n[i]),
+            "signed_rel": float(s[i] / n[i]),
+        }
+        for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))
+        if n[i] > 0
+    ]
     return out

@@ -47,17 +47,21 @@ class CameraEvaluation:
 def ground_truth_available(sequence: Sequence) -> dict[str, list[str]]:
     """Camera name -> the kinds of ground truth it lacks (``depth``, ``poses``). Raises InputError when no
     camera has any, naming what is missing."""
-    missing = {cam.name: [k for k, v in (("depth", cam.depth), ("poses", cam.poses)) if v is None]
-               for cam in sequence.cameras}
+    missing = {
+        cam.name: [k for k, v in (("depth", cam.depth), ("poses", cam.poses)) if v is None] for cam in sequence.cameras
+    }
     if all(len(m) == 2 for m in missing.values()):
-        raise InputError(f"{sequence.path}: nothing to evaluate against: the sequence ({sequence.layout} layout) has "
-                         f"no ground-truth depth maps and no ground-truth poses for camera(s) {', '.join(missing)}; "
-                         "use `ocalib predict` for predictions alone")
+        raise InputError(
+            f"{sequence.path}: nothing to evaluate against: the sequence ({sequence.layout} layout) has "
+            f"no ground-truth depth maps and no ground-truth poses for camera(s) {', '.join(missing)}; "
+            "use `ocalib predict` for predictions alone"
+        )
     return missing
 
 
-def depth_against_truth(pred: np.ndarray, camera: Camera, view: ModelView, t: int, min_depth: float,
-                        max_depth: float) -> dict | None:
+def depth_against_truth(
+    pred: np.ndarray, camera: Camera, view: ModelView, t: int, min_depth: float, max_depth: float
+) -> dict | None:
     """Depth metrics of a predicted map (H, W) (network units, model resolution) against frame t's ground truth."""
     x0, y0, w, h = view.crop
     gt = read_depth(camera.depth[t], camera.depth_scale, camera.size)[0].numpy()[y0 : y0 + h, x0 : x0 + w]
@@ -67,9 +71,15 @@ def depth_against_truth(pred: np.ndarray, camera: Camera, view: ModelView, t: in
     return depth_errors(pred, gt, min_depth, max_depth)
 
 
-def evaluate_stream(sequence: Sequence, frames: Iterable[FramePrediction], views: list[ModelView],
-                    min_depth: float = 1e-3, max_depth: float = 80.0, rpe_delta: int = 1,
-                    min_translation: float = 1e-3) -> list[CameraEvaluation]:
+def evaluate_stream(
+    sequence: Sequence,
+    frames: Iterable[FramePrediction],
+    views: list[ModelView],
+    min_depth: float = 1e-3,
+    max_depth: float = 80.0,
+    rpe_delta: int = 1,
+    min_translation: float = 1e-3,
+) -> list[CameraEvaluation]:
     """Measure the predictions ``frames`` (every frame of ``sequence`` in order; C cameras as in the sequence,
     seen through ``views``) against the ground truth -> one :class:`CameraEvaluation` per camera.
 
@@ -85,7 +95,9 @@ def evaluate_stream(sequence: Sequence, frames: Iterable[FramePrediction], views
         motions.append(frame.motion)
         for k, cam in enumerate(cams):
             if cam.depth is not None and frame.depth is not None:
-                per_image[k].append(depth_against_truth(frame.depth[k], cam, views[k], frame.frame, min_depth, max_depth))
+                per_image[k].append(
+                    depth_against_truth(frame.depth[k], cam, views[k], frame.frame, min_depth, max_depth)
+                )
     if len(motions) != len(sequence):
         raise InputError(f"{sequence.path}: predictions for {len(motions)} of {len(sequence)} frames")
     motions = np.stack(motions, 1)
@@ -100,17 +112,26 @@ def evaluate_stream(sequence: Sequence, frames: Iterable[FramePrediction], views
         if cam.poses is not None:
             result.truth = invert(cam.poses[0]) @ cam.poses
             try:
-                result.pose, result.details = pose_metrics(result.poses, result.truth, rpe_delta,
-                                                           min_translation=min_translation)
+                result.pose, result.details = pose_metrics(
+                    result.poses, result.truth, rpe_delta, min_translation=min_translation
+                )
             except InputError as err:
                 raise InputError(f"{cam.name}: {err}") from None
         results.append(result)
     return results
 
 
-def evaluate_model(model, sequence: Sequence, device="cpu", batch_size: int = 8, workers: int = 0,
-                   progress: bool | None = False, align: bool = False, flip: bool = False,
-                   **options) -> list[CameraEvaluation]:
+def evaluate_model(
+    model,
+    sequence: Sequence,
+    device="cpu",
+    batch_size: int = 8,
+    workers: int = 0,
+    progress: bool | None = False,
+    align: bool = False,
+    flip: bool = False,
+    **options,
+) -> list[CameraEvaluation]:
     """Predict with ``model`` (``align``, ``flip``: see :func:`predict_frames`) and evaluate (``options``: those of
     :func:`evaluate_stream`)."""
     missing = ground_truth_available(sequence)
@@ -124,11 +145,15 @@ def evaluation_json(results: list[CameraEvaluation]) -> dict:
     """The per-camera JSON document (``cameras``: name -> depth, pose, missing) and ``warnings``; NaN -> null."""
     doc = {"cameras": {}, "warnings": []}
     for r in results:
-        doc["cameras"][r.name] = {"frames": len(r.poses), "depth": finite_or_null(r.depth),
-                                  "pose": finite_or_null(r.pose), "missing": r.missing}
+        doc["cameras"][r.name] = {
+            "frames": len(r.poses),
+            "depth": finite_or_null(r.depth),
+            "pose": finite_or_null(r.pose),
+            "missing": r.missing,
+        }
         if r.missing:
             done = [k for k, v in (("depth", r.depth), ("pose", r.pose)) if v is not None]
-            doc["warnings"].append(f"camera {r.name}: no ground-truth {' or '.join(r.missing)}; evaluated: "
-                                   f"{', '.join(done) or 'nothing'}")
+            doc["warnings"].append(
+                f"camera {r.name}: no ground-truth {' or '.join(r.missing)}; evaluated: {', '.join(done) or 'nothing'}"
+            )
     return doc
-

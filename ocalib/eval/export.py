@@ -20,14 +20,25 @@ from ocalib.eval.predict import chain, model_view, predict_frames
 from ocalib.io.poses import write_kitti
 
 
-def save_predictions(model, sequence: Sequence, out, device="cpu", batch_size: int = 8, depth: bool = True,
-                     workers: int = 0, progress: bool | None = False, align: bool = False,
-                     flip: bool = False) -> dict[str, np.ndarray]:
+def save_predictions(
+    model,
+    sequence: Sequence,
+    out,
+    device="cpu",
+    batch_size: int = 8,
+    depth: bool = True,
+    workers: int = 0,
+    progress: bool | None = False,
+    align: bool = False,
+    flip: bool = False,
+) -> dict[str, np.ndarray]:
     """Predict every camera of ``sequence`` (``align``, ``flip``: see :func:`~ocalib.eval.predict.predict_frames`)
     and write the folder ``out``; returns camera name -> poses (N, 4, 4)."""
     out = Path(out)
     names = sequence.names
-    frames = predict_frames(model, sequence, device, batch_size, depth, workers, progress, align, flip)  # checks the input
+    frames = predict_frames(
+        model, sequence, device, batch_size, depth, workers, progress, align, flip
+    )  # checks the input
     for cam in sequence.cameras:
         folder = out / cam.name
         (folder / "depth" if depth else folder).mkdir(parents=True, exist_ok=True)

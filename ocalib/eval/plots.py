@@ -58,7 +58,12 @@ def plot_camera(result: CameraEvaluation, path: str | Path, title: str = "") -> 
     if d is not None:
         rot, direction = d["rotation_deg"], d["direction_deg"][d["moving"]]
         bins = np.linspace(0, max(np.percentile(np.r_[rot, direction], 99), 1e-6), 40)
-        ax.hist(np.clip(direction, None, bins[-1]), bins, alpha=0.6, label=f"translation direction (median {np.median(direction):.3g})")
+        ax.hist(
+            np.clip(direction, None, bins[-1]),
+            bins,
+            alpha=0.6,
+            label=f"translation direction (median {np.median(direction):.3g})",
+        )
         ax.hist(np.clip(rot, None, bins[-1]), bins, alpha=0.6, label=f"rotation (median {np.median(rot):.3g})")
         ax.legend(fontsize=8)
         ax.set_title("frame-to-frame errors (deg)", fontsize=10)
@@ -74,8 +79,9 @@ def plot_camera(result: CameraEvaluation, path: str | Path, title: str = "") -> 
         _empty(ax, "no ground-truth depth")
     ax = axes[0, 2]
     if d is not None:
-        pred, true = (np.degrees(rotation_matrix_to_axis_angle(frame_motions(p)[:, :3, :3]))
-                      for p in (result.poses, result.truth))
+        pred, true = (
+            np.degrees(rotation_matrix_to_axis_angle(frame_motions(p)[:, :3, :3])) for p in (result.poses, result.truth)
+        )
         gains = result.pose["rotation_gain_xyz"]
         for i, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
             gain = "n/a" if gains[i] is None or not np.isfinite(gains[i]) else f"{gains[i]:.2f}"

@@ -94,8 +94,7 @@ def rpe(pred: np.ndarray, gt: np.ndarray, delta: int = 1) -> tuple[np.ndarray, n
     return np.linalg.norm(E[:, :3, 3], axis=1), rotation_angle_deg(E[:, :3, :3])
 
 
-def frame_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3,
-                 min_fraction: float = 0.1) -> dict:
+def frame_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3, min_fraction: float = 0.1) -> dict:
     """Per-frame (N - 1) errors of the frame-to-frame motions.
 
     ``rotation_deg``: angle of ``R_gt^T R_pred``. ``direction_deg``: angle between predicted and true
@@ -118,8 +117,14 @@ def frame_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3
     }
 
 
-def pose_metrics(pred: np.ndarray, gt: np.ndarray, rpe_delta: int = 1, snippet: int = 5,
-                 min_translation: float = 1e-3, min_fraction: float = 0.1) -> tuple[dict, dict]:
+def pose_metrics(
+    pred: np.ndarray,
+    gt: np.ndarray,
+    rpe_delta: int = 1,
+    snippet: int = 5,
+    min_translation: float = 1e-3,
+    min_fraction: float = 0.1,
+) -> tuple[dict, dict]:
     """All pose metrics of a predicted trajectory against ground truth, both (N, 4, 4) camera-to-world.
 
     Returns (summary, details): summary holds scalars for the JSON; details the aligned predicted poses
@@ -129,12 +134,16 @@ def pose_metrics(pred: np.ndarray, gt: np.ndarray, rpe_delta: int = 1, snippet: 
     pred = np.asarray(pred, dtype=np.float64)
     gt = np.asarray(gt, dtype=np.float64)
     if pred.shape != gt.shape or pred.ndim != 3 or pred.shape[1:] != (4, 4) or len(pred) < 2:
-        raise InputError(f"pose metrics need two (N >= 2, 4, 4) trajectories of equal length, got {pred.shape} and {gt.shape}")
+        raise InputError(
+            f"pose metrics need two (N >= 2, 4, 4) trajectories of equal length, got {pred.shape} and {gt.shape}"
+        )
     frames = frame_errors(pred, gt, min_translation, min_fraction)
     moving = frames["moving"]
     if not moving.any():
-        raise InputError(f"the ground-truth trajectory of {len(gt)} frames does not move (every frame-to-frame "
-                         f"translation <= {min_translation:g}): pose errors are undefined")
+        raise InputError(
+            f"the ground-truth trajectory of {len(gt)} frames does not move (every frame-to-frame "
+            f"translation <= {min_translation:g}): pose errors are undefined"
+        )
     aligned, sim3 = align_trajectory(pred, gt)
     ate = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
     rpe_t, rpe_r = rpe(aligned, gt, rpe_delta) if len(gt) > rpe_delta else (np.array([np.nan]),) * 2
@@ -165,8 +174,15 @@ def pose_metrics(pred: np.ndarray, gt: np.ndarray, rpe_delta: int = 1, snippet: 
         "rotation_gain_xyz": [float(g) for g in rotation_gain(frame_motions(pred), truth)],
         **baseline,
     }
-    details = {"aligned": aligned, "sim3": sim3, "ate": ate, "rpe_trans": rpe_t, "rpe_rot_deg": rpe_r,
-               "snippet_ate": snip, **frames}
+    details = {
+        "aligned": aligned,
+        "sim3": sim3,
+        "ate": ate,
+        "rpe_trans": rpe_t,
+        "rpe_rot_deg": rpe_r,
+        "snippet_ate": snip,
+        **frames,
+    }
     return summary, details
 
 

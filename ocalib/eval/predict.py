@@ -50,7 +50,9 @@ class ModelView:
             return read_image(path, camera_size, self.size)
         image = read_image(path, camera_size)[:, y0 : y0 + h, x0 : x0 + w]
         shrink = self.size[0] < h or self.size[1] < w
-        return F.interpolate(image[None], self.size, mode="bilinear", align_corners=False, antialias=shrink)[0].clamp(0, 1)
+        return F.interpolate(image[None], self.size, mode="bilinear", align_corners=False, antialias=shrink)[0].clamp(
+            0, 1
+        )
 
 
 def model_view(camera: Camera, height: int, width: int) -> ModelView:
@@ -69,8 +71,10 @@ def model_view(camera: Camera, height: int, width: int) -> ModelView:
         y0 = (H - h) // 2
     if height / h > MAX_UPSAMPLE or width / w > MAX_UPSAMPLE:
         where = camera.images[0].parent if camera.images else camera.name
-        raise InputError(f"{where}: images of {H}x{W} (HxW) are too small for the model's {height}x{width} "
-                         f"(the usable {h}x{w} crop would be upsampled more than {MAX_UPSAMPLE:g}x)")
+        raise InputError(
+            f"{where}: images of {H}x{W} (HxW) are too small for the model's {height}x{width} "
+            f"(the usable {h}x{w} crop would be upsampled more than {MAX_UPSAMPLE:g}x)"
+        )
     K = crop_intrinsics(torch.from_numpy(np.asarray(camera.K, dtype=np.float64)), x0, y0)
     K = resize_intrinsics(K, (h, w), (height, width)).numpy()
     return ModelView((x0, y0, w, h), (height, width), K)
@@ -89,9 +93,11 @@ def check_motion(sequence: Sequence, samples: int = STATIC_SAMPLES) -> None:
         thumbs = thumbnails([cam.images[i] for i in index])
         change = float((thumbs[1:] - thumbs[:1]).abs().mean((-2, -1)).max())
         if change < STATIC_THRESHOLD:
-            raise InputError(f"{cam.images[0].parent}: camera {cam.name} shows no motion (frames "
-                             f"{', '.join(map(str, index))} of {len(sequence)} are identical, mean difference "
-                             f"{change:.2g}); ego-motion cannot be estimated from a still camera")
+            raise InputError(
+                f"{cam.images[0].parent}: camera {cam.name} shows no motion (frames "
+                f"{', '.join(map(str, index))} of {len(sequence)} are identical, mean difference "
+                f"{change:.2g}); ego-motion cannot be estimated from a still camera"
+            )
 
 
 class FrameImages(Dataset):
@@ -120,9 +126,17 @@ class FramePrediction:
     depth: np.ndarray | None
 
 
-def predict_frames(model, sequence: Sequence, device: str | torch.device = "cpu", batch_size: int = 8,
-                   depth: bool = True, workers: int = 0, progress: bool | None = False,
-                   align: bool = False, flip: bool = False) -> Iterator[FramePrediction]:
+def predict_frames(
+    model,
+    sequence: Sequence,
+    device: str | torch.device = "cpu",
+    batch_size: int = 8,
+    depth: bool = True,
+    workers: int = 0,
+    progress: bool | None = False,
+    align: bool = False,
+    flip: bool = False,
+) -> Iterator[FramePrediction]:
     """Run ``model`` (an :class:`ocalib.models.EgoMotionModel`) over every frame of every camera.
 
     Each forward pass takes ``batch_size`` frames of all C cameras: C x batch_size pose pairs (t-1, t) and
@@ -152,8 +166,15 @@ def _generate(model, loader, frames: int, device, depth: bool, progress, K, flip
             bar.update(len(images))
 
 
-def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: bool, K: torch.Tensor | None,
-                   aligner: StreamAligner | None, flip: bool = False):
+def _predict_batch(
+    model,
+    images: torch.Tensor,
+    previous: tuple | None,
+    depth: bool,
+    K: torch.Tensor | None,
+    aligner: StreamAligner | None,
+    flip: bool = False,
+):
     """One batch of frames.
 
     Args:
@@ -170,15 +191,19 @@ def _predict_batch(model, images: torch.Tensor, previous: tuple | None, depth: b
     with torch.inference_mode():
         maps = model.depth(images.flatten(0, 1), flip).unflatten(0, (b, C)) if depth or K is not None else None
         targets = images[:-1] if previous is None else torch.cat([previous[0][None], images[:-1]])
-        sources = images[b - len(targets):]
+        sources = images[b - len(targets) :]
         motion = torch.eye(4, dtype=torch.float64).repeat(b, C, 1, 1)
         if len(targets):
             T = model.pose(targets.flatten(0, 1), sources.flatten(0, 1))
             if K is not None:
                 target_depth = maps[:-1] if previous is None else torch.cat([previous[1][None], maps[:-1]])
-                T = torch.stack([invert_pose(aligner(*pair, K, invert_pose(net))[0])
-                                 for *pair, net in zip(targets, sources, target_depth, T.view(-1, C, 4, 4))])
-            motion[b - len(targets):] = T.view(-1, C, 4, 4).double().cpu()
+                T = torch.stack(
+                    [
+                        invert_pose(aligner(*pair, K, invert_pose(net))[0])
+                        for *pair, net in zip(targets, sources, target_depth, T.view(-1, C, 4, 4))
+                    ]
+                )
+            motion[b - len(targets) :] = T.view(-1, C, 4, 4).double().cpu()
     depth_maps = maps.squeeze(2).float().cpu().numpy() if depth else None
     return motion.numpy(), depth_maps, (images[-1], None if maps is None else maps[-1])
 

@@ -36,10 +36,10 @@ from torch import Tensor
 
 from ocalib.data.intrinsics import resize_intrinsics
 from ocalib.geometry.constants import constant_cache
-from ocalib.losses.photometric import photometric_error
-from ocalib.losses.warp import MIN_Z, inverse_warp
 from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import rotation_angle
+from ocalib.losses.photometric import photometric_error
+from ocalib.losses.warp import MIN_Z, inverse_warp
 from ocalib.models.pose import motion_to_pose
 
 GN_ITERATIONS = (5, 5, 5)  # Gauss-Newton steps at a quarter, half, then full resolution
@@ -56,9 +56,16 @@ def photometric_cost(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T
     return error.sum((1, 2, 3)) / warped.mask.sum((1, 2, 3)).clamp_min(1)
 
 
-def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor,
-                 prior: Tensor | None = None, iterations: tuple[int, ...] = GN_ITERATIONS,
-                 max_rotation_deg: float = MAX_ROTATION_DEG) -> tuple[Tensor, Tensor]:
+def align_motion(
+    target: Tensor,
+    source: Tensor,
+    depth: Tensor,
+    K: Tensor,
+    T_source_target: Tensor,
+    prior: Tensor | None = None,
+    iterations: tuple[int, ...] = GN_ITERATIONS,
+    max_rotation_deg: float = MAX_ROTATION_DEG,
+) -> tuple[Tensor, Tensor]:
     """Refine ``T_source_target`` (B, 4, 4) photometrically; returns the motions (B, 4, 4), in the input's dtype,
     and ``accepted`` (B,) bool (False: the input motion is returned).
 
@@ -82,8 +89,14 @@ def align_motion(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_sou
     return correction @ T_source_target, accepted
 
 
-def align_translation(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor,
-                      iterations: tuple[int, ...] = GN_ITERATIONS) -> tuple[Tensor, Tensor]:
+def align_translation(
+    target: Tensor,
+    source: Tensor,
+    depth: Tensor,
+    K: Tensor,
+    T_source_target: Tensor,
+    iterations: tuple[int, ...] = GN_ITERATIONS,
+) -> tuple[Tensor, Tensor]:
     """Refine only the translation of ``T_source_target`` (B, 4, 4), its rotation held; returns the motions
     (B, 4, 4), in the input's dtype, and ``accepted`` (B,) bool (False: the input motion is returned).
 
@@ -126,17 +139,33 @@ def _sobel(dtype: torch.dtype, device: torch.device) -> Tensor:
 
 def _check_shapes(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T: Tensor, prior: Tensor | None) -> None:
     B = target.shape[0]
-    if not (target.dim() == 4 and target.shape == source.shape and depth.shape == (B, 1, *target.shape[2:])
-            and K.shape == (B, 3, 3) and T.shape == (B, 4, 4) and (prior is None or prior.shape == (B, 4, 4))):
-        raise ValueError(f"align: expected target and source (B, C, H, W), depth (B, 1, H, W), K (B, 3, 3), "
-                         f"T_source_target and prior (B, 4, 4), got {tuple(target.shape)}, {tuple(source.shape)}, "
-                         f"{tuple(depth.shape)}, {tuple(K.shape)}, {tuple(T.shape)}, "
-                         f"{None if prior is None else tuple(prior.shape)}")
+    if not (
+        target.dim() == 4
+        and target.shape == source.shape
+        and depth.shape == (B, 1, *target.shape[2:])
+        and K.shape == (B, 3, 3)
+        and T.shape == (B, 4, 4)
+        and (prior is None or prior.shape == (B, 4, 4))
+    ):
+        raise ValueError(
+            f"align: expected target and source (B, C, H, W), depth (B, 1, H, W), K (B, 3, 3), "
+            f"T_source_target and prior (B, 4, 4), got {tuple(target.shape)}, {tuple(source.shape)}, "
+            f"{tuple(depth.shape)}, {tuple(K.shape)}, {tuple(T.shape)}, "
+            f"{None if prior is None else tuple(prior.shape)}"
+        )
 
 
-def _coarse_to_fine(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, starts: list[Tensor],
-                    iterations: tuple[int, ...], translation_only: bool = False, huber: float = HUBER,
-                    damping: float = DAMPING) -> tuple[Tensor, Tensor]:
+def _coarse_to_fine(
+    target: Tensor,
+    source: Tensor,
+    depth: Tensor,
+    K: Tensor,
+    starts: list[Tensor],
+    iterations: tuple[int, ...],
+    translation_only: bool = False,
+    huber: float = HUBER,
+    damping: float = DAMPING,
+) -> tuple[Tensor, Tensor]:
     """Gauss-Newton over the pyramid from each of the ``starts`` (B, 4, 4) (the first: the input motion) ->
     the motion of lowest residual at full resolution (B, 4, 4) float32 and whether it beats the input's (B,) bool.
 
@@ -161,9 +190,17 @@ def _coarse_to_fine(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, st
     return T, best > 0
 
 
-def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, candidates: list[tuple[Tensor, Tensor]],
-                  iterations: int, translation_only: bool, huber: float,
-                  damping: float) -> tuple[Tensor, Tensor, Tensor]:
+def _gauss_newton(
+    target: Tensor,
+    source: Tensor,
+    depth: Tensor,
+    K: Tensor,
+    candidates: list[tuple[Tensor, Tensor]],
+    iterations: int,
+    translation_only: bool,
+    huber: float,
+    damping: float,
+) -> tuple[Tensor, Tensor, Tensor]:
     """Gauss-Newton from the best of the ``candidates`` (motion (B, 4, 4), inverse-depth tilt (B, 2)) -> the
     motion and tilt of lowest mean absolute residual among the candidates and the iterates, and its index (B,) in
     that order (0: the first candidate). ``translation_only``: the unknowns are the translation and the tilt."""
@@ -214,8 +251,15 @@ def _gauss_newton(target: Tensor, source: Tensor, depth: Tensor, K: Tensor, cand
     return best, best_tilt, index
 
 
-def _jacobian(gradient: Tensor, a: Tensor, b: Tensor, iz: Tensor, fx: Tensor, fy: Tensor,
-              tilt: tuple[Tensor, Tensor, Tensor] | None = None) -> Tensor:
+def _jacobian(
+    gradient: Tensor,
+    a: Tensor,
+    b: Tensor,
+    iz: Tensor,
+    fx: Tensor,
+    fy: Tensor,
+    tilt: tuple[Tensor, Tensor, Tensor] | None = None,
+) -> Tensor:
     """Derivative of the residual (B, 6, C N) with respect to a correction ``exp([w, v])`` applied on the left of the
     motion (w: rotation, v: translation, in the source camera), per pixel: the image gradient times d(a, b)/d(w, v),
     with d(a, b)/dX = [[1/z, 0, -a/z], [0, 1/z, -b/z]] and dX/d(w, v) = [-[X]x, I].
@@ -251,8 +295,9 @@ class StreamAligner(torch.nn.Module):
     carry them.
     """
 
-    def __init__(self, streams: int, iterations: tuple[int, ...] = GN_ITERATIONS,
-                 max_rotation_deg: float = MAX_ROTATION_DEG):
+    def __init__(
+        self, streams: int, iterations: tuple[int, ...] = GN_ITERATIONS, max_rotation_deg: float = MAX_ROTATION_DEG
+    ):
         super().__init__()
         self.iterations, self.max_rotation_deg = iterations, max_rotation_deg
         self.register_buffer("previous", torch.eye(4).expand(streams, 4, 4).clone())
@@ -260,10 +305,12 @@ class StreamAligner(torch.nn.Module):
     def reset(self) -> None:
         self.previous = torch.eye(4, device=self.previous.device).expand_as(self.previous).clone()
 
-    def forward(self, target: Tensor, source: Tensor, depth: Tensor, K: Tensor,
-                T_source_target: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(
+        self, target: Tensor, source: Tensor, depth: Tensor, K: Tensor, T_source_target: Tensor
+    ) -> tuple[Tensor, Tensor]:
         """As :func:`align_motion`, with the previous call's refined motions (B, 4, 4) as the prior."""
-        refined, accepted = align_motion(target, source, depth, K, T_source_target, self.previous, self.iterations,
-                                         self.max_rotation_deg)
+        refined, accepted = align_motion(
+            target, source, depth, K, T_source_target, self.previous, self.iterations, self.max_rotation_deg
+        )
         self.previous = refined.detach().float()
         return refined, accepted

@@ -37,7 +37,7 @@ def motion_errors(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray | None = N
     ok = np.ones(len(mp), bool)
     if valid is not None:
         v = np.asarray(valid, bool)
-        ok = np.stack([v[1 + i: len(v) - gap + 1 + i] for i in range(gap)]).all(0)
+        ok = np.stack([v[1 + i : len(v) - gap + 1 + i] for i in range(gap)]).all(0)
     tp, tg = mp[ok, :3, 3], mg[ok, :3, 3]
     np_, ng = np.linalg.norm(tp, axis=1), np.linalg.norm(tg, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -35,7 +35,6 @@ import numpy as np
 from ocalib.errors import InputError
 from ocalib.frontend.refine import refine_motion
 from ocalib.frontend.tracker import KLTTracker
-from ocalib.frontend.window import bundle_adjust, window_problem
 from ocalib.frontend.twoview import (
     bearings,
     essential_motion,
@@ -45,6 +44,7 @@ from ocalib.frontend.twoview import (
     scale_along,
     triangulate,
 )
+from ocalib.frontend.window import bundle_adjust, window_problem
 
 METHODS = {"ransac": cv2.RANSAC, "lmeds": cv2.LMEDS, "magsac": cv2.USAC_MAGSAC, "usac": cv2.USAC_ACCURATE}
 TRACKER_OPTIONS = ("max_features", "quality", "min_distance", "win_size", "levels", "fb_threshold", "predict_levels")
@@ -171,8 +171,13 @@ class OpenCVOdometry:
             R = rotation_from_bearings(ba, bb) if len(ids) >= 3 else np.eye(3)
             status.inliers = 0 if found is None else int(found[2].sum())
             status.parallax_px = float(np.median(parallax_px(ba, bb, R, self.K))) if len(ids) else 0.0
-            status.reason = ("too few tracks" if len(ids) < self.min_tracks else
-                             "low parallax" if status.parallax_px < self.min_parallax else "too few inliers")
+            status.reason = (
+                "too few tracks"
+                if len(ids) < self.min_tracks
+                else "low parallax"
+                if status.parallax_px < self.min_parallax
+                else "too few inliers"
+            )
             return R, np.zeros(3), status
         R, t, inl = found
         idx, X = self._landmarks(ids) if self._speed is not None else (np.zeros(0, int), np.zeros((0, 3)))
@@ -190,7 +195,7 @@ class OpenCVOdometry:
         good = np.abs(r[: len(ids)]) < 3 * px  # tracks consistent with the motion
         status.inliers = int(good.sum())
         status.parallax_px = float(np.median(parallax_px(ba[good], bb[good], R, self.K))) if good.any() else 0.0
-        reproj = np.abs(r[len(ids):].reshape(-1, 2)).max(1) if len(idx) else np.zeros(0)
+        reproj = np.abs(r[len(ids) :].reshape(-1, 2)).max(1) if len(idx) else np.zeros(0)
         status.scale_points = int((reproj < 3 * px).sum())
         if status.scale_points < self.min_scale_points:
             status.scale_points = 0

@@ -91,7 +91,7 @@ def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, r
             dl = -(gl + np.einsum("pl,p->l", Hpl, dp)) / Hll_d
             R1, c1 = R.copy(), cen.copy()
             for f in range(fixed, F):
-                d = dp[6 * (f - fixed): 6 * (f - fixed) + 6]
+                d = dp[6 * (f - fixed) : 6 * (f - fixed) + 6]
                 R1[f] = R[f] @ cv2.Rodrigues(d[:3])[0]
                 c1[f] = cen[f] + d[3:]
             rho1 = rho + dl

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from functools import lru_cache, wraps
+from functools import cache, wraps
 
 import torch
 
@@ -14,7 +14,8 @@ def constant_cache(make):
     later). Under ``torch.compile`` ``make`` is traced instead: Dynamo would ignore the cache (and warn), and the
     compiler folds the result into constants.
     """
-    @lru_cache(maxsize=None)
+
+    @cache
     def cached(dtype: torch.dtype, device: torch.device):
         with torch.inference_mode(False):
             return make(dtype, device)

@@ -57,7 +57,13 @@ def _bases(dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Te
 
     def as_rows(f, n):  # row i: the flattened f(e_i), as tensor operations (torch.compile traces them)
         entries = f(*torch.eye(n, dtype=torch.float64).unbind(-1))  # 4 x 4 entries, each (n,): over e_1..e_n
-        return torch.stack([torch.stack([torch.as_tensor(e, dtype=torch.float64).expand(n) for e in row]) for row in entries]).reshape(16, n).T
+        return (
+            torch.stack(
+                [torch.stack([torch.as_tensor(e, dtype=torch.float64).expand(n) for e in row]) for row in entries]
+            )
+            .reshape(16, n)
+            .T
+        )
 
     offset = torch.tensor(sum(_shepperd(*[0.0] * 9), []), dtype=torch.float64)
     bases = (as_rows(_left, 4), as_rows(_right, 4), as_rows(_shepperd, 9) - offset, offset)

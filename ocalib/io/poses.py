@@ -80,7 +80,8 @@ def _read_rows(path: str | Path, columns: int | None = None) -> tuple[np.ndarray
             columns = len(values)
         elif len(values) != columns:
             kind = {KITTI_COLUMNS: "KITTI: a row-major 3x4 pose", TUM_COLUMNS: "TUM: t tx ty tz qx qy qz qw"}.get(
-                columns, "as on the first pose line")
+                columns, "as on the first pose line"
+            )
             raise InputError(f"{path}:{lineno}: expected {columns} numbers ({kind}), got {len(values)}")
         rows.append(values)
         lines.append(lineno)
@@ -99,8 +100,10 @@ def _read_rows_fast(text: str, columns: int | None) -> tuple[np.ndarray, np.ndar
         rows = np.loadtxt(io.StringIO("\n".join(t for _, t in kept).replace(",", " ")), dtype=np.float64, ndmin=2)
     except ValueError:
         return None
-    if len(rows) != len(kept) or rows.shape[1] != (columns or rows.shape[1]) or rows.shape[1] not in (
-        columns, KITTI_COLUMNS, TUM_COLUMNS
+    if (
+        len(rows) != len(kept)
+        or rows.shape[1] != (columns or rows.shape[1])
+        or rows.shape[1] not in (columns, KITTI_COLUMNS, TUM_COLUMNS)
     ):
         return None
     return rows, np.array([i for i, _ in kept])

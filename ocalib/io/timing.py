@@ -123,10 +123,7 @@ def _no_pairs_message(t0, t1, offset, max_dt, closest, names, rule: str | None =
     """Why no camera-0 stamp found a camera-1 pose: the ranges never overlap, or ``rule`` (default: the nearest
     stamp within max_dt) failed everywhere; ``closest`` says by how much."""
     shift = f" (with time offset {offset:+.6f} s)" if offset else ""
-    spans = (
-        f"{names[0]} spans [{t0[0]:.6f}, {t0[-1]:.6f}] s, "
-        f"{names[1]} spans [{t1[0]:.6f}, {t1[-1]:.6f}] s{shift}"
-    )
+    spans = f"{names[0]} spans [{t0[0]:.6f}, {t0[-1]:.6f}] s, {names[1]} spans [{t1[0]:.6f}, {t1[-1]:.6f}] s{shift}"
     if t1[0] > t0[-1] or t1[-1] < t0[0]:
         gap = max(t1[0] - t0[-1], t0[0] - t1[-1])
         return (
@@ -235,8 +232,16 @@ def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "cam
     return float(offset), OffsetQuality(float(peak), runner_up, float(overlap), float(step))
 
 
-def refine_time_offset(times0, poses0, times1, poses1, offset: float, radius: float, steps: int = 21,
-                       motion_seconds: float = REFINE_MOTION_SECONDS) -> float:
+def refine_time_offset(
+    times0,
+    poses0,
+    times1,
+    poses1,
+    offset: float,
+    radius: float,
+    steps: int = 21,
+    motion_seconds: float = REFINE_MOTION_SECONDS,
+) -> float:
     """Refine a clock offset by the rig's own rotation constraint -> offset (s).
 
     For each candidate in ``offset +- radius``, camera 1 is interpolated at camera 0's stamps (:func:`interpolate`)

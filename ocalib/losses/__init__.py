@@ -9,6 +9,17 @@ from ocalib.losses.selfsup import LossOutput, SelfSupervisedLoss, min_reprojecti
 from ocalib.losses.smoothness import edge_aware_smoothness
 from ocalib.losses.warp import Warp, inverse_warp
 
-__all__ = ["LossOutput", "SelfSupervisedLoss", "Warp", "depth_inconsistency", "edge_aware_smoothness",
-           "inverse_warp", "min_reprojection", "motion_distance", "photometric_error", "scale_gauge",
-           "self_supervised_loss", "ssim_error"]
+__all__ = [
+    "LossOutput",
+    "SelfSupervisedLoss",
+    "Warp",
+    "depth_inconsistency",
+    "edge_aware_smoothness",
+    "inverse_warp",
+    "min_reprojection",
+    "motion_distance",
+    "photometric_error",
+    "scale_gauge",
+    "self_supervised_loss",
+    "ssim_error",
+]

@@ -66,11 +66,21 @@ def identity_errors(images: Tensor, ssim: float = 0.85, automask: bool = True) -
         return identity + 1e-5 * torch.randn_like(identity) if automask else identity
 
 
-def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T_source_target: Tensor,
-                         source_depths: Tensor | None = None, *, automask: bool = True,
-                         smoothness: float = 1e-3, geometry: float = 0.0, ssim: float = 0.85,
-                         min_depth: float = MIN_DEPTH, max_depth: float = MAX_DEPTH,
-                         identity: Tensor | None = None) -> LossOutput:
+def self_supervised_loss(
+    images: Tensor,
+    K: Tensor,
+    disparities: list[Tensor],
+    T_source_target: Tensor,
+    source_depths: Tensor | None = None,
+    *,
+    automask: bool = True,
+    smoothness: float = 1e-3,
+    geometry: float = 0.0,
+    ssim: float = 0.85,
+    min_depth: float = MIN_DEPTH,
+    max_depth: float = MAX_DEPTH,
+    identity: Tensor | None = None,
+) -> LossOutput:
     """Total loss, averaged over the scales of ``disparities`` (each upsampled to full resolution).
 
     ``geometry`` > 0 needs ``source_depths`` (B, S-1, 1, H, W): it adds ``geometry x`` the masked mean depth
@@ -94,8 +104,9 @@ def self_supervised_loss(images: Tensor, K: Tensor, disparities: list[Tensor], T
         depth = disp_to_depth(full, min_depth, max_depth)
         errors, geo = [], zero
         for j in range(S - 1):
-            warp = inverse_warp(sources[:, j], depth, T_source_target[:, j], K,
-                                source_depths[:, j] if use_geometry else None)
+            warp = inverse_warp(
+                sources[:, j], depth, T_source_target[:, j], K, source_depths[:, j] if use_geometry else None
+            )
             error = photometric_error(warp.image, target, ssim)
             if use_geometry:
                 diff = depth_inconsistency(warp.depth, warp.source_depth)
@@ -129,8 +140,24 @@ class SelfSupervisedLoss(nn.Module):
         super().__init__()
         self.automask, self.smoothness, self.geometry, self.ssim = automask, smoothness, geometry, ssim
 
-    def forward(self, images: Tensor, K: Tensor, disparities: list[Tensor], T_source_target: Tensor,
-                source_depths: Tensor | None = None, identity: Tensor | None = None) -> LossOutput:
-        return self_supervised_loss(images, K, disparities, T_source_target, source_depths, automask=self.automask,
-                                    smoothness=self.smoothness, geometry=self.geometry, ssim=self.ssim,
-                                    identity=identity)
+    def forward(
+        self,
+        images: Tensor,
+        K: Tensor,
+        disparities: list[Tensor],
+        T_source_target: Tensor,
+        source_depths: Tensor | None = None,
+        identity: Tensor | None = None,
+    ) -> LossOutput:
+        return self_supervised_loss(
+            images,
+            K,
+            disparities,
+            T_source_target,
+            source_depths,
+            automask=self.automask,
+            smoothness=self.smoothness,
+            geometry=self.geometry,
+            ssim=self.ssim,
+            identity=identity,
+        )

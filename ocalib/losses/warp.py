@@ -35,8 +35,14 @@ class Warp(NamedTuple):
     source_depth: Tensor | None
 
 
-def inverse_warp(source: Tensor, depth: Tensor, T_source_target: Tensor, K: Tensor,
-                 source_depth: Tensor | None = None, padding_mode: str = "zeros") -> Warp:
+def inverse_warp(
+    source: Tensor,
+    depth: Tensor,
+    T_source_target: Tensor,
+    K: Tensor,
+    source_depth: Tensor | None = None,
+    padding_mode: str = "zeros",
+) -> Warp:
     """Warp ``source`` (B, C, H, W) into the target view given target ``depth`` (B, 1, H, W).
 
     ``source_depth`` (B, 1, H, W), when given, is sampled with the same grid (bilinear).

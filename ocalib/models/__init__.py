@@ -5,5 +5,16 @@ from ocalib.models.egomotion import MAX_DEPTH, MIN_DEPTH, SIZES, EgoMotionModel
 from ocalib.models.io import DEFAULT_CHECKPOINT, load_model, save_model
 from ocalib.models.pose import PoseNet, motion_to_pose
 
-__all__ = ["DEFAULT_CHECKPOINT", "DepthNet", "EgoMotionModel", "MAX_DEPTH", "MIN_DEPTH", "PoseNet", "SIZES",
-           "disp_to_depth", "load_model", "motion_to_pose", "save_model"]
+__all__ = [
+    "DEFAULT_CHECKPOINT",
+    "DepthNet",
+    "EgoMotionModel",
+    "MAX_DEPTH",
+    "MIN_DEPTH",
+    "PoseNet",
+    "SIZES",
+    "disp_to_depth",
+    "load_model",
+    "motion_to_pose",
+    "save_model",
+]

@@ -39,8 +39,12 @@ class DepthNet(nn.Module):
         self.scales = scales
         n = len(decoder)
         # level i (resolution 1/2^i): upconv0 from the coarser level, upconv1 after concatenating the skip.
-        self.upconv0 = nn.ModuleList(ConvELU(widths[-1] if i == n - 1 else decoder[i + 1], decoder[i]) for i in range(n))
-        self.upconv1 = nn.ModuleList(ConvELU(decoder[i] + (widths[i - 1] if i > 0 else 0), decoder[i]) for i in range(n))
+        self.upconv0 = nn.ModuleList(
+            ConvELU(widths[-1] if i == n - 1 else decoder[i + 1], decoder[i]) for i in range(n)
+        )
+        self.upconv1 = nn.ModuleList(
+            ConvELU(decoder[i] + (widths[i - 1] if i > 0 else 0), decoder[i]) for i in range(n)
+        )
         self.heads = nn.ModuleList(nn.Conv2d(decoder[s], 1, 3, padding=1) for s in range(scales))
         for head in self.heads:  # start at disparity ~INIT_DISPARITY: depth ~1, mid-range in log depth
             nn.init.constant_(head.bias, math.log(INIT_DISPARITY / (1 - INIT_DISPARITY)))

@@ -18,10 +18,14 @@ MIN_DEPTH, MAX_DEPTH = 0.1, 100.0  # the network's scale is held in the middle o
 
 # size -> (depth net kwargs, pose net kwargs). "small": 2 CPU cores; "large": ResNet-18 widths for GPUs.
 SIZES = {
-    "small": (dict(widths=(16, 24, 32, 64, 96), decoder=(8, 16, 24, 32, 64), blocks=1),
-              dict(widths=(16, 32, 48, 64, 96), head=64, blocks=1)),
-    "large": (dict(widths=(64, 64, 128, 256, 512), decoder=(16, 32, 64, 128, 256), blocks=2),
-              dict(widths=(64, 64, 128, 256, 512), head=256, blocks=2)),
+    "small": (
+        dict(widths=(16, 24, 32, 64, 96), decoder=(8, 16, 24, 32, 64), blocks=1),
+        dict(widths=(16, 32, 48, 64, 96), head=64, blocks=1),
+    ),
+    "large": (
+        dict(widths=(64, 64, 128, 256, 512), decoder=(16, 32, 64, 128, 256), blocks=2),
+        dict(widths=(64, 64, 128, 256, 512), head=256, blocks=2),
+    ),
 }
 
 

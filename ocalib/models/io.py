@@ -23,10 +23,22 @@ def save_model(model: EgoMotionModel, path, meta: dict | None = None) -> Path:
     """Write the slim model file (float32 state dict on CPU); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    state = {k: (v.detach().float() if v.is_floating_point() else v.detach()).cpu().clone()
-             for k, v in model.state_dict().items()}
-    torch.save({"kind": KIND, "version": VERSION, "size": model.size, "height": model.height,
-                "width": model.width, "state_dict": state, "meta": dict(meta or {})}, path)
+    state = {
+        k: (v.detach().float() if v.is_floating_point() else v.detach()).cpu().clone()
+        for k, v in model.state_dict().items()
+    }
+    torch.save(
+        {
+            "kind": KIND,
+            "version": VERSION,
+            "size": model.size,
+            "height": model.height,
+            "width": model.width,
+            "state_dict": state,
+            "meta": dict(meta or {}),
+        },
+        path,
+    )
     return path
 
 
@@ -35,7 +47,9 @@ def _build(path: Path, size, height, width, state: dict) -> EgoMotionModel:
         model = EgoMotionModel(size, int(height), int(width))
         model.load_state_dict(state)
     except (RuntimeError, InputError, TypeError, ValueError) as err:
-        raise InputError(f"{path}: weights do not fit an ocalib ego-motion model ({str(err).splitlines()[0]})") from None
+        raise InputError(
+            f"{path}: weights do not fit an ocalib ego-motion model ({str(err).splitlines()[0]})"
+        ) from None
     return model.eval()
 
 
@@ -48,9 +62,11 @@ def load_model(path=None) -> EgoMotionModel:
     if path is None:
         path = DEFAULT_CHECKPOINT
         if not path.is_file():
-            raise InputError(f"{path}: no default checkpoint shipped yet; train one with "
-                             "`ocalib train fit --config configs/train/synthetic-cpu.yaml` and pass --checkpoint "
-                             "<log dir>/model.pt")
+            raise InputError(
+                f"{path}: no default checkpoint shipped yet; train one with "
+                "`ocalib train fit --config configs/train/synthetic-cpu.yaml` and pass --checkpoint "
+                "<log dir>/model.pt"
+            )
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: a folder, not a checkpoint file")
@@ -61,13 +77,17 @@ def load_model(path=None) -> EgoMotionModel:
     except pickle.UnpicklingError:
         raise InputError(f"{path}: not a torch checkpoint (a corrupt file or another kind of file)") from None
     except Exception as err:  # noqa: BLE001 - torch raises many kinds for a foreign or corrupt file
-        raise InputError(f"{path}: not a readable torch checkpoint ({type(err).__name__}: "
-                         f"{str(err).splitlines()[0] if str(err) else 'corrupt'})") from None
+        raise InputError(
+            f"{path}: not a readable torch checkpoint ({type(err).__name__}: "
+            f"{str(err).splitlines()[0] if str(err) else 'corrupt'})"
+        ) from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: a torch file holding a {type(data).__name__}, not an ocalib ego-motion model")
     if data.get("kind") == KIND:
         if data.get("version") != VERSION:
-            raise InputError(f"{path}: ocalib ego-motion model version {data.get('version')} (this ocalib reads {VERSION})")
+            raise InputError(
+                f"{path}: ocalib ego-motion model version {data.get('version')} (this ocalib reads {VERSION})"
+            )
         return _build(path, data["size"], data["height"], data["width"], data["state_dict"])
     hp = data.get("hyper_parameters")
     if "pytorch-lightning_version" in data and isinstance(hp, dict) and {"size", "height", "width"} <= set(hp):

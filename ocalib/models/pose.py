@@ -26,13 +26,16 @@ def motion_to_pose(motion: Tensor) -> Tensor:
 class PoseNet(nn.Module):
     """Encoder on the stacked pair (6 channels) + a small convolutional head averaged to 6 numbers."""
 
-    def __init__(self, widths=(16, 32, 48, 64, 96), head: int = 64, blocks: int = 1, scale: float = 1.0,
-                 init_gain: float = 0.01):
+    def __init__(
+        self, widths=(16, 32, 48, 64, 96), head: int = 64, blocks: int = 1, scale: float = 1.0, init_gain: float = 0.01
+    ):
         super().__init__()
         self.encoder = Encoder(6, widths, blocks)
         self.head = nn.Sequential(
-            nn.Conv2d(widths[-1], head, 1), nn.ReLU(inplace=True),
-            nn.Conv2d(head, head, 3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(widths[-1], head, 1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(head, head, 3, padding=1),
+            nn.ReLU(inplace=True),
             nn.Conv2d(head, 6, 1),
         )
         with torch.no_grad():  # small output initialisation: x init_gain (0.01) of a default-initialised head

@@ -20,9 +20,18 @@ from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.errors import InputError
 from ocalib.geometry.quaternion import rotation_angle, rotation_matrix_to_quaternion
-from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, straight_trajectory
+from ocalib.sim.trajectory import (
+    add_noise,
+    car_trajectory,
+    lds_trajectory,
+    random_rig,
+    rig_trajectories,
+    straight_trajectory,
+)
 
-_PAPER = dict(motion="first", solver="rls", rls_c0=1.0, rls_delay=0, screw_gate_deg=1e9, robust_deg=1e9, min_rotation_deg=0)
+_PAPER = dict(
+    motion="first", solver="rls", rls_c0=1.0, rls_delay=0, screw_gate_deg=1e9, robust_deg=1e9, min_rotation_deg=0
+)
 
 # method name -> OnlineCalibrator keyword arguments
 METHODS: dict[str, dict] = {
@@ -80,13 +89,20 @@ class SimulationResult:
                 }
                 for i, sigma in enumerate(self.noise)
             }
-        setup = dict(noise=self.noise, seeds=self.seeds, frames=self.frames, noise_model=self.noise_model,
-                     trajectory=self.trajectory, methods={m: _jsonable(k) for m, k in self.methods.items()})
+        setup = dict(
+            noise=self.noise,
+            seeds=self.seeds,
+            frames=self.frames,
+            noise_model=self.noise_model,
+            trajectory=self.trajectory,
+            methods={m: _jsonable(k) for m, k in self.methods.items()},
+        )
         return {"setup": setup, "final": out}
 
 
-def make_rigs(noise: list[float], seeds: int, frames: int, noise_model: str = "independent",
-              trajectory: str = "lds") -> tuple[Tensor, Tensor]:
+def make_rigs(
+    noise: list[float], seeds: int, frames: int, noise_model: str = "independent", trajectory: str = "lds"
+) -> tuple[Tensor, Tensor]:
     """Noisy rig trajectories and true rigs.
 
     Seed i draws the same rig, trajectory and (unit) noise at every noise level (common random numbers).
@@ -125,7 +141,9 @@ def calibration_errors(rotation: Tensor, translation: Tensor, scale: Tensor, rig
     direction = torch.atan2(torch.linalg.cross(translation, t).norm(dim=-1), (translation * t).sum(-1))
     direction = torch.where(translation.norm(dim=-1) > 0, direction, torch.nan)  # no estimate yet
     rel = (translation - t).norm(dim=-1) / t.norm(dim=-1)
-    return torch.stack([torch.rad2deg(rot), torch.rad2deg(axis_err), torch.rad2deg(direction), rel, (scale - 1).abs()], -1)
+    return torch.stack(
+        [torch.rad2deg(rot), torch.rad2deg(axis_err), torch.rad2deg(direction), rel, (scale - 1).abs()], -1
+    )
 
 
 def run_method(poses: Tensor, rigs: Tensor, progress=None, **kwargs) -> Tensor:
@@ -159,9 +177,15 @@ def run_method(poses: Tensor, rigs: Tensor, progress=None, **kwargs) -> Tensor:
         torch.set_num_threads(threads)
 
 
-def simulate(noise: list[float], seeds: int = 20, frames: int = 128, noise_model: str = "independent",
-             trajectory: str = "lds", methods: dict[str, dict] | list[str] = ("paper-rls", "paper-rls-delay", "default"),
-             progress=None) -> SimulationResult:
+def simulate(
+    noise: list[float],
+    seeds: int = 20,
+    frames: int = 128,
+    noise_model: str = "independent",
+    trajectory: str = "lds",
+    methods: dict[str, dict] | list[str] = ("paper-rls", "paper-rls-delay", "default"),
+    progress=None,
+) -> SimulationResult:
     """Run the simulation for every method (names for :func:`method_kwargs`, or name -> calibrator kwargs).
 
     ``progress``, if given, is called after every frame of every method.

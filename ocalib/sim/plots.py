@@ -20,8 +20,9 @@ def plot_errors(result: SimulationResult, path: str | Path, methods: list[str] |
     import matplotlib.pyplot as plt
 
     methods = methods or list(result.errors)
-    fig, axes = plt.subplots(len(methods), len(ERRORS), figsize=(3.2 * len(ERRORS), 2.6 * len(methods)),
-                             squeeze=False, sharex=True)
+    fig, axes = plt.subplots(
+        len(methods), len(ERRORS), figsize=(3.2 * len(ERRORS), 2.6 * len(methods)), squeeze=False, sharex=True
+    )
     colors = plt.cm.viridis_r([0.15 + 0.85 * i / max(len(result.noise) - 1, 1) for i in range(len(result.noise))])
     for row, method in zip(axes, methods):
         curves = result.curves(method).clamp_min(1e-6).numpy()  # (N, T, E); noise 0 sits on the floor
@@ -34,5 +35,7 @@ def plot_errors(result: SimulationResult, path: str | Path, methods: list[str] |
     for ax in axes[-1]:
         ax.set_xlabel("iteration (frame)")
     axes[0, -1].legend(fontsize=7, loc="upper right")
-    fig.suptitle(f"{result.trajectory} trajectory, {result.noise_model} noise, median of {result.seeds} seeds", fontsize=10)
+    fig.suptitle(
+        f"{result.trajectory} trajectory, {result.noise_model} noise, median of {result.seeds} seeds", fontsize=10
+    )
     return save_figure(fig, path)

@@ -39,8 +39,13 @@ def random_rig(generator: torch.Generator, baseline: float = 1.0) -> Tensor:
     return make_pose(random_rotation(generator), baseline * t / t.norm())
 
 
-def lds_trajectory(n: int, generator: torch.Generator, rotation_speed: float = 0.05,
-                   translation_speed: float = 0.2, damping: float = 0.95) -> Tensor:
+def lds_trajectory(
+    n: int,
+    generator: torch.Generator,
+    rotation_speed: float = 0.05,
+    translation_speed: float = 0.2,
+    damping: float = 0.95,
+) -> Tensor:
     """The paper's linear dynamic system: rotation vector and position driven by damped random velocities.
 
     ``v_{t+1} = damping v_t + noise``, ``x_{t+1} = x_t + v_t`` for ``x = (rotation vector, position)``.
@@ -58,8 +63,9 @@ def lds_trajectory(n: int, generator: torch.Generator, rotation_speed: float = 0
     return rereference(make_pose(so3_exp(states[:, :3]), states[:, 3:]))
 
 
-def car_trajectory(n: int, generator: torch.Generator, speed: float = 1.0, yaw_rate: float = 0.05,
-                   pitch_roll: float = 0.0) -> Tensor:
+def car_trajectory(
+    n: int, generator: torch.Generator, speed: float = 1.0, yaw_rate: float = 0.05, pitch_roll: float = 0.0
+) -> Tensor:
     """Planar driving in camera-0 coordinates (x right, y down, z forward): yaw about -y with a
     random, smoothly varying yaw rate, forward speed ``speed`` per frame; optional pitch/roll noise
     (radians) from the road. Returns poses (n, 4, 4), the first the identity."""

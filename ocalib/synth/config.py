@@ -110,7 +110,9 @@ def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
         raise InputError(f"{where}: trajectory.kind must be one of {', '.join(TRAJECTORIES)}")
     unknown = set(traj) - {"kind", "speed", "height"}
     if unknown:
-        raise InputError(f"{where}: trajectory: unknown option(s) {', '.join(sorted(unknown))} (options: speed, height)")
+        raise InputError(
+            f"{where}: trajectory: unknown option(s) {', '.join(sorted(unknown))} (options: speed, height)"
+        )
     for name, lo, hi in (("speed", 0.0, 40.0), ("height", 0.5, 3.0)):
         value = traj.get(name, lo + 1e-9)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (lo < value <= hi):

@@ -36,10 +36,15 @@ def contact_sheet(name: str, rows: int = 4, step: int = 25, height: int = 128, w
         tiles = []
         for cam, (image, depth) in zip(cfg.cameras, views):
             rgb = np.ascontiguousarray(to_rgb8(image))
-            cv2.putText(rgb, f"{cam.name}  frame {n}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1,
-                        cv2.LINE_AA)
-            tiles += [rgb, np.full((height, gap, 3), 255, np.uint8), depth_colour(depth),
-                      np.full((height, 3 * gap, 3), 255, np.uint8)]
+            cv2.putText(
+                rgb, f"{cam.name}  frame {n}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA
+            )
+            tiles += [
+                rgb,
+                np.full((height, gap, 3), 255, np.uint8),
+                depth_colour(depth),
+                np.full((height, 3 * gap, 3), 255, np.uint8),
+            ]
         lines += [np.hstack(tiles[:-1]), np.full((gap, sum(t.shape[1] for t in tiles[:-1]), 3), 255, np.uint8)]
     return np.vstack(lines[:-1])
 

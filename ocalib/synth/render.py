@@ -43,8 +43,12 @@ class WorldTensors:
         def t(a, dtype):
             return torch.as_tensor(np.asarray(a), dtype=dtype, device=device)
 
-        return cls(t(world.boxes, torch.float64), t(world.material, torch.long),
-                   t(world.albedo, torch.float32), t(world.params, torch.float32))
+        return cls(
+            t(world.boxes, torch.float64),
+            t(world.material, torch.long),
+            t(world.albedo, torch.float32),
+            t(world.params, torch.float32),
+        )
 
 
 def _pixel_dirs(K: Tensor, R: Tensor, u: Tensor, v: Tensor) -> Tensor:
@@ -84,8 +88,11 @@ def render_view(world: WorldTensors, K, pose, height: int, width: int, supersamp
     pose = torch.as_tensor(np.asarray(pose), dtype=torch.float64, device=dev)
     R, o = pose[:3, :3], pose[:3, 3]
     oz, s, S = float(o[2]), supersample, supersample**2
-    v_pix, u_pix = torch.meshgrid(torch.arange(height, dtype=torch.float64, device=dev),
-                                  torch.arange(width, dtype=torch.float64, device=dev), indexing="ij")
+    v_pix, u_pix = torch.meshgrid(
+        torch.arange(height, dtype=torch.float64, device=dev),
+        torch.arange(width, dtype=torch.float64, device=dev),
+        indexing="ij",
+    )
     dirs = _pixel_dirs(K, R, u_pix, v_pix)  # (H, W, 3)
 
     rel = world.boxes - o.repeat(2)
@@ -107,27 +114,38 @@ def render_view(world: WorldTensors, K, pose, height: int, width: int, supersamp
     inner, edge = same.nonzero().squeeze(1), (~same).nonzero().squeeze(1)
     g = (torch.arange(s, dtype=torch.float64, device=dev) + 0.5) / s - 0.5
     off_v, off_u = torch.meshgrid(g, g, indexing="ij")
-    d_e = _pixel_dirs(K, R, (edge % width)[:, None] + off_u.reshape(1, -1), (edge // width)[:, None] + off_v.reshape(1, -1))
+    d_e = _pixel_dirs(
+        K, R, (edge % width)[:, None] + off_u.reshape(1, -1), (edge // width)[:, None] + off_v.reshape(1, -1)
+    )
     # A sub-sample lies between its pixel's centre and the 3 neighbouring centres of its quadrant.
     pad = F.pad(hit.view(1, 1, height, width).float(), (1, 1, 1, 1), value=SKY)[0, 0].long()
     row, col = (edge // width + 1)[:, None], (edge % width + 1)[:, None]
     su, sv = torch.sign(off_u).long().view(1, -1), torch.sign(off_v).long().view(1, -1)
-    cand = torch.stack([pad[row, col].expand(-1, S), pad[row + sv, col], pad[row, col + su],
-                        pad[row + sv, col + su]], -1)  # (E, S, 4) ids seen around each sub-sample
+    cand = torch.stack(
+        [pad[row, col].expand(-1, S), pad[row + sv, col], pad[row, col + su], pad[row + sv, col + su]], -1
+    )  # (E, S, 4) ids seen around each sub-sample
     b = rel32[cand.clamp_min(0)]  # (E, S, 4, 6)
     tb = raycast.slab(b[..., :3], b[..., 3:], raycast.safe_inverse(d_e)[:, :, None])
     tb = torch.where(cand >= 0, tb, torch.full_like(tb, float("inf")))
     tmin, arg = tb.min(-1)
     tg = raycast.ground_t(oz, d_e, FAR)
-    h_e = torch.where(tmin < tg, cand.gather(2, arg[..., None]).squeeze(2), torch.where(torch.isfinite(tg), GROUND, SKY))
+    h_e = torch.where(
+        tmin < tg, cand.gather(2, arg[..., None]).squeeze(2), torch.where(torch.isfinite(tg), GROUND, SKY)
+    )
     d_e, h_e, t_e = d_e.reshape(-1, 3), h_e.reshape(-1), torch.minimum(tmin, tg).reshape(-1)
     a_e, _ = _faces(d_e, h_e, rel32, oz)
 
     focal = float(K[0, 0] + K[1, 1]) / 2
     pix = torch.cat([inner, edge.repeat_interleave(S)])
-    colour = _shade_samples(world, o, torch.cat([dirs[inner], d_e]), torch.cat([hit[inner], h_e]),
-                            torch.cat([t[inner], t_e]), torch.cat([axis[inner], a_e]),
-                            torch.cat([torch.full_like(t[inner], focal), torch.full_like(t_e, focal * s)]))
+    colour = _shade_samples(
+        world,
+        o,
+        torch.cat([dirs[inner], d_e]),
+        torch.cat([hit[inner], h_e]),
+        torch.cat([t[inner], t_e]),
+        torch.cat([axis[inner], a_e]),
+        torch.cat([torch.full_like(t[inner], focal), torch.full_like(t_e, focal * s)]),
+    )
     weight = torch.cat([torch.ones_like(t[inner]), torch.full_like(t_e, 1.0 / S)])
     image = torch.zeros(height * width, 3, device=dev).index_add_(0, pix, colour * weight[:, None])
     return image.clamp(0, 1).T.reshape(3, height, width).contiguous(), depth

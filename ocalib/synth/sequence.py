@@ -124,8 +124,9 @@ def _write_frames(job) -> int:
     return len(indices)
 
 
-def render_sequence(cfg: SynthConfig, out_dir, device="cpu", progress: bool = True, overwrite: bool = False,
-                    workers: int = 1) -> Path:
+def render_sequence(
+    cfg: SynthConfig, out_dir, device="cpu", progress: bool = True, overwrite: bool = False, workers: int = 1
+) -> Path:
     """Render a sequence and write the native rig layout to ``out_dir``; returns the folder.
 
     ``workers > 1`` renders frames in that many processes (CPU, one torch thread each: robust on a busy

@@ -108,8 +108,11 @@ def _building(u, v, axis, p, fp, base, par) -> Tensor:
     sx, sz, style, off = par[:, 0], par[:, 1], par[:, 2], par[:, 3]
     wall = base * (1 + 0.35 * fbm(u + off, v, fp, 0.25, 9))[:, None]
     row = v / 0.075
-    brick = (style == 1).float() * (1 - pulse(row, 0.0, 0.85, fp / 0.075) * pulse(
-        (u + 0.12 * torch.floor(row).remainder(2)) / 0.24, 0.0, 0.94, fp / 0.24))
+    brick = (style == 1).float() * (
+        1
+        - pulse(row, 0.0, 0.85, fp / 0.075)
+        * pulse((u + 0.12 * torch.floor(row).remainder(2)) / 0.24, 0.0, 0.94, fp / 0.24)
+    )
     panel = (style == 2).float() * (1 - pulse(u / 1.2, 0.0, 0.97, fp / 1.2) * pulse(v / 0.9, 0.0, 0.97, fp / 0.9))
     wall = wall * (1 - 0.45 * (brick + panel))[:, None]
     fu, fv, upper = u / sx, v / sz, box(v, sz * 0.9, 1e4, fp)
@@ -154,8 +157,11 @@ def sky(d: Tensor, fp: Tensor) -> Tensor:
     d = d / d.norm(dim=-1, keepdim=True)
     el = d[:, 2].clamp(0, 1)
     dev = d.device
-    grad = _lerp(torch.tensor([0.86, 0.90, 0.95], device=dev).expand_as(d),
-                 torch.tensor([0.35, 0.55, 0.88], device=dev).expand_as(d), el.sqrt())
+    grad = _lerp(
+        torch.tensor([0.86, 0.90, 0.95], device=dev).expand_as(d),
+        torch.tensor([0.35, 0.55, 0.88], device=dev).expand_as(d),
+        el.sqrt(),
+    )
     zc = d[:, 2].clamp_min(0.05)
     cloud = (fbm(d[:, 0] / zc, d[:, 1] / zc, fp / zc, 0.4, 6) * 2.2 + 0.1).clamp(0, 1) * (el * 8).clamp(0, 1)
     return _lerp(grad, torch.full_like(d, 0.97), cloud)
@@ -189,4 +195,3 @@ def footprint(depth: Tensor, ray_norm: Tensor, cos_incidence: Tensor, focal: flo
     """Metres on the surface covered by one sample: z-depth (N,), ray length per unit depth (N,),
     |cos| of the incidence angle (N,), focal length in samples."""
     return depth * ray_norm / (focal * cos_incidence.clamp_min(0.15))
-

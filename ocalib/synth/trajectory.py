@@ -73,11 +73,14 @@ def _smooth_noise(rng, t, amplitude, periods=(2.0, 4.0, 9.0)):
 def _pose(xy, z, yaw, pitch, roll):
     """Camera-0 poses from rig position (N, 2), height (N,) and yaw/pitch/roll (N,) (z-y-x, radians)."""
     cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
-    R = np.stack([
-        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
-        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
-        np.stack([-sp, cp * sr, cp * cr], -1),
-    ], -2)
+    R = np.stack(
+        [
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+            np.stack([-sp, cp * sr, cp * cr], -1),
+        ],
+        -2,
+    )
     T = np.tile(np.eye(4), (len(z), 1, 1))
     T[:, :3, :3] = R @ R_RIG_CAM
     T[:, :2, 3] = xy
@@ -107,8 +110,9 @@ def _march(s, v, frames, dt, substeps=10):
     return out
 
 
-def trajectory(kind: str, frames: int, frame_rate: float, seed: int, speed: float | None = None,
-               height: float | None = None) -> np.ndarray:
+def trajectory(
+    kind: str, frames: int, frame_rate: float, seed: int, speed: float | None = None, height: float | None = None
+) -> np.ndarray:
     """Camera-0 poses (frames, 4, 4) float64 for ``kind`` in drive | handheld | lds."""
     defaults = {"drive": (8.0, 1.65), "handheld": (1.4, 1.5), "lds": (3.0, 1.5)}
     if kind not in defaults:
@@ -117,6 +121,7 @@ def trajectory(kind: str, frames: int, frame_rate: float, seed: int, speed: floa
     height = float(defaults[kind][1] if height is None else height)
     if not (0 < speed <= 40) or not (0.5 <= height <= 3.0):
         raise InputError(f"trajectory: speed must be in (0, 40] m/s and height in [0.5, 3] m, got {speed}, {height}")
+
     def rng(stream):  # one random stream per component: a longer sequence starts like a shorter one
         return np.random.default_rng([seed, 7, stream])
 

@@ -53,12 +53,28 @@ class _Builder:
 
 
 FACADE_COLOURS = np.array(
-    [[0.72, 0.62, 0.52], [0.62, 0.36, 0.28], [0.78, 0.76, 0.70], [0.55, 0.57, 0.60], [0.80, 0.70, 0.50],
-     [0.48, 0.40, 0.36], [0.70, 0.50, 0.40], [0.86, 0.84, 0.80]]
+    [
+        [0.72, 0.62, 0.52],
+        [0.62, 0.36, 0.28],
+        [0.78, 0.76, 0.70],
+        [0.55, 0.57, 0.60],
+        [0.80, 0.70, 0.50],
+        [0.48, 0.40, 0.36],
+        [0.70, 0.50, 0.40],
+        [0.86, 0.84, 0.80],
+    ]
 )
 CAR_COLOURS = np.array(
-    [[0.75, 0.10, 0.10], [0.10, 0.20, 0.55], [0.85, 0.85, 0.85], [0.15, 0.15, 0.15], [0.45, 0.47, 0.50],
-     [0.10, 0.40, 0.20], [0.85, 0.65, 0.10], [0.55, 0.55, 0.60]]
+    [
+        [0.75, 0.10, 0.10],
+        [0.10, 0.20, 0.55],
+        [0.85, 0.85, 0.85],
+        [0.15, 0.15, 0.15],
+        [0.45, 0.47, 0.50],
+        [0.10, 0.40, 0.20],
+        [0.85, 0.65, 0.10],
+        [0.55, 0.55, 0.60],
+    ]
 )
 
 
@@ -75,8 +91,13 @@ def _block(b: _Builder, seed: int, i: int, j: int) -> None:
     rng = np.random.default_rng([seed, i + 10_000, j + 10_000])
     x0, y0 = i * PITCH, j * PITCH
     inner0, inner1 = ROAD + PAVE, PITCH - ROAD - PAVE
-    b.add((x0 + ROAD, y0 + ROAD, 0), (x0 + PITCH - ROAD, y0 + PITCH - ROAD, KERB), PAVEMENT,
-          rng.uniform(0.55, 0.7) * np.array([1.0, 0.97, 0.92]), (rng.uniform(0.4, 0.7), rng.uniform(0, 50), 0, 0))
+    b.add(
+        (x0 + ROAD, y0 + ROAD, 0),
+        (x0 + PITCH - ROAD, y0 + PITCH - ROAD, KERB),
+        PAVEMENT,
+        rng.uniform(0.55, 0.7) * np.array([1.0, 0.97, 0.92]),
+        (rng.uniform(0.4, 0.7), rng.uniform(0, 50), 0, 0),
+    )
     # Two rows of buildings (south half, north half), each split along x; end buildings face the x streets.
     mid = PITCH / 2 + rng.uniform(-4, 4)
     for y_face, y_back in ((inner0, mid), (inner1, mid)):
@@ -91,8 +112,13 @@ def _block(b: _Builder, seed: int, i: int, j: int) -> None:
             yf = y_face + setback if y_face < y_back else y_face - setback
             height = rng.uniform(7, 26) if rng.random() < 0.85 else rng.uniform(26, 40)
             params = (rng.uniform(2.4, 4.0), rng.uniform(3.0, 3.6), rng.integers(0, 3), rng.uniform(0, 100))
-            b.add((x0 + xa, y0 + yf, 0), (x0 + xb, y0 + y_back, height), BUILDING,
-                  FACADE_COLOURS[rng.integers(len(FACADE_COLOURS))] * rng.uniform(0.85, 1.1), params)
+            b.add(
+                (x0 + xa, y0 + yf, 0),
+                (x0 + xb, y0 + y_back, height),
+                BUILDING,
+                FACADE_COLOURS[rng.integers(len(FACADE_COLOURS))] * rng.uniform(0.85, 1.1),
+                params,
+            )
     for side in range(4):
         _street_side(b, rng, x0, y0, side)
 
@@ -103,6 +129,7 @@ def _street_side(b: _Builder, rng, x0, y0, side):
     A side is described in local coordinates: ``s`` along the kerb, ``d`` distance from the street
     centreline (growing into the block).
     """
+
     def place(s0, s1, d0, d1, z0, z1, *args):
         if side == 0:  # south street (y = y0), s along +x
             b.add((x0 + s0, y0 + d0, z0), (x0 + s1, y0 + d1, z1), *args)
@@ -123,8 +150,17 @@ def _street_side(b: _Builder, rng, x0, y0, side):
             params = (rng.uniform(0, 100), 0, 0, 0)
             place(s, s + length, d0, ROAD - 0.3, 0.0, height, CAR, colour, params)
             c0, c1 = s + length * rng.uniform(0.2, 0.3), s + length * rng.uniform(0.68, 0.8)
-            place(c0, c1, d0 + 0.12, ROAD - 0.42, height, height + rng.uniform(0.4, 0.55), GLASS,
-                  colour * 0.35 + 0.05, params)
+            place(
+                c0,
+                c1,
+                d0 + 0.12,
+                ROAD - 0.42,
+                height,
+                height + rng.uniform(0.4, 0.55),
+                GLASS,
+                colour * 0.35 + 0.05,
+                params,
+            )
         s += length + rng.uniform(0.8, 4.0)
     s = ROAD + PAVE + rng.uniform(2, 10)
     while s < PITCH - ROAD - PAVE:  # lamp posts with an arm over the road
@@ -137,8 +173,17 @@ def _street_side(b: _Builder, rng, x0, y0, side):
         size = rng.uniform(0.4, 1.4, 3)
         s = rng.uniform(ROAD + PAVE + 1, PITCH - ROAD - PAVE - 2)
         d = ROAD + PAVE - size[1] - rng.uniform(0.05, 0.5)
-        place(s, s + size[0], d, d + size[1], KERB, KERB + size[2], CRATE,
-              rng.uniform(0.35, 0.75) * np.array([1.0, 0.8, 0.55]), (rng.uniform(0.08, 0.2), rng.uniform(0, 100), 0, 0))
+        place(
+            s,
+            s + size[0],
+            d,
+            d + size[1],
+            KERB,
+            KERB + size[2],
+            CRATE,
+            rng.uniform(0.35, 0.75) * np.array([1.0, 0.8, 0.55]),
+            (rng.uniform(0.08, 0.2), rng.uniform(0, 100), 0, 0),
+        )
 
 
 def make_world(seed: int, xy_min, xy_max) -> World:

@@ -20,7 +20,9 @@ AXES = "xyz"
 COLORS = ("tab:red", "tab:green", "tab:blue", "tab:gray")
 
 
-def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Path, truth: np.ndarray | None = None) -> None:
+def plot_trace(
+    trace: dict[str, np.ndarray], cameras: list[str], path: str | Path, truth: np.ndarray | None = None
+) -> None:
     """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values / residuals.
 
     truth: (K, 4, 4) the true ``T_cam0_camk``, or None. With it the rotation row shows each frame's error against
@@ -45,8 +47,10 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
             what = f"rotation error against the truth (deg), final {np.linalg.norm(delta[-1]):.3f} deg"
         std = trace["rotation_std_deg"][:, k]
         unobservable = not trace["rotation_observable"][-1, k, 0] and not trace["planar_motion"][-1, k, 0]
-        labels = [f"about {a}" + ("" if unobservable or not np.isfinite(sd) else f", std {sd:.2g}")
-                  for a, sd in zip(AXES, std[-1])]
+        labels = [
+            f"about {a}" + ("" if unobservable or not np.isfinite(sd) else f", std {sd:.2g}")
+            for a, sd in zip(AXES, std[-1])
+        ]
         _bands(ax, frames, delta, np.where(unobservable, np.inf, std), labels, min_span=0.02)
         if truth is not None:
             ax.axhline(0, color="black", lw=0.8, label="truth")
@@ -55,13 +59,25 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
             title += f"\ntruth: {angles_text(q_true)}"
         ax.set_title(title, fontsize=9)
         if unobservable:
-            ax.text(0.5, 0.5, "ROTATION UNOBSERVABLE\n(the motion does not determine it)", transform=ax.transAxes,
-                    ha="center", va="center", color="red", fontsize=11, alpha=0.8)
+            ax.text(
+                0.5,
+                0.5,
+                "ROTATION UNOBSERVABLE\n(the motion does not determine it)",
+                transform=ax.transAxes,
+                ha="center",
+                va="center",
+                color="red",
+                fontsize=11,
+                alpha=0.8,
+            )
 
         ax = axes[1, k]
         t = trace["translation"][:, k]
         t_std = trace["translation_std"][:, k]
-        labels = [f"t{a} = {v:.4f}" + ("" if np.isfinite(sd) else " (unobservable)") for a, v, sd in zip(AXES, t[-1], t_std[-1])]
+        labels = [
+            f"t{a} = {v:.4f}" + ("" if np.isfinite(sd) else " (unobservable)")
+            for a, v, sd in zip(AXES, t[-1], t_std[-1])
+        ]
         title = "translation in camera 0's frame (camera-0 units)"
         if truth is not None:
             true_t = truth[k, :3, 3]
@@ -70,8 +86,10 @@ def plot_trace(trace: dict[str, np.ndarray], cameras: list[str], path: str | Pat
                 ax.axhline(direction[i] * np.linalg.norm(t[-1]), color=COLORS[i], lw=1, ls="--")
             labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, direction * np.linalg.norm(t[-1]))]
             cos = t[-1] @ true_t / max(np.linalg.norm(t[-1]) * np.linalg.norm(true_t), 1e-300)
-            title += f"\ntruth (dashed): the true direction at the final length; final " \
-                     f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
+            title += (
+                f"\ntruth (dashed): the true direction at the final length; final "
+                f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
+            )
         _bands(ax, frames, t, t_std, labels, min_span=1e-3 * max(np.abs(t[-1]).max(), 1e-3))
         ax.set_title(title, fontsize=9)
 
@@ -164,8 +182,10 @@ def angles_text(q: np.ndarray) -> str:
     rv = np.rad2deg(rotation_vector(np.asarray(q, dtype=np.float64)))
     angle = float(np.linalg.norm(rv))
     axis = rv / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
-    return (f"{angle:.2f} deg about ({', '.join(f'{v:+.3f}' for v in axis)}); roll, pitch, yaw "
-            f"{', '.join(f'{v:+.1f}' for v in np.where(rpy_deg(q) <= -179.95, 180.0, rpy_deg(q)))} deg")
+    return (
+        f"{angle:.2f} deg about ({', '.join(f'{v:+.3f}' for v in axis)}); roll, pitch, yaw "
+        f"{', '.join(f'{v:+.1f}' for v in np.where(rpy_deg(q) <= -179.95, 180.0, rpy_deg(q)))} deg"
+    )
 
 
 def rpy_deg(q: np.ndarray) -> np.ndarray:

@@ -7,18 +7,27 @@ import torch
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.absolute import AbsoluteCalibrator, absolute_rows, local_derivatives, solve_absolute
+from ocalib.calib.online import OnlineCalibrator
 from ocalib.geometry import invert_pose, make_pose, rotation_angle
 from ocalib.sim.opencv_protocol import simulate_opencv
-from ocalib.sim.trajectory import add_noise, car_trajectory, random_rig, random_rotation, rig_trajectories, straight_trajectory
+from ocalib.sim.trajectory import (
+    add_noise,
+    car_trajectory,
+    random_rig,
+    random_rotation,
+    rig_trajectories,
+    straight_trajectory,
+)
 
 
 def target_rig(generator, frames=30, noise=0.0, scale=1.0):
     """Independent random poses (a target seen from 30 viewpoints): camera-to-world poses (frames, 2, 4, 4) with
     camera 1's in its own world (``Y``) and units; the true ``X = T_cam0_cam1``, ``Y = T_world0_world1``."""
     X, Y = random_rig(generator), random_rig(generator, baseline=3.0)
-    P0 = make_pose(random_rotation(generator, frames), 2 * torch.randn(frames, 3, generator=generator, dtype=torch.float64))
+    P0 = make_pose(
+        random_rotation(generator, frames), 2 * torch.randn(frames, 3, generator=generator, dtype=torch.float64)
+    )
     P1 = invert_pose(Y) @ P0 @ X
     P1[:, :3, 3] /= scale
     poses = add_noise(torch.stack([P0, P1], 1), noise, generator) if noise else torch.stack([P0, P1], 1)
@@ -68,7 +77,9 @@ def test_every_frame_equals_batch_nonlinear_least_squares(generator):
             cal(poses[u])
         est = solve_absolute(cal.K, cal.M, cal.frames)
         out = outs[t]
-        start = np.concatenate([Rotation.from_matrix(X[:3, :3].numpy()).as_rotvec() + 0.01, [0.0] * 3, [1.0], [0.0] * 6])
+        start = np.concatenate(
+            [Rotation.from_matrix(X[:3, :3].numpy()).as_rotvec() + 0.01, [0.0] * 3, [1.0], [0.0] * 6]
+        )
         start[3:6] = Rotation.from_matrix(est["world_rotation"][0, 0].numpy()).as_rotvec() + 0.01  # near, not at it
         R, s, tr = batch_reference(poses[: t + 1], est["sigma"][0, 0].numpy(), start)
         np.testing.assert_allclose(out.rotation[0, 0].numpy(), R, atol=1e-8)
@@ -89,6 +100,7 @@ def test_local_derivatives_equal_autograd_with_the_exact_exponential(generator):
         def exp(w):
             return torch.linalg.matrix_exp(torch.stack([torch.stack([0 * w[0], -w[2], w[1]]), torch.stack([w[2], 0 * w[0], -w[0]]),
                                                         torch.stack([-w[1], w[0], 0 * w[0]])]))  # fmt: skip
+
         Rp, Ryp, xp = R @ exp(p[:3]), Ry @ exp(p[3:6]), x + p[6:]
         z = torch.cat([xp[:1] * Rp.flatten(), xp[1:], torch.ones(1, dtype=p.dtype)])
         return wr * (18 - Rp.flatten() @ K @ Ryp.flatten()) + wt * z @ M @ z
@@ -109,7 +121,9 @@ def test_gradients_reach_the_poses(generator):
 
     def f(t0):
         kron, D = absolute_rows(C[:, 0, :3, :3], C[:, 1, :3, :3], t0, C[:, 1, :3, 3])
-        est = solve_absolute(kron.sum(0, keepdim=True), (D.mT @ D).sum(0, keepdim=True), torch.tensor([5.0], dtype=torch.float64), sigma)
+        est = solve_absolute(
+            kron.sum(0, keepdim=True), (D.mT @ D).sum(0, keepdim=True), torch.tensor([5.0], dtype=torch.float64), sigma
+        )
         return torch.cat([est["translation"].flatten(), est["scale"].flatten(), est["rotation"].flatten()])
 
     assert torch.autograd.gradcheck(f, (C[:, 0, :3, 3].clone().requires_grad_(),), atol=1e-6)
@@ -122,7 +136,9 @@ def test_beats_opencv_on_its_own_protocol():
     ours, theirs = [], []
     for _ in range(40):
         G, Ct, X = simulate_opencv(rng)
-        R, t = cv2.calibrateHandEye(G[:, :3, :3], G[:, :3, 3], Ct[:, :3, :3], Ct[:, :3, 3], method=cv2.CALIB_HAND_EYE_DANIILIDIS)
+        R, t = cv2.calibrateHandEye(
+            G[:, :3, :3], G[:, :3, 3], Ct[:, :3, :3], Ct[:, :3, 3], method=cv2.CALIB_HAND_EYE_DANIILIDIS
+        )
         theirs.append(np.linalg.norm(t.ravel() - X[:3, 3]))
         _, outs = stream(torch.from_numpy(np.stack([G, np.linalg.inv(Ct)], 1)))  # camera 1's pose: target2cam^-1
         ours.append(np.linalg.norm(outs[-1].translation[0, 0].numpy() - X[:3, 3]))
@@ -234,8 +250,10 @@ def test_more_accurate_than_the_motion_pairs_with_the_right_error_model(pose_err
         with torch.no_grad():
             for t in range(len(poses)):
                 out = head(poses[t])
-        errors[name] = ((out.translation[:, 0] - X[:, :3, 3]).norm(dim=-1).median(),
-                        rotation_angle(out.rotation[:, 0].mT @ X[:, :3, :3]).median())
+        errors[name] = (
+            (out.translation[:, 0] - X[:, :3, 3]).norm(dim=-1).median(),
+            rotation_angle(out.rotation[:, 0].mT @ X[:, :3, :3]).median(),
+        )
     assert errors["right"][0] < 0.95 * errors["pairs"][0] and errors["right"][1] < 0.95 * errors["pairs"][1], errors
     assert errors["wrong"][0] > 1.5 * errors["right"][0], errors
 

@@ -1,9 +1,14 @@
 import torch
-
-from ocalib.calib.handeye import normal_equations, rotation_block, translation_features, translation_quadratic, translation_rows
-from ocalib.geometry import invert_pose, rotation_matrix_to_quaternion
-
 from calib_helpers import lds_rig
+
+from ocalib.calib.handeye import (
+    normal_equations,
+    rotation_block,
+    translation_features,
+    translation_quadratic,
+    translation_rows,
+)
+from ocalib.geometry import invert_pose, rotation_matrix_to_quaternion
 
 
 def test_true_extrinsic_solves_both_equations(generator):

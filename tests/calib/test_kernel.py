@@ -30,7 +30,9 @@ def assert_same_frame(a, b, t):
     # pairs at least: with fewer, the planar route's 6 unknowns are underdetermined and rounding picks the solution.
     determined = (a.rotation_observable | a.planar_motion | a.refined) & (a.translation_rows >= 3)
     for name in ("quaternion", "rotation", "translation", "scale"):
-        torch.testing.assert_close(getattr(a, name)[determined], getattr(b, name)[determined], **TOL, msg=f"frame {t}: {name}")
+        torch.testing.assert_close(
+            getattr(a, name)[determined], getattr(b, name)[determined], **TOL, msg=f"frame {t}: {name}"
+        )
     # The planar axis: its sign is the eigenvectors' choice.
     torch.testing.assert_close(a.planar_axis.abs(), b.planar_axis.abs(), **TOL, msg=f"frame {t}: planar axis")
 
@@ -92,7 +94,8 @@ def test_equals_torch_head_with_bad_poses_and_outliers(generator):
     poses[7, 1, 0, 0] = float("nan")
     poses[12, 0, :3, :3] *= 1.1  # not a rotation
     poses[30, 1, :3, :3] = poses[30, 1, :3, :3] @ torch.linalg.matrix_exp(
-        torch.tensor([[0.0, -0.3, 0.0], [0.3, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64))  # 17 degrees off
+        torch.tensor([[0.0, -0.3, 0.0], [0.3, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+    )  # 17 degrees off
     fast, slow = stream(poses[:, None])
     assert fast.frames_rejected.item() >= 2
     assert_same_state(fast, slow)

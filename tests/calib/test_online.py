@@ -2,13 +2,12 @@ import math
 
 import pytest
 import torch
+from calib_helpers import car_rig, lds_rig, no_gating
 
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.geometry import make_pose, rotation_angle
 from ocalib.sim.trajectory import add_noise, random_rig, rig_trajectories, so3_exp, straight_trajectory
-
-from calib_helpers import car_rig, lds_rig, no_gating
 
 
 def rotation_error_deg(R, R_true):
@@ -109,7 +108,9 @@ def test_screw_gate_rejects_outlier_motions(generator):
     poses, X, _ = lds_rig(generator, frames=120, noise=0.002)
     outliers = poses.clone()
     for t in range(40, 120, 9):  # camera 1 jumps by 20 degrees for one frame
-        outliers[t, 1] = outliers[t, 1] @ make_pose(so3_exp(torch.tensor([0.35, 0.0, 0.0], dtype=torch.float64)), torch.zeros(3, dtype=torch.float64))
+        outliers[t, 1] = outliers[t, 1] @ make_pose(
+            so3_exp(torch.tensor([0.35, 0.0, 0.0], dtype=torch.float64)), torch.zeros(3, dtype=torch.float64)
+        )
     gated, plain = OnlineCalibrator(2), OnlineCalibrator(2, **no_gating())
     for t in range(len(poses)):
         out_g, out_p = gated(outliers[t]), plain(outliers[t])

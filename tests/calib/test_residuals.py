@@ -27,10 +27,12 @@ def test_residuals_equal_the_pairs_own(generator):
     dR, dT, s = out.rotation[0, 0], out.translation[0, 0], out.scale[0, 0]
     R0, t0, R1, t1 = motion[:, 0, :3, :3], motion[:, 0, :3, 3], motion[:, 1, :3, :3], motion[:, 1, :3, 3]
     mismatch = rotation_angle((dR.T @ R0 @ dR).mT @ R1)  # camera 0's motion in camera k's frame vs camera k's
-    rows = ((torch.eye(3, dtype=dR.dtype) - R0) @ dT + s * (dR @ t1.unsqueeze(-1)).squeeze(-1) - t0)
+    rows = (torch.eye(3, dtype=dR.dtype) - R0) @ dT + s * (dR @ t1.unsqueeze(-1)).squeeze(-1) - t0
     relative = (rows.square().sum() / t0.square().sum()).sqrt()
     res = out.residuals
-    assert float(res["rotation_deg"][0, 0]) == pytest.approx(math.degrees(float(mismatch.square().mean().sqrt())), rel=1e-3)
+    assert float(res["rotation_deg"][0, 0]) == pytest.approx(
+        math.degrees(float(mismatch.square().mean().sqrt())), rel=1e-3
+    )
     assert float(res["translation_relative"][0, 0]) == pytest.approx(float(relative), rel=1e-9)
 
 

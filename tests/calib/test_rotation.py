@@ -1,12 +1,11 @@
 import pytest
 import torch
+from calib_helpers import lds_rig
 
 from ocalib.calib.handeye import rotation_block
 from ocalib.calib.linalg import guarded_eigh
 from ocalib.calib.rotation import batch_rotation, incremental_svd_update, rotation_solution, singular_values
 from ocalib.geometry import invert_pose, rotation_matrix_to_quaternion
-
-from calib_helpers import lds_rig
 
 
 def blocks(generator, frames=60, noise=0.02):

@@ -2,14 +2,13 @@ import math
 
 import pytest
 import torch
+from calib_helpers import lds_rig
 
 from ocalib.calib.gating import affine_scan, screw_gate_sequence, screw_threshold, update_screw_scale
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.geometry import make_pose
 from ocalib.sim.trajectory import so3_exp
-
-from calib_helpers import lds_rig
 
 FIELDS = ("quaternion", "translation", "scale", "rotation_singular_values")
 

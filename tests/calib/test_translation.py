@@ -1,11 +1,10 @@
 import pytest
 import torch
+from calib_helpers import lds_rig
 
 from ocalib.calib.handeye import translation_features, translation_quadratic, translation_rows
 from ocalib.calib.translation import rls_update, solve_translation
 from ocalib.geometry import invert_pose
-
-from calib_helpers import lds_rig
 
 
 def rows(generator, noise=0.02, frames=60):

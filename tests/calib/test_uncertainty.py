@@ -2,14 +2,13 @@ import math
 from dataclasses import fields
 
 import torch
+from calib_helpers import car_rig, lds_rig
 
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.result import Calibration
 from ocalib.calib.rotation import rotation_std
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.geometry import rotation_angle
-
-from calib_helpers import car_rig, lds_rig
 
 
 def frame(out: Calibration, t: int) -> Calibration:

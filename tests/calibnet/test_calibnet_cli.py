@@ -19,8 +19,9 @@ torch.set_num_threads(1)  # tiny tensors: threads only add hand-over cost on a b
 def tiny(tmp_path_factory):
     """A 12-frame handheld rig at 32x96 and an untrained model at that size."""
     root = tmp_path_factory.mktemp("calibrate")
-    seq = render_sequence(preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003),
-                          root / "seq", progress=False)
+    seq = render_sequence(
+        preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003), root / "seq", progress=False
+    )
     torch.manual_seed(0)
     model = save_model(EgoMotionModel("small", height=32, width=96), root / "model.pt")
     return root, seq, model
@@ -29,9 +30,25 @@ def tiny(tmp_path_factory):
 def test_calibrate_writes_json_trace_plot_and_errors(tiny, tmp_path, capsys):
     root, seq, model = tiny
     out = tmp_path / "r.json"
-    rc = main(["calibrate", "--sequence", str(seq), "--checkpoint", str(model), "--out", str(out),
-               "--trace", str(tmp_path / "t.csv"), "--plot", str(tmp_path / "p.png"),
-               "--tensorboard", str(tmp_path / "tb"), "--trajectories", str(tmp_path / "traj")])
+    rc = main(
+        [
+            "calibrate",
+            "--sequence",
+            str(seq),
+            "--checkpoint",
+            str(model),
+            "--out",
+            str(out),
+            "--trace",
+            str(tmp_path / "t.csv"),
+            "--plot",
+            str(tmp_path / "p.png"),
+            "--tensorboard",
+            str(tmp_path / "tb"),
+            "--trajectories",
+            str(tmp_path / "traj"),
+        ]
+    )
     assert rc == 0
     doc = json.loads(out.read_text())
     assert doc["reference"] == "cam0" and [e["camera"] for e in doc["extrinsics"]] == ["cam1"]
@@ -40,9 +57,14 @@ def test_calibrate_writes_json_trace_plot_and_errors(tiny, tmp_path, capsys):
     R = np.array(e["rotation"])
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
     assert e["frames_used"] + e["frames_rejected"] <= 12
-    assert set(doc["ground_truth_errors"][0]) >= {"rotation_error_deg", "translation_direction_error_deg",
-                                                  "translation_error_rel_baseline", "scale_true", "scale_wander",
-                                                  "lever_arm_signal"}
+    assert set(doc["ground_truth_errors"][0]) >= {
+        "rotation_error_deg",
+        "translation_direction_error_deg",
+        "translation_error_rel_baseline",
+        "scale_true",
+        "scale_wander",
+        "lever_arm_signal",
+    }
     rows = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
     assert rows.shape[0] == 12 and (tmp_path / "p.png").stat().st_size > 0
     assert any((tmp_path / "tb").iterdir())
@@ -100,15 +122,18 @@ def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     np.testing.assert_allclose(err["rotation_gain"][:2], 1.0, atol=1e-9)
 
 
-@pytest.mark.parametrize("case, message", [
-    ("unknown camera", "no camera 'cam7'"),
-    ("too short", "too short to calibrate"),
-    ("unequal counts", "frame is missing"),
-    ("wrong checkpoint", "not an ocalib ego-motion model"),
-    ("corrupt frame", "000007.png: cannot read the image"),
-    ("align with opencv", "align refines the pose network's motions"),
-    ("rig-align without align", "rig-align re-aligns the photometrically aligned motions"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("unknown camera", "no camera 'cam7'"),
+        ("too short", "too short to calibrate"),
+        ("unequal counts", "frame is missing"),
+        ("wrong checkpoint", "not an ocalib ego-motion model"),
+        ("corrupt frame", "000007.png: cannot read the image"),
+        ("align with opencv", "align refines the pose network's motions"),
+        ("rig-align without align", "rig-align re-aligns the photometrically aligned motions"),
+    ],
+)
 def test_clear_errors(tiny, tmp_path, capsys, case, message):
     root, seq, model = tiny
     args = ["calibrate", "--sequence", str(seq), "--checkpoint", str(model)]
@@ -154,8 +179,9 @@ def test_demo_prints_the_estimate_beside_the_truth_and_its_warnings(tmp_path, ca
     angle = float(rotation_angle_deg(truth[:3, :3].T @ R))
     assert doc["ground_truth_errors"][0]["rotation_error_deg"] == pytest.approx(angle, abs=1e-6)
     assert "errors against the ground truth" in captured.out and f"rotation {angle:.3f} deg" in captured.out
-    assert [line[len("warning: "):] for line in captured.err.splitlines() if line.startswith("warning: ")] \
-        == doc["warnings"]
+    assert [line[len("warning: ") :] for line in captured.err.splitlines() if line.startswith("warning: ")] == doc[
+        "warnings"
+    ]
 
 
 @pytest.mark.parametrize("frontend", ["network", "opencv"])

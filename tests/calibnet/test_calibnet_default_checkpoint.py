@@ -40,7 +40,9 @@ def test_alignment_removes_most_of_the_default_checkpoints_rotation_error():
         net = model.pose(images[:-1], images[1:])
         aligned, accepted = align_motion(images[:-1], images[1:], model.depth(images[:-1]), K, invert_pose(net))
     truth = np.linalg.inv(poses[:-1]) @ poses[1:]
-    errors = [rotation_angle_deg(np.swapaxes(truth[:, :3, :3], 1, 2) @ T[:, :3, :3])
-              for T in (net.double().numpy(), invert_pose(aligned).double().numpy())]
+    errors = [
+        rotation_angle_deg(np.swapaxes(truth[:, :3, :3], 1, 2) @ T[:, :3, :3])
+        for T in (net.double().numpy(), invert_pose(aligned).double().numpy())
+    ]
     assert accepted.sum() >= 5
     assert np.median(errors[1]) < 0.5 * np.median(errors[0])  # measured 0.058 vs 0.24 deg

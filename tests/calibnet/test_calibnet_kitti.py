@@ -41,8 +41,9 @@ def write_straight_kitti_odometry(root, frames=FRAMES):
     P0 = np.hstack([K, np.zeros((3, 1))])
     P1 = P0.copy()
     P1[0, 3] = -K[0, 0] * BASELINE
-    (folder / "calib.txt").write_text("".join(f"P{i}: {' '.join(f'{v:.12e}' for v in P.ravel())}\n"
-                                              for i, P in enumerate((P0, P1))))
+    (folder / "calib.txt").write_text(
+        "".join(f"P{i}: {' '.join(f'{v:.12e}' for v in P.ravel())}\n" for i, P in enumerate((P0, P1)))
+    )
     (folder / "times.txt").write_text("".join(f"{0.1 * t:.6e}\n" for t in range(frames)))
     write_kitti(root / "dataset" / "poses" / "00.txt", np.linalg.inv(poses[:1]) @ poses)
     return folder
@@ -53,8 +54,17 @@ def test_kitti_odometry_grey_pair_straight_drive(tmp_path):
     model = save_model(EgoMotionModel("small", height=32, width=104), tmp_path / "model.pt")
     for frontend in ("opencv", "network"):
         out = tmp_path / f"{frontend}.json"
-        args = ["calibrate", "--sequence", str(seq), "--frontend", frontend, "--out", str(out),
-                "--trajectories", str(tmp_path / frontend)]
+        args = [
+            "calibrate",
+            "--sequence",
+            str(seq),
+            "--frontend",
+            frontend,
+            "--out",
+            str(out),
+            "--trajectories",
+            str(tmp_path / frontend),
+        ]
         assert main(args + (["--checkpoint", str(model)] if frontend == "network" else [])) == 0
         doc = json.loads(out.read_text())
         assert doc["reference"] == "image_0" and doc["extrinsics"][0]["camera"] == "image_1"

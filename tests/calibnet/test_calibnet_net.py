@@ -120,8 +120,9 @@ def test_scale_modes_under_constant_and_drifting_network_scale():
         drifting.append(drifting[-1] @ step)
     drifting = torch.stack(drifting)
     head = direction_error_deg(OnlineCalibrationNet(TruePoses(drifting), num_cameras=2), drifting, rig)
-    normalised = direction_error_deg(OnlineCalibrationNet(TruePoses(drifting), num_cameras=2, scale="normalise"),
-                                     drifting, rig)
+    normalised = direction_error_deg(
+        OnlineCalibrationNet(TruePoses(drifting), num_cameras=2, scale="normalise"), drifting, rig
+    )
     assert head > 15 and normalised < head / 3
 
 
@@ -130,8 +131,10 @@ def test_normalise_keeps_the_lever_arm_of_a_car_rig():
     that. On exact planar motions the default window keeps it (the head alone is exact); a 20-frame window (momentum
     0.95, an earlier default) normalises most of it away."""
     g = torch.Generator().manual_seed(0)
-    left = make_pose(so3_exp(torch.tensor([0.0, -math.pi / 2, 0.0], dtype=torch.float64)),
-                     torch.tensor([-0.8, 0.0, -1.1], dtype=torch.float64))  # looking left, 1.4 behind and beside
+    left = make_pose(
+        so3_exp(torch.tensor([0.0, -math.pi / 2, 0.0], dtype=torch.float64)),
+        torch.tensor([-0.8, 0.0, -1.1], dtype=torch.float64),
+    )  # looking left, 1.4 behind and beside
     poses = rig_trajectories(car_trajectory(300, g, speed=1.0, yaw_rate=0.05), left[None])
 
     def in_plane_error(**options) -> float:
@@ -174,8 +177,12 @@ def test_rig_align_changes_only_the_other_cameras_translations(device):
     torch.manual_seed(0)
     model = EgoMotionModel("small", height=32, width=64).to(device)
     K = torch.tensor([[40.0, 0, 31.5], [0, 40.0, 15.5], [0, 0, 1]]).expand(3, 3, 3)
-    nets = {rig: OnlineCalibrationNet(model, num_cameras=3, batch_size=2, intrinsics=K, align=True,
-                                      rig_align=rig).to(device) for rig in (False, True)}
+    nets = {
+        rig: OnlineCalibrationNet(model, num_cameras=3, batch_size=2, intrinsics=K, align=True, rig_align=rig).to(
+            device
+        )
+        for rig in (False, True)
+    }
     base = torch.rand(1, 1, 3, 3, 32, 64, device=device)
     images = (base + 0.2 * torch.rand(4, 2, 3, 3, 32, 64, device=device)).clamp(0, 1)  # related frames
     for t in range(4):
@@ -204,9 +211,12 @@ class PerturbedTruth(nn.Module):
     def __init__(self, seq):
         super().__init__()
         self.seq, self.height, self.width = seq, *seq.images.shape[-2:]
-        self.error = make_pose(torch.linalg.matrix_exp(torch.tensor([[0, -1.0, 0.3], [1.0, 0, -0.5], [-0.3, 0.5, 0]],
-                                                                    dtype=torch.float64) * math.radians(0.8))[None],
-                               torch.zeros(1, 3, dtype=torch.float64))
+        self.error = make_pose(
+            torch.linalg.matrix_exp(
+                torch.tensor([[0, -1.0, 0.3], [1.0, 0, -0.5], [-0.3, 0.5, 0]], dtype=torch.float64) * math.radians(0.8)
+            )[None],
+            torch.zeros(1, 3, dtype=torch.float64),
+        )
 
     def _lookup(self, images):
         """(frame, camera) of each image, found by equality with the rendered frames."""
@@ -217,8 +227,10 @@ class PerturbedTruth(nn.Module):
 
     def pose(self, target, source):
         poses = self.seq.poses  # (C, T, 4, 4)
-        true = [invert_pose(poses[c, t]) @ poses[c2, s]
-                for (t, c), (s, c2) in zip(self._lookup(target), self._lookup(source))]
+        true = [
+            invert_pose(poses[c, t]) @ poses[c2, s]
+            for (t, c), (s, c2) in zip(self._lookup(target), self._lookup(source))
+        ]
         return (self.error @ torch.stack(true)).float()
 
     def depth(self, images):

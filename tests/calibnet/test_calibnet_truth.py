@@ -13,8 +13,10 @@ from ocalib.sim.trajectory import car_trajectory, rig_trajectories, so3_exp
 
 def car_rig(lever_arm: bool) -> np.ndarray:
     """(300, 2, 4, 4) true poses of a car rig with a camera looking left, beside camera 0 or at its place."""
-    left = make_pose(so3_exp(torch.tensor([0.0, -math.pi / 2, 0.0], dtype=torch.float64)),
-                     torch.tensor([-0.8, 0.0, -1.1] if lever_arm else [0.0, 0.0, 0.0], dtype=torch.float64))
+    left = make_pose(
+        so3_exp(torch.tensor([0.0, -math.pi / 2, 0.0], dtype=torch.float64)),
+        torch.tensor([-0.8, 0.0, -1.1] if lever_arm else [0.0, 0.0, 0.0], dtype=torch.float64),
+    )
     return rig_trajectories(car_trajectory(300, torch.Generator().manual_seed(0)), left[None]).numpy()
 
 

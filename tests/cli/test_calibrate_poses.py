@@ -14,7 +14,14 @@ import torch
 from ocalib.cli import main
 from ocalib.geometry import rotation_angle, rotation_matrix_to_quaternion
 from ocalib.io.poses import write_kitti, write_tum
-from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, straight_trajectory
+from ocalib.sim.trajectory import (
+    add_noise,
+    car_trajectory,
+    lds_trajectory,
+    random_rig,
+    rig_trajectories,
+    straight_trajectory,
+)
 
 FRAMES = 300
 SCALES = (2.0, 0.5)
@@ -23,7 +30,10 @@ CAMERA_KEYS = [
     "frames_rejected", "rotation_std_deg", "translation_std", "scale_std", "observability",
 ]  # fmt: skip
 OBSERVABILITY_KEYS = {
-    "rotation_singular_values", "rotation_observable", "planar_motion", "unobservable_translation_directions"
+    "rotation_singular_values",
+    "rotation_observable",
+    "planar_motion",
+    "unobservable_translation_directions",
 }
 
 
@@ -173,7 +183,9 @@ def smooth_rig(times: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray
     T0 = np.tile(np.eye(4), (len(times), 1, 1))
     w = (1.1, 0.7 * np.sqrt(2), 0.9 * np.sqrt(3))
     for T, t in zip(T0, times):
-        T[:3, :3] = cv2.Rodrigues(np.array([0.6 * np.sin(w[0] * t), 0.5 * np.sin(w[1] * t + 1), 0.4 * np.sin(w[2] * t + 2)]))[0]
+        T[:3, :3] = cv2.Rodrigues(
+            np.array([0.6 * np.sin(w[0] * t), 0.5 * np.sin(w[1] * t + 1), 0.4 * np.sin(w[2] * t + 2)])
+        )[0]
         T[:3, 3] = [2 * np.sin(0.4 * t), np.cos(0.3 * t), 0.3 * t]
     return T0, T0 @ X
 
@@ -191,7 +203,9 @@ def test_unsynchronised_cameras_are_interpolated(tmp_path, capsys):
         out = tmp_path / f"{sync}.json"
         assert calibrate(capsys, *paths, "--sync", sync, "--out", out)[0] == 0
         cam = json.loads(out.read_text())["extrinsics"][0]
-        error[sync] = math.degrees(float(rotation_angle(torch.tensor(cam["rotation"], dtype=torch.float64).T @ torch.from_numpy(X[:3, :3]))))
+        error[sync] = math.degrees(
+            float(rotation_angle(torch.tensor(cam["rotation"], dtype=torch.float64).T @ torch.from_numpy(X[:3, :3])))
+        )
     assert error["interpolate"] < 0.01 and error["nearest"] > 5 * error["interpolate"], error
 
 
@@ -225,11 +239,15 @@ def test_euroc_csv_end_to_end(tmp_path, capsys):
     paths = []
     for c in range(2):
         q = rotation_matrix_to_quaternion(torch.from_numpy(poses[:, c, :3, :3])).numpy()  # (w, x, y, z)
-        rows = [",".join([str(t), *(f"{v:.12g}" for v in (*p[:3, 3], *qq)), "0", "0", "0"])
-                for t, p, qq in zip(stamps, poses[:, c], q)]
+        rows = [
+            ",".join([str(t), *(f"{v:.12g}" for v in (*p[:3, 3], *qq)), "0", "0", "0"])
+            for t, p, qq in zip(stamps, poses[:, c], q)
+        ]
         paths.append(tmp_path / f"cam{c}.csv")
-        paths[-1].write_text("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],"
-                             "q_RS_z [],v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1]\n" + "\n".join(rows) + "\n")
+        paths[-1].write_text(
+            "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],"
+            "q_RS_z [],v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1]\n" + "\n".join(rows) + "\n"
+        )
     out = tmp_path / "result.json"
     code, _, err = calibrate(capsys, *paths, "--out", out)
     assert code == 0, err
@@ -247,8 +265,10 @@ def test_unsynchronised_cameras_on_another_clock(tmp_path, capsys, noise):
     X = random_rig(g).numpy()
     t0, t1 = np.arange(0, 40, 1 / 20), np.arange(0.007, 40, 1 / 30)
     offset = 1234.5678  # t0 = t1 + offset
-    poses = [add_noise(torch.from_numpy(p)[:, None], noise, g)[:, 0].numpy()
-             for p in (smooth_rig(t0, X)[0], smooth_rig(t1, X)[1])]
+    poses = [
+        add_noise(torch.from_numpy(p)[:, None], noise, g)[:, 0].numpy()
+        for p in (smooth_rig(t0, X)[0], smooth_rig(t1, X)[1])
+    ]
     paths = [str(tmp_path / "cam0.tum"), str(tmp_path / "cam1.tum")]
     write_tum(paths[0], t0, poses[0])
     write_tum(paths[1], t1 - offset, poses[1])
@@ -279,7 +299,9 @@ def test_nan_and_non_orthonormal_poses_are_counted(tmp_path, capsys):
     assert cam["frames_rejected"] == 3
     check_accuracy(cam, X[0], SCALES[0])
     invalid = [w for w in doc["warnings"] if "poses invalid" in w]
-    assert invalid == [f"{files[1]}: 3 of {FRAMES} poses invalid at lines 41, 42, 101 (NaN/inf or non-orthonormal rotation)"]
+    assert invalid == [
+        f"{files[1]}: 3 of {FRAMES} poses invalid at lines 41, 42, 101 (NaN/inf or non-orthonormal rotation)"
+    ]
     assert invalid[0] in err and "3 of 300 frames rejected" in err
 
 
@@ -448,7 +470,9 @@ def test_absolute_poses_end_to_end(tmp_path, capsys):
     code, stdout, err = calibrate(capsys, *files, "--motion", "absolute", "--out", out, "--trace", trace)
     assert code == 0, err
     doc = json.loads(out.read_text())
-    assert doc["warnings"] == [] and doc["settings"]["motion"] == "absolute" and doc["settings"]["pose_error"] == "camera"
+    assert (
+        doc["warnings"] == [] and doc["settings"]["motion"] == "absolute" and doc["settings"]["pose_error"] == "camera"
+    )
     for cam, x, s in zip(doc["extrinsics"], X, SCALES):
         assert list(cam)[: len(CAMERA_KEYS)] == CAMERA_KEYS and {"world_rotation", "world_translation"} <= set(cam)
         assert OBSERVABILITY_KEYS <= set(cam["observability"]) and cam["observability"]["rotation_observable"]
@@ -464,7 +488,9 @@ def test_absolute_poses_with_position_errors(tmp_path, capsys):
     """--pose-error world on poses whose positions carry the error: accurate, and recorded in the settings."""
     poses, X = target_poses(pose_error="world", seed=6)
     out = tmp_path / "result.json"
-    code, _, err = calibrate(capsys, *write_files(tmp_path, poses), "--motion", "absolute", "--pose-error", "world", "--out", out)
+    code, _, err = calibrate(
+        capsys, *write_files(tmp_path, poses), "--motion", "absolute", "--pose-error", "world", "--out", out
+    )
     assert code == 0, err
     doc = json.loads(out.read_text())
     assert doc["settings"]["pose_error"] == "world" and doc["warnings"] == []

@@ -50,8 +50,9 @@ def rig(tmp_path_factory):
     """A rendered 12-frame rig at 32x96, an untrained model at that size, and the same images played forwards and
     backwards for 240 frames as a user's rig: rig.yaml with names and intrinsics only, no poses."""
     root = tmp_path_factory.mktemp("rig")
-    seq = render_sequence(preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003), root / "seq",
-                          progress=False)
+    seq = render_sequence(
+        preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003), root / "seq", progress=False
+    )
     torch.manual_seed(0)
     model = save_model(EgoMotionModel("small", height=32, width=96), root / "model.pt")
     spec = read_rig_yaml(seq / "rig.yaml")
@@ -148,8 +149,24 @@ def test_a_rig_without_truth_is_compared_with_none(rig, tmp_path, capsys):
     assert [c.T_cam0_cam for c in spec.cameras] == [None, None]
     assert "T_cam0_cam" not in (user / "rig.yaml").read_text()
     out = tmp_path / "r.json"
-    assert main(["calibrate", "--sequence", str(user), "--checkpoint", str(model), "--max-frames", "20",
-                 "--out", str(out), "--plot", str(tmp_path / "p.png")]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "--sequence",
+                str(user),
+                "--checkpoint",
+                str(model),
+                "--max-frames",
+                "20",
+                "--out",
+                str(out),
+                "--plot",
+                str(tmp_path / "p.png"),
+            ]
+        )
+        == 0
+    )
     assert "ground truth" not in capsys.readouterr().out
     doc = json.loads(out.read_text())
     assert "ground_truth_errors" not in doc and doc["extrinsics"][0]["camera"] == "cam1"
@@ -179,8 +196,14 @@ def _children(pid: int) -> list[str]:
 def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     """Run ``ocalib ARGS`` and press Ctrl-C (SIGINT to its process group, as a terminal does) once it has started
     its worker processes (the image loader, the renderer's pool)."""
-    proc = subprocess.Popen([sys.executable, "-m", "ocalib", *args], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ocalib", *args],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     deadline = time.time() + 240
     while not _children(proc.pid) and proc.poll() is None and time.time() < deadline:
         time.sleep(0.02)

@@ -9,7 +9,13 @@ from ocalib.errors import InputError
 from ocalib.eval.alignment import align_poses, align_trajectory, umeyama
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
 from ocalib.eval.pose_metrics import (
-    frame_errors, frame_motions, pose_metrics, rotation_angle_deg, rotation_gain, rotation_matrix_to_axis_angle, rpe,
+    frame_errors,
+    frame_motions,
+    pose_metrics,
+    rotation_angle_deg,
+    rotation_gain,
+    rotation_matrix_to_axis_angle,
+    rpe,
     snippet_ate,
 )
 
@@ -43,6 +49,7 @@ def similarity(P, s, R, t):
 
 
 # --- Umeyama -------------------------------------------------------------------------------------------
+
 
 def test_umeyama_recovers_known_similarity():
     rng = np.random.default_rng(1)
@@ -94,6 +101,7 @@ def test_align_trajectory_undoes_a_similarity():
 
 
 # --- depth ---------------------------------------------------------------------------------------------
+
 
 def test_depth_errors_hand_computed():
     gt = np.array([[1.0, 2.0], [4.0, 0.0]])  # 0: no ground truth
@@ -152,6 +160,7 @@ def test_perfect_depth_gives_zero_error():
 
 # --- pose ----------------------------------------------------------------------------------------------
 
+
 def test_snippet_ate_hand_computed_and_invariant():
     gt = np.stack([pose(np.eye(3), [0, 0, z]) for z in range(5)])
     pred = np.stack([pose(np.eye(3), [0, 0, z]) for z in (0, 1, 2, 3, 5)])
@@ -184,7 +193,9 @@ def test_frame_errors_known_rotation_direction_and_scale():
     pred = []
     for k, M in enumerate(motions):
         axis = np.cross(M[:3, 3], [0, 1, 0]) if np.linalg.norm(M[:3, 3]) else np.array([0, 1.0, 0])
-        pred.append(pose(M[:3, :3] @ rot([0, 0, 1], np.radians(0.5)), ratios[k] * rot(axis, np.radians(4.0)) @ M[:3, 3]))
+        pred.append(
+            pose(M[:3, :3] @ rot([0, 0, 1], np.radians(0.5)), ratios[k] * rot(axis, np.radians(4.0)) @ M[:3, 3])
+        )
     e = frame_errors(_chain(np.stack(pred)), gt)
     np.testing.assert_allclose(e["rotation_deg"], 0.5, rtol=1e-9)
     assert not e["moving"][5] and e["moving"].sum() == 19
@@ -204,8 +215,15 @@ def test_pose_metrics_perfect_predictor_is_zero():
     gt = trajectory(30)
     pred = similarity(gt, 0.05, rot([1, 2, 3], 1.0), np.array([1.0, 2, 3]))
     summary, details = pose_metrics(pred, gt)
-    for key in ("sfmlearner_5frame_snippet_ate", "ate_rmse", "rpe_trans_rmse", "rpe_rot_rmse_deg",
-                "rotation_error_deg_median", "direction_error_deg_median", "scale_ratio_cv"):
+    for key in (
+        "sfmlearner_5frame_snippet_ate",
+        "ate_rmse",
+        "rpe_trans_rmse",
+        "rpe_rot_rmse_deg",
+        "rotation_error_deg_median",
+        "direction_error_deg_median",
+        "scale_ratio_cv",
+    ):
         assert summary[key] == pytest.approx(0, abs=1e-6), key
     assert summary["scale_ratio_median"] == pytest.approx(0.05) and summary["ate_sim3_scale"] == pytest.approx(20)
     np.testing.assert_allclose(details["aligned"], gt, atol=1e-9)

@@ -40,8 +40,24 @@ def ckpt(tmp_path_factory):
 
 def test_predict_writes_depth_and_chained_kitti_poses(seq, ckpt, tmp_path):
     out = tmp_path / "pred"
-    assert main(["predict", "--sequence", str(seq), "--out", str(out), "--checkpoint", str(ckpt),
-                 "--batch-size", "3", "--workers", "0"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--sequence",
+                str(seq),
+                "--out",
+                str(out),
+                "--checkpoint",
+                str(ckpt),
+                "--batch-size",
+                "3",
+                "--workers",
+                "0",
+            ]
+        )
+        == 0
+    )
     model = load_model(ckpt)
     sequence = open_sequence(seq)
     for cam in sequence.cameras:
@@ -74,8 +90,25 @@ def resized(path) -> torch.Tensor:
 
 def test_predict_flip_writes_the_flip_averaged_depth(seq, ckpt, tmp_path):
     out = tmp_path / "pred"
-    assert main(["predict", "--sequence", str(seq), "--out", str(out), "--checkpoint", str(ckpt), "--flip",
-                 "--cameras", "rear", "--workers", "0"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--sequence",
+                str(seq),
+                "--out",
+                str(out),
+                "--checkpoint",
+                str(ckpt),
+                "--flip",
+                "--cameras",
+                "rear",
+                "--workers",
+                "0",
+            ]
+        )
+        == 0
+    )
     model, image = load_model(ckpt), resized(open_sequence(seq, ["rear"]).cameras[0].images[2])[None]
     d = np.load(out / "rear" / "depth" / "000002.npy")
     with torch.no_grad():
@@ -90,15 +123,35 @@ def test_batching_does_not_change_the_predictions(seq, ckpt):
         assert [f.frame for f in frames] == list(range(FRAMES))
         np.testing.assert_array_equal(frames[0].motion, np.tile(np.eye(4), (2, 1, 1)))
     for other in runs[1:]:
-        np.testing.assert_allclose(np.stack([f.motion for f in other]), np.stack([f.motion for f in runs[0]]), atol=1e-5)
+        np.testing.assert_allclose(
+            np.stack([f.motion for f in other]), np.stack([f.motion for f in runs[0]]), atol=1e-5
+        )
         assert other[0].depth is None
     assert runs[0][0].depth.shape == (2, MH, MW)
 
 
 def test_evaluate_end_to_end(seq, ckpt, tmp_path):
     out = tmp_path / "metrics.json"
-    assert main(["evaluate", "--sequence", str(seq), "--out", str(out), "--checkpoint", str(ckpt), "--workers", "0",
-                 "--plots", str(tmp_path / "plots"), "--rpe-delta", "2"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--sequence",
+                str(seq),
+                "--out",
+                str(out),
+                "--checkpoint",
+                str(ckpt),
+                "--workers",
+                "0",
+                "--plots",
+                str(tmp_path / "plots"),
+                "--rpe-delta",
+                "2",
+            ]
+        )
+        == 0
+    )
     doc = json.loads(out.read_text())
     assert doc["align"] is False and doc["flip"] is False
     assert doc["frames"] == FRAMES and doc["model"] == {"size": "small", "height": MH, "width": MW}
@@ -106,8 +159,15 @@ def test_evaluate_end_to_end(seq, ckpt, tmp_path):
     for name, cam in doc["cameras"].items():
         assert set(cam["depth"]) >= {"abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3", "images"}
         assert cam["depth"]["images"] == FRAMES and 0 < cam["depth"]["abs_rel"] < 10
-        assert set(cam["pose"]) >= {"sfmlearner_5frame_snippet_ate", "ate_rmse", "rpe_trans_rmse", "rpe_rot_rmse_deg",
-                                    "rotation_error_deg_median", "direction_error_deg_median", "scale_ratio_cv"}
+        assert set(cam["pose"]) >= {
+            "sfmlearner_5frame_snippet_ate",
+            "ate_rmse",
+            "rpe_trans_rmse",
+            "rpe_rot_rmse_deg",
+            "rotation_error_deg_median",
+            "direction_error_deg_median",
+            "scale_ratio_cv",
+        }
         assert cam["pose"]["rpe_delta"] == 2 and cam["pose"]["moving_frames"] == FRAMES - 1
         predicted = read_kitti(cam["files"]["predicted"])
         assert predicted.shape == (FRAMES, 4, 4)
@@ -129,8 +189,15 @@ def test_perfect_predictor_has_zero_error(seq):
     results = evaluate_stream(sequence, frames, views)
     for r in results:
         assert r.depth["abs_rel"] < 1e-6 and r.depth["rmse"] < 1e-4 and r.depth["a1"] == 1
-        for key in ("sfmlearner_5frame_snippet_ate", "ate_rmse", "rpe_trans_rmse", "rpe_rot_rmse_deg",
-                    "rotation_error_deg_median", "direction_error_deg_median", "scale_ratio_cv"):
+        for key in (
+            "sfmlearner_5frame_snippet_ate",
+            "ate_rmse",
+            "rpe_trans_rmse",
+            "rpe_rot_rmse_deg",
+            "rotation_error_deg_median",
+            "direction_error_deg_median",
+            "scale_ratio_cv",
+        ):
             assert r.pose[key] == pytest.approx(0, abs=1e-5), key
         assert r.pose["scale_ratio_median"] == pytest.approx(1 / 3)
 
@@ -146,18 +213,31 @@ def test_chain_composes_motions():
 
 # --- bad input -----------------------------------------------------------------------------------------
 
+
 def run_error(argv, capsys) -> str:
     assert main(argv) == 2
     return capsys.readouterr().err
 
 
 def test_missing_and_foreign_checkpoints(seq, tmp_path, capsys):
-    err = run_error(["predict", "--sequence", str(seq), "--out", str(tmp_path / "o"), "--checkpoint",
-                     str(tmp_path / "nope.pt")], capsys)
+    err = run_error(
+        ["predict", "--sequence", str(seq), "--out", str(tmp_path / "o"), "--checkpoint", str(tmp_path / "nope.pt")],
+        capsys,
+    )
     assert "nope.pt" in err and "no such checkpoint" in err
     torch.save({"kind": "something-else", "weights": torch.zeros(3)}, tmp_path / "other.pt")
-    err = run_error(["evaluate", "--sequence", str(seq), "--out", str(tmp_path / "m.json"), "--checkpoint",
-                     str(tmp_path / "other.pt")], capsys)
+    err = run_error(
+        [
+            "evaluate",
+            "--sequence",
+            str(seq),
+            "--out",
+            str(tmp_path / "m.json"),
+            "--checkpoint",
+            str(tmp_path / "other.pt"),
+        ],
+        capsys,
+    )
     assert "other.pt" in err and "another kind" in err
 
 
@@ -168,7 +248,9 @@ def test_static_sequence_is_refused(seq, ckpt, tmp_path, capsys):
         images = sorted((static / cam / "images").glob("*.png"))
         for p in images[1:]:
             shutil.copy(images[0], p)
-    err = run_error(["predict", "--sequence", str(static), "--out", str(tmp_path / "o"), "--checkpoint", str(ckpt)], capsys)
+    err = run_error(
+        ["predict", "--sequence", str(static), "--out", str(tmp_path / "o"), "--checkpoint", str(ckpt)], capsys
+    )
     assert "no motion" in err and "front" in err
     assert not (tmp_path / "o").exists()
 
@@ -180,7 +262,9 @@ def test_images_too_small_for_the_model(ckpt, tmp_path, capsys):
     for t in range(3):
         cv2.imwrite(str(folder / f"{t:06d}.png"), rng.integers(0, 255, (6, 20, 3), dtype=np.uint8))
     np.savetxt(folder / "K.txt", [[10, 0, 9.5], [0, 10, 2.5], [0, 0, 1]])
-    err = run_error(["predict", "--sequence", str(folder), "--out", str(tmp_path / "o"), "--checkpoint", str(ckpt)], capsys)
+    err = run_error(
+        ["predict", "--sequence", str(folder), "--out", str(tmp_path / "o"), "--checkpoint", str(ckpt)], capsys
+    )
     assert "6x20" in err and "too small" in err
 
 
@@ -190,12 +274,27 @@ def test_evaluate_needs_ground_truth(seq, ckpt, tmp_path, capsys):
     for p in sorted((seq / "front" / "images").glob("*.png")):
         shutil.copy(p, folder / p.name)
     np.savetxt(folder / "K.txt", open_sequence(seq).cameras[0].K)
-    err = run_error(["evaluate", "--sequence", str(folder), "--out", str(tmp_path / "m.json"), "--checkpoint", str(ckpt)],
-                    capsys)
+    err = run_error(
+        ["evaluate", "--sequence", str(folder), "--out", str(tmp_path / "m.json"), "--checkpoint", str(ckpt)], capsys
+    )
     assert "no ground-truth depth maps and no ground-truth poses" in err
     shutil.copy(seq / "front" / "poses.txt", folder / "poses.txt")  # poses only: evaluated, and said so
-    assert main(["evaluate", "--sequence", str(folder), "--out", str(tmp_path / "m.json"), "--checkpoint", str(ckpt),
-                 "--workers", "0"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--sequence",
+                str(folder),
+                "--out",
+                str(tmp_path / "m.json"),
+                "--checkpoint",
+                str(ckpt),
+                "--workers",
+                "0",
+            ]
+        )
+        == 0
+    )
     doc = json.loads((tmp_path / "m.json").read_text())
     assert doc["cameras"]["cam0"]["depth"] is None and doc["cameras"]["cam0"]["pose"]["frames"] == FRAMES
     assert "no ground-truth depth" in capsys.readouterr().err
@@ -224,8 +323,21 @@ def test_an_image_of_another_size_is_named(seq, ckpt, tmp_path, capsys):
     shutil.copytree(seq, broken)
     bad = broken / "rear" / "images" / "000004.png"
     cv2.imwrite(str(bad), np.zeros((H // 2, W // 2, 3), np.uint8))
-    err = run_error(["predict", "--sequence", str(broken), "--out", str(tmp_path / "o"), "--checkpoint", str(ckpt),
-                     "--workers", "0", "--no-depth"], capsys)
+    err = run_error(
+        [
+            "predict",
+            "--sequence",
+            str(broken),
+            "--out",
+            str(tmp_path / "o"),
+            "--checkpoint",
+            str(ckpt),
+            "--workers",
+            "0",
+            "--no-depth",
+        ],
+        capsys,
+    )
     assert "000004.png" in err and f"expected {H}x{W}" in err
 
 

@@ -6,15 +6,19 @@ analytic Jacobian against central differences of kornia's warp."""
 
 import math
 
+import kornia
 import pytest
 import torch
-
 from kornia.geometry.depth import depth_to_3d_v2
 
-import kornia
-
-from ocalib.frontend.align import (StreamAligner, _jacobian, align_motion, align_translation, image_gradient,
-                                   photometric_cost)
+from ocalib.frontend.align import (
+    StreamAligner,
+    _jacobian,
+    align_motion,
+    align_translation,
+    image_gradient,
+    photometric_cost,
+)
 from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.geometry.quaternion import rotation_angle
 from ocalib.losses import inverse_warp
@@ -23,13 +27,19 @@ from ocalib.synth import preset, render_rig
 
 # 1 degree about a tilted axis and 3 cm: a typical error of the pose network on one frame (docs/results-egomotion.md)
 AXIS = torch.tensor([0.3, 1.0, 0.2], dtype=torch.float64)
-PERTURBATION = make_pose(torch.linalg.matrix_exp(torch.cross(torch.eye(3, dtype=torch.float64),
-                                                             (math.radians(1) * AXIS / AXIS.norm()).expand(3, 3),
-                                                             dim=-1))[None], torch.tensor([[0.03, -0.01, 0.02]]))
+PERTURBATION = make_pose(
+    torch.linalg.matrix_exp(
+        torch.cross(torch.eye(3, dtype=torch.float64), (math.radians(1) * AXIS / AXIS.norm()).expand(3, 3), dim=-1)
+    )[None],
+    torch.tensor([[0.03, -0.01, 0.02]]),
+)
 
-YAW_8_DEG = make_pose(torch.linalg.matrix_exp(torch.tensor([[[0.0, 0, 1], [0, 0, 0], [-1, 0, 0]]],
-                                                           dtype=torch.float64) * math.radians(8)),
-                      torch.zeros(1, 3, dtype=torch.float64))  # 8 deg about the camera's y axis: outside the basin
+YAW_8_DEG = make_pose(
+    torch.linalg.matrix_exp(
+        torch.tensor([[[0.0, 0, 1], [0, 0, 0], [-1, 0, 0]]], dtype=torch.float64) * math.radians(8)
+    ),
+    torch.zeros(1, 3, dtype=torch.float64),
+)  # 8 deg about the camera's y axis: outside the basin
 
 
 def rotation_error_deg(A, B):
@@ -110,8 +120,13 @@ def test_align_keeps_the_input_beyond_its_limit(pair):
 def test_align_solves_a_batch_as_separate_problems(pair):
     target, source, depth, K, T = pair
     start = torch.cat([PERTURBATION @ T, T])
-    aligned, accepted = align_motion(target.expand(2, -1, -1, -1), source.expand(2, -1, -1, -1),
-                                     depth.expand(2, -1, -1, -1), K.expand(2, -1, -1), start)
+    aligned, accepted = align_motion(
+        target.expand(2, -1, -1, -1),
+        source.expand(2, -1, -1, -1),
+        depth.expand(2, -1, -1, -1),
+        K.expand(2, -1, -1),
+        start,
+    )
     single, _ = align_motion(target, source, depth, K, start[:1])
     assert torch.allclose(aligned[:1], single, atol=1e-6)
     assert (rotation_error_deg(aligned, T) < 0.05).all()
@@ -215,8 +230,11 @@ def test_gauss_newton_jacobian_matches_finite_differences_of_the_kornia_warp(tra
     the rotation held, the translation and the inverse depth's tilt (a depth divided by 1 + tilt . ray)."""
     H, W, f64 = 48, 64, dict(dtype=torch.float64, device=device)
     v, u = torch.meshgrid(torch.arange(H, **f64), torch.arange(W, **f64), indexing="ij")
-    source = (0.5 + 0.2 * torch.sin(2 * math.pi * 0.75 * u / W + 0.3) * torch.cos(2 * math.pi * 0.6 * v / H)
-              + 0.1 * torch.sin(2 * math.pi * (u + v) / 180))[None, None]
+    source = (
+        0.5
+        + 0.2 * torch.sin(2 * math.pi * 0.75 * u / W + 0.3) * torch.cos(2 * math.pi * 0.6 * v / H)
+        + 0.1 * torch.sin(2 * math.pi * (u + v) / 180)
+    )[None, None]
     depth = (4 + 0.02 * v)[None, None]
     f, cx, cy = 50.0, 31.5, 23.5
     K = torch.tensor([[[f, 0, cx], [0, f, cy], [0, 0, 1]]], **f64)

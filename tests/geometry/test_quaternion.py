@@ -52,9 +52,12 @@ def test_product_matrices(generator):
 def test_conjugate_inverts_the_rotation(generator, device):
     q = torch.randn(50, 4, generator=generator, dtype=torch.float64).to(device)
     q = q / q.norm(dim=-1, keepdim=True)
-    torch.testing.assert_close(quaternion_to_rotation_matrix(quaternion_conjugate(q)), quaternion_to_rotation_matrix(q).mT)
-    torch.testing.assert_close(kc.quaternion_to_rotation_matrix(quaternion_conjugate(q)),
-                               kc.quaternion_to_rotation_matrix(q).mT)
+    torch.testing.assert_close(
+        quaternion_to_rotation_matrix(quaternion_conjugate(q)), quaternion_to_rotation_matrix(q).mT
+    )
+    torch.testing.assert_close(
+        kc.quaternion_to_rotation_matrix(quaternion_conjugate(q)), kc.quaternion_to_rotation_matrix(q).mT
+    )
 
 
 def test_gradcheck(generator):

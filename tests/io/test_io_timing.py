@@ -113,7 +113,9 @@ def test_offset_of_a_repeating_motion_is_ambiguous():
     def poses(t):
         T = np.tile(np.eye(4), (len(t), 1, 1))
         for P, s in zip(T, t):
-            P[:3, :3] = cv2.Rodrigues(np.array([0.6 * np.sin(1.1 * s), 0.5 * np.sin(0.7 * s + 1), 0.4 * np.sin(0.9 * s + 2)]))[0]
+            P[:3, :3] = cv2.Rodrigues(
+                np.array([0.6 * np.sin(1.1 * s), 0.5 * np.sin(0.7 * s + 1), 0.4 * np.sin(0.9 * s + 2)])
+            )[0]
         return T
 
     with pytest.raises(InputError, match="ambiguous time offset"):
@@ -176,8 +178,11 @@ def test_interpolate_keeps_samples_and_drops_gaps():
     np.testing.assert_array_equal(poses[on_sample], poses1[i1[on_sample]])  # samples as they are
     with pytest.raises(InputError, match="cam1.*spans.*never overlap"):
         interpolate(np.array([1.0, 2.0]), t1, poses1, 0.1, names=("cam0", "cam1"))
-    with pytest.raises(InputError, match=r"no cam0 stamp between two cam1 samples at most 2 max_dt = 0.1 s apart.*"
-                                         r"closest is 0.300000 s"):
+    with pytest.raises(
+        InputError,
+        match=r"no cam0 stamp between two cam1 samples at most 2 max_dt = 0.1 s apart.*"
+        r"closest is 0.300000 s",
+    ):
         interpolate(np.array([0.3, 0.4]), t1, poses1, 0.05, names=("cam0", "cam1"))
 
 
@@ -197,7 +202,9 @@ def wobble(times: np.ndarray, X: np.ndarray | None = None) -> np.ndarray:
     at X on it, if given)."""
     T = np.tile(np.eye(4), (len(times), 1, 1))
     for P, t in zip(T, times):
-        P[:3, :3] = cv2.Rodrigues(np.array([0.6 * np.sin(1.1 * t), 0.5 * np.sin(0.99 * t + 1), 0.4 * np.sin(1.56 * t + 2)]))[0]
+        P[:3, :3] = cv2.Rodrigues(
+            np.array([0.6 * np.sin(1.1 * t), 0.5 * np.sin(0.99 * t + 1), 0.4 * np.sin(1.56 * t + 2)])
+        )[0]
         P[:3, 3] = [2 * np.sin(0.4 * t), np.cos(0.3 * t), 0.3 * t]
     return T if X is None else T @ X
 

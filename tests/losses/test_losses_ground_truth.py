@@ -10,8 +10,9 @@ from ocalib.losses.gauge import scale_gauge
 from ocalib.models import MAX_DEPTH, MIN_DEPTH, disp_to_depth
 from ocalib.synth import preset, render_rig
 
-ROTATED = make_pose(torch.linalg.matrix_exp(torch.tensor([[0.0, -0.03, 0], [0.03, 0, 0], [0, 0, 0]]))[None],
-                    torch.zeros(1, 3))  # 1.7 degrees about the optical axis
+ROTATED = make_pose(
+    torch.linalg.matrix_exp(torch.tensor([[0.0, -0.03, 0], [0.03, 0, 0], [0, 0, 0]]))[None], torch.zeros(1, 3)
+)  # 1.7 degrees about the optical axis
 
 
 @pytest.fixture(scope="module")

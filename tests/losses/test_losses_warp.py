@@ -13,14 +13,17 @@ H, W = 12, 20
 
 
 def intrinsics(B=1, dtype=torch.float32, device="cpu"):
-    K = torch.tensor([[14.0, 0, (W - 1) / 2 + 0.3], [0, 13.0, (H - 1) / 2 - 0.2], [0, 0, 1]], dtype=dtype, device=device)
+    K = torch.tensor(
+        [[14.0, 0, (W - 1) / 2 + 0.3], [0, 13.0, (H - 1) / 2 - 0.2], [0, 0, 1]], dtype=dtype, device=device
+    )
     return K.expand(B, 3, 3).clone()
 
 
 def coordinate_image(B=1, dtype=torch.float32, device="cpu"):
     """An image whose channels are the pixel's own (u, v): bilinear sampling returns the sampled position."""
-    v, u = torch.meshgrid(torch.arange(H, dtype=dtype, device=device), torch.arange(W, dtype=dtype, device=device),
-                          indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(H, dtype=dtype, device=device), torch.arange(W, dtype=dtype, device=device), indexing="ij"
+    )
     return torch.stack([u, v]).expand(B, 2, H, W).clone()
 
 
@@ -39,7 +42,7 @@ def test_identity_warp_returns_the_image(device, dtype):
 
 def test_known_motion_agrees_with_cv2_project_points():
     g = torch.Generator().manual_seed(1)
-    depth = (2 + 3 * torch.rand(1, 1, H, W, generator=g, dtype=torch.float64))
+    depth = 2 + 3 * torch.rand(1, 1, H, W, generator=g, dtype=torch.float64)
     motion = torch.tensor([[0.02, -0.05, 0.01, 0.3, -0.1, 0.4]], dtype=torch.float64)
     T = motion_to_pose(motion)  # p_source = T p_target
     K = intrinsics(1, torch.float64)

@@ -99,8 +99,18 @@ def test_load_errors_name_the_file(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="tensor.pt: a torch file holding a Tensor"):
         load_model(tensor)
     bad = tmp_path / "bad.pt"
-    torch.save({"kind": "ocalib-egomotion", "version": 1, "size": "small", "height": H, "width": W,
-                "state_dict": {"x": torch.zeros(1)}, "meta": {}}, bad)
+    torch.save(
+        {
+            "kind": "ocalib-egomotion",
+            "version": 1,
+            "size": "small",
+            "height": H,
+            "width": W,
+            "state_dict": {"x": torch.zeros(1)},
+            "meta": {},
+        },
+        bad,
+    )
     with pytest.raises(InputError, match="bad.pt: weights do not fit"):
         load_model(bad)
     monkeypatch.setattr(model_io, "DEFAULT_CHECKPOINT", tmp_path / "default.pt")

@@ -38,8 +38,21 @@ def test_method_names():
 def _args(tmp_path, **overrides):
     parser = argparse.ArgumentParser()
     cli.add_parser(parser.add_subparsers(), "simulate")
-    argv = ["simulate", "--noise", "0,0.01", "--seeds", "2", "--frames", "12", "--methods", "paper-rls,default", "--out", str(tmp_path / "out"),
-            "--tensorboard", str(tmp_path / "tb")]
+    argv = [
+        "simulate",
+        "--noise",
+        "0,0.01",
+        "--seeds",
+        "2",
+        "--frames",
+        "12",
+        "--methods",
+        "paper-rls,default",
+        "--out",
+        str(tmp_path / "out"),
+        "--tensorboard",
+        str(tmp_path / "tb"),
+    ]
     for key, value in overrides.items():
         argv += [f"--{key}", str(value)]
     return parser.parse_args(argv)
@@ -55,8 +68,7 @@ def test_cli_end_to_end(tmp_path):
     assert any((tmp_path / "tb").iterdir())
 
 
-@pytest.mark.parametrize("bad", [{"noise": "-0.1"}, {"noise": "abc"}, {"frames": 0}, {"seeds": 0},
-                                 {"methods": "nope"}])
+@pytest.mark.parametrize("bad", [{"noise": "-0.1"}, {"noise": "abc"}, {"frames": 0}, {"seeds": 0}, {"methods": "nope"}])
 def test_bad_input(tmp_path, bad):
     with pytest.raises(InputError):
         cli.run(_args(tmp_path, **bad))

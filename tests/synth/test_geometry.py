@@ -34,7 +34,9 @@ def warp_error(seq, cam, t, s):
     depth, image = seq.depth[cam, t], seq.images[cam, t]
     H, W = depth.shape
     uv, z = project(backproject(depth, K, seq.poses[cam, t]), K, seq.poses[cam, s])
-    inside = (depth > 0) & (z > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
+    inside = (
+        (depth > 0) & (z > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
+    )
     grid = torch.stack([uv[..., 0] / (W - 1) * 2 - 1, uv[..., 1] / (H - 1) * 2 - 1], -1).float()
     warped = F.grid_sample(seq.images[cam, s][None], grid[None], align_corners=True)[0]
     err = (warped - image).abs().mean(0)

@@ -19,8 +19,11 @@ TINY = dict(frames=3, height=32, width=104)
 
 
 def digest(folder: Path) -> dict:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_layout(tmp_path):
@@ -73,8 +76,21 @@ def test_config_files_equal_presets(name):
 
 def test_cli_writes_a_sequence(tmp_path, capsys):
     out = tmp_path / "cli"
-    args = ["synth", "--config", str(CONFIGS / "stereo.yaml"), "--out", str(out), "--frames", "2",
-            "--height", "32", "--width", "104", "--seed", "3"]
+    args = [
+        "synth",
+        "--config",
+        str(CONFIGS / "stereo.yaml"),
+        "--out",
+        str(out),
+        "--frames",
+        "2",
+        "--height",
+        "32",
+        "--width",
+        "104",
+        "--seed",
+        "3",
+    ]
     assert main(args) == 0
     assert len(list((out / "right" / "depth").iterdir())) == 2
     assert main(args) == 2  # not empty
@@ -82,34 +98,40 @@ def test_cli_writes_a_sequence(tmp_path, capsys):
     assert main(args + ["--overwrite"]) == 0
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--preset", "nope"], "unknown preset 'nope'"),
-    (["--preset", "stereo", "--frames", "-1"], "bad frames: -1"),
-    (["--preset", "stereo", "--frames", "0"], "bad frames: 0"),
-    (["--preset", "stereo", "--height", "-5", "--width", "100"], "bad height: -5"),
-    (["--preset", "stereo", "--width", "3"], "bad width: 3"),
-    (["--config", "does/not/exist.yaml"], "no such config file"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--preset", "nope"], "unknown preset 'nope'"),
+        (["--preset", "stereo", "--frames", "-1"], "bad frames: -1"),
+        (["--preset", "stereo", "--frames", "0"], "bad frames: 0"),
+        (["--preset", "stereo", "--height", "-5", "--width", "100"], "bad height: -5"),
+        (["--preset", "stereo", "--width", "3"], "bad width: 3"),
+        (["--config", "does/not/exist.yaml"], "no such config file"),
+    ],
+)
 def test_cli_bad_input(tmp_path, capsys, args, message):
     assert main(["synth", *args, "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("text, message", [
-    ("name: x\ncameras: [\n", "not valid YAML"),
-    ("- just\n- a list\n", "expected a mapping"),
-    ("name: x\ncameras:\n  - {name: a}\nframez: 3\n", "unknown field(s) framez"),
-    ("name: x\ncameras:\n  - {name: a, fx: fast}\n", "malformed field"),
-    ("name: x\ncameras:\n  - {name: a, focal: 2}\n", "malformed field"),
-    ("name: x\ncameras:\n  - {name: a}\nframes: many\n", "malformed field"),
-    ("name: x\ncameras:\n  - {name: a, position: [1, 0, 0]}\n", "camera 0"),
-    ("name: x\ncameras:\n  - {name: a}\n  - {name: a}\n", "unique"),
-    ("name: x\ncameras:\n  - {name: a}\ntrajectory: {kind: fly}\n", "trajectory.kind"),
-    ("name: x\ncameras:\n  - {name: a}\ntrajectory: {kind: drive, speed: -3}\n", "speed"),
-    ("name: x\ncameras:\n  - {name: a}\ntrajectory: {kind: drive, sped: 3}\n", "unknown option"),
-    ("name: x\ncameras: []\n", "at least one camera"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("name: x\ncameras: [\n", "not valid YAML"),
+        ("- just\n- a list\n", "expected a mapping"),
+        ("name: x\ncameras:\n  - {name: a}\nframez: 3\n", "unknown field(s) framez"),
+        ("name: x\ncameras:\n  - {name: a, fx: fast}\n", "malformed field"),
+        ("name: x\ncameras:\n  - {name: a, focal: 2}\n", "malformed field"),
+        ("name: x\ncameras:\n  - {name: a}\nframes: many\n", "malformed field"),
+        ("name: x\ncameras:\n  - {name: a, position: [1, 0, 0]}\n", "camera 0"),
+        ("name: x\ncameras:\n  - {name: a}\n  - {name: a}\n", "unique"),
+        ("name: x\ncameras:\n  - {name: a}\ntrajectory: {kind: fly}\n", "trajectory.kind"),
+        ("name: x\ncameras:\n  - {name: a}\ntrajectory: {kind: drive, speed: -3}\n", "speed"),
+        ("name: x\ncameras:\n  - {name: a}\ntrajectory: {kind: drive, sped: 3}\n", "unknown option"),
+        ("name: x\ncameras: []\n", "at least one camera"),
+    ],
+)
 def test_malformed_config_is_a_clear_error(tmp_path, text, message):
     path = tmp_path / "bad.yaml"
     path.write_text(text)

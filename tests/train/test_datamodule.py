@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 from jsonargparse import ArgumentParser
+from ocalib.train.datamodule import SnippetDataModule, split_by_sequence
 
 from ocalib.data.rig import CameraSpec, RigSpec, write_rig_yaml
 from ocalib.errors import InputError
 from ocalib.io.poses import write_kitti
-from ocalib.train.datamodule import SnippetDataModule, split_by_sequence
 
 H, W = 48, 160
 K = np.array([[60.0, 0, 79.5], [0, 60, 23.5], [0, 0, 1]])
@@ -37,7 +37,9 @@ def write_blob_rig(root: Path, n: int = 4, static: bool = False) -> Path:
     for t in range(n):
         x = K @ (np.linalg.inv(P[0 if static else t]) @ POINT)[:3]
         blob = np.exp(-((u - x[0] / x[2]) ** 2 + (v - x[1] / x[2]) ** 2) / 8)
-        assert cv2.imwrite(str(_mkdir(root / "cam0" / "images") / f"{t:06d}.png"), np.round(255 * blob).astype(np.uint8))
+        assert cv2.imwrite(
+            str(_mkdir(root / "cam0" / "images") / f"{t:06d}.png"), np.round(255 * blob).astype(np.uint8)
+        )
     write_kitti(root / "cam0" / "poses.txt", P)
     return root
 
@@ -82,8 +84,14 @@ def test_same_augmentation_on_every_frame_of_a_snippet(tmp_path):
     write_blob_rig(tmp_path / "still", n=5, static=True)
     write_blob_rig(tmp_path / "other", n=5)
     torch.manual_seed(0)
-    dm = SnippetDataModule([str(tmp_path / "still")], val_sequences=[str(tmp_path / "other")], height=H, width=W,
-                           offsets=(-2, -1, 1, 2), batch_size=8)
+    dm = SnippetDataModule(
+        [str(tmp_path / "still")],
+        val_sequences=[str(tmp_path / "other")],
+        height=H,
+        width=W,
+        offsets=(-2, -1, 1, 2),
+        batch_size=8,
+    )
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     assert batch["image"].shape == (1, 5, 3, H, W)
@@ -101,8 +109,18 @@ def test_augmented_K_and_poses_project_the_point(tmp_path, flip_p):
     aug = dict(brightness=0.0, contrast=0.0, saturation=0.0, hue=0.0, flip_p=flip_p, max_zoom=1.4)
     parser = ArgumentParser()
     parser.add_class_arguments(SnippetDataModule, "data")
-    cfg = parser.parse_object({"data": {"sequences": [str(tmp_path / "a")], "val_fraction": 0.0, "height": 36,
-                                        "width": 120, "batch_size": 2, "augmentation": aug}})
+    cfg = parser.parse_object(
+        {
+            "data": {
+                "sequences": [str(tmp_path / "a")],
+                "val_fraction": 0.0,
+                "height": 36,
+                "width": 120,
+                "batch_size": 2,
+                "augmentation": aug,
+            }
+        }
+    )
     dm = parser.instantiate(cfg).data
     dm.setup("fit")
     assert dm.val_dataloader() == []
@@ -135,8 +153,14 @@ def test_trains_with_lightning(tmp_path):
     for k in range(3):
         write_blob_rig(tmp_path / f"seq{k}", n=3)
     dm = SnippetDataModule([str(tmp_path)], val_fraction=0.3, height=24, width=80, batch_size=2)
-    trainer = pl.Trainer(fast_dev_run=True, accelerator="cpu", logger=False, enable_progress_bar=False,
-                         enable_model_summary=False, default_root_dir=tmp_path)
+    trainer = pl.Trainer(
+        fast_dev_run=True,
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+    )
     trainer.fit(_Tiny(), datamodule=dm)
     assert trainer.state.finished
 

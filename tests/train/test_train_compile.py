@@ -7,7 +7,6 @@ eager kernels. ``fullgraph=True`` turns a graph break (a slower step, part of it
 
 import pytest
 import torch
-
 from ocalib.train.module import EgoMotionModule
 
 H, W = 32, 96
@@ -29,8 +28,9 @@ def test_compiled_training_step_is_one_graph_with_the_eager_loss_and_gradients(m
 
     monkeypatch.setattr(torch, "compile", compile_for_test)
     torch.manual_seed(0)
-    module = EgoMotionModule(height=H, width=W, geometry=0.0, scales=1, automask=False, align=(2, 2), distill=0.1,
-                             compile=True)
+    module = EgoMotionModule(
+        height=H, width=W, geometry=0.0, scales=1, automask=False, align=(2, 2), distill=0.1, compile=True
+    )
     module.log = lambda *a, **k: None  # outside a Trainer
     batch, state = snippets(), {k: v.clone() for k, v in module.state_dict().items()}
 

@@ -3,14 +3,18 @@
 from pathlib import Path
 
 import pytest
-
 from ocalib.train.cli import main
 from ocalib.train.datamodule import SnippetDataModule
 from ocalib.train.synthetic import SyntheticDataModule
 
 CONFIGS = sorted((Path(__file__).parents[2] / "configs" / "train").glob("*.yaml"))
-CPU = ["--trainer.accelerator=cpu", "--trainer.devices=1", "--trainer.strategy=auto", "--trainer.precision=32-true",
-       "--trainer.sync_batchnorm=false"]
+CPU = [
+    "--trainer.accelerator=cpu",
+    "--trainer.devices=1",
+    "--trainer.strategy=auto",
+    "--trainer.precision=32-true",
+    "--trainer.sync_batchnorm=false",
+]
 
 
 def test_all_configs_are_there():
@@ -22,8 +26,10 @@ def test_all_configs_are_there():
 def test_config_instantiates(config, tmp_path):
     cli = main(["--config", str(config), *CPU, f"--trainer.default_root_dir={tmp_path}"], run=False)
     assert isinstance(cli.datamodule, SnippetDataModule)
-    assert (cli.model.hparams.height, cli.model.hparams.width) == (cli.datamodule.hparams.height,
-                                                                     cli.datamodule.hparams.width)
+    assert (cli.model.hparams.height, cli.model.hparams.width) == (
+        cli.datamodule.hparams.height,
+        cli.datamodule.hparams.width,
+    )
     if config.stem.startswith("synthetic"):
         assert isinstance(cli.datamodule, SyntheticDataModule) and cli.model.hparams.size == "small"
         assert (cli.model.hparams.geometry > 0) == (config.stem == "synthetic-cpu-sc")

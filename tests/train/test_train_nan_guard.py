@@ -2,9 +2,8 @@
 
 import lightning.pytorch as pl
 import torch
-from torch.utils.data import DataLoader
-
 from ocalib.train.module import EgoMotionModule
+from torch.utils.data import DataLoader
 
 H, W = 32, 96
 
@@ -28,9 +27,16 @@ def test_nonfinite_loss_step_is_skipped(tmp_path):
         def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
             seen.append({k: v.clone() for k, v in pl_module.model.state_dict().items()})
 
-    trainer = pl.Trainer(accelerator="cpu", max_epochs=1, logger=False, enable_checkpointing=False,
-                         enable_progress_bar=False, enable_model_summary=False, callbacks=[Watch()],
-                         default_root_dir=tmp_path)
+    trainer = pl.Trainer(
+        accelerator="cpu",
+        max_epochs=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[Watch()],
+        default_root_dir=tmp_path,
+    )
     trainer.fit(module, DataLoader(batches, batch_size=1))
     assert module.nonfinite_steps == 1 and len(seen) == 3
     assert all(torch.equal(seen[1][k], seen[2][k]) for k in seen[1])  # the NaN batch changed nothing, BN stats included

@@ -7,13 +7,13 @@ import lightning.pytorch as pl
 import pytest
 import torch
 from conftest import tiny_args
+from ocalib.train.cli import main
+from ocalib.train.module import EgoMotionModule
+from ocalib.train.synthetic import SyntheticDataModule
 
 from ocalib.cli import main as ocalib_main
 from ocalib.errors import InputError
 from ocalib.models import load_model
-from ocalib.train.cli import main
-from ocalib.train.module import EgoMotionModule
-from ocalib.train.synthetic import SyntheticDataModule
 
 
 def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
@@ -35,8 +35,18 @@ def test_fit_checkpoint_resume_and_export(tiny_synth, tmp_path):
 
     # resume through `ocalib train`: the step count continues from the checkpoint; the resumed run validates
     # nothing, so its model.pt keeps the best validated weights, step 2's, carried in the checkpoint
-    assert ocalib_main(["train", "fit", *tiny_args(tiny_synth, out, "--trainer.max_steps=4",
-                                                   "--trainer.limit_val_batches=0", f"--ckpt_path={last}")]) == 0
+    assert (
+        ocalib_main(
+            [
+                "train",
+                "fit",
+                *tiny_args(
+                    tiny_synth, out, "--trainer.max_steps=4", "--trainer.limit_val_batches=0", f"--ckpt_path={last}"
+                ),
+            ]
+        )
+        == 0
+    )
     resumed = sorted(out.glob("tiny/version_*/checkpoints/last.ckpt"))[-1]
     assert torch.load(resumed, weights_only=True)["global_step"] == 4
     exported = torch.load(resumed.parent.parent / "model.pt", weights_only=False)["meta"]
@@ -57,16 +67,29 @@ def test_export_writes_the_best_validated_weights(tmp_path):
     the last weights are written."""
     from types import SimpleNamespace
 
-    from ocalib.models import EgoMotionModel
     from ocalib.train.callbacks import ExportModel
+
+    from ocalib.models import EgoMotionModel
 
     torch.manual_seed(0)
     module = SimpleNamespace(model=EgoMotionModel("small", 32, 96), hparams={"lr": 1e-3})
-    trainer = SimpleNamespace(sanity_checking=False, global_step=0, current_epoch=0, log_dir=str(tmp_path),
-                              default_root_dir=str(tmp_path), is_global_zero=True, callback_metrics={})
+    trainer = SimpleNamespace(
+        sanity_checking=False,
+        global_step=0,
+        current_epoch=0,
+        log_dir=str(tmp_path),
+        default_root_dir=str(tmp_path),
+        is_global_zero=True,
+        callback_metrics={},
+    )
     export, weights = ExportModel(), {}
-    for step, score, sanity in [(0, 0.1, True), (10, 0.30, False), (20, 0.20, False), (30, float("nan"), False),
-                                (40, 0.25, False)]:
+    for step, score, sanity in [
+        (0, 0.1, True),
+        (10, 0.30, False),
+        (20, 0.20, False),
+        (30, float("nan"), False),
+        (40, 0.25, False),
+    ]:
         with torch.no_grad():  # new weights at every validation
             for p in module.model.parameters():
                 p.add_(torch.randn_like(p))
@@ -80,8 +103,11 @@ def test_export_writes_the_best_validated_weights(tmp_path):
     resumed.load_state_dict(export.state_dict())  # the checkpoint's round trip
     resumed.on_fit_end(trainer, module)
     saved = torch.load(resumed.path, weights_only=False)
-    assert saved["meta"]["selected"] == {"weights": "lowest val/abs_rel", "global_step": 20,
-                                         "val/abs_rel": pytest.approx(0.2)}
+    assert saved["meta"]["selected"] == {
+        "weights": "lowest val/abs_rel",
+        "global_step": 20,
+        "val/abs_rel": pytest.approx(0.2),
+    }
     assert saved["meta"]["global_step"] == 45
     for k, v in weights[20].items():
         torch.testing.assert_close(saved["state_dict"][k], v.float() if v.is_floating_point() else v)
@@ -100,8 +126,16 @@ def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path, align, precision):
     """With ``align``, the depth learns from the refined motions and the pose net from its own photometric term.
     ``bf16-mixed`` (configs/train/gpu.yaml's precision, here on the CPU): the step runs and learns."""
     pl.seed_everything(0)
-    dm = SyntheticDataModule(presets={"handheld": [0]}, val_presets={}, frames=6, root=str(tiny_synth),
-                             height=32, width=96, batch_size=2, augmentation=None)
+    dm = SyntheticDataModule(
+        presets={"handheld": [0]},
+        val_presets={},
+        frames=6,
+        root=str(tiny_synth),
+        height=32,
+        width=96,
+        batch_size=2,
+        augmentation=None,
+    )
     module = EgoMotionModule(height=32, width=96, lr=2e-3, warmup_steps=1, min_lr_ratio=1.0, align=align)
     losses = []
 
@@ -109,9 +143,18 @@ def test_overfit_one_batch_loss_falls(tiny_synth, tmp_path, align, precision):
         def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
             losses.append(float(outputs["loss"]))
 
-    trainer = pl.Trainer(accelerator="cpu", max_steps=25, overfit_batches=1, logger=False, enable_checkpointing=False,
-                         enable_progress_bar=False, enable_model_summary=False, callbacks=[Record()],
-                         default_root_dir=tmp_path, precision=precision)
+    trainer = pl.Trainer(
+        accelerator="cpu",
+        max_steps=25,
+        overfit_batches=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[Record()],
+        default_root_dir=tmp_path,
+        precision=precision,
+    )
     trainer.fit(module, datamodule=dm)
     assert len(losses) == 25
     # measured: 0.08 -> 0.03 alone; 0.12 -> 0.075 with the pose net's own photometric term (depth detached) added
@@ -136,8 +179,16 @@ def test_distill_term_is_the_distance_to_the_refined_motions(tiny_synth):
     from ocalib.losses.motion import motion_distance
     from ocalib.models import disp_to_depth
 
-    dm = SyntheticDataModule(presets={"handheld": [0]}, val_presets={}, frames=6, root=str(tiny_synth),
-                             height=32, width=96, batch_size=2, augmentation=None)
+    dm = SyntheticDataModule(
+        presets={"handheld": [0]},
+        val_presets={},
+        frames=6,
+        root=str(tiny_synth),
+        height=32,
+        width=96,
+        batch_size=2,
+        augmentation=None,
+    )
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     totals = {}
@@ -153,8 +204,15 @@ def test_distill_term_is_the_distance_to_the_refined_motions(tiny_synth):
     with torch.no_grad():
         depth = disp_to_depth(module.model.disparities(images[:, 0])[0]).repeat_interleave(S - 1, 0)
         targets = images[:, :1].expand(-1, S - 1, -1, -1, -1).flatten(0, 1)
-        refined, _ = align_motion(targets, images[:, 1:].flatten(0, 1), depth, K.repeat_interleave(S - 1, 0),
-                                  invert_pose(T).flatten(0, 1), iterations=(2, 2), max_rotation_deg=math.inf)
+        refined, _ = align_motion(
+            targets,
+            images[:, 1:].flatten(0, 1),
+            depth,
+            K.repeat_interleave(S - 1, 0),
+            invert_pose(T).flatten(0, 1),
+            iterations=(2, 2),
+            max_rotation_deg=math.inf,
+        )
         rotation, translation = motion_distance(T.flatten(0, 1), invert_pose(refined))
     expected = rotation.mean() + translation.mean()
     assert expected > 0

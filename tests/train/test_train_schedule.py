@@ -5,7 +5,6 @@ import math
 import lightning.pytorch as pl
 import pytest
 from lightning.pytorch.callbacks import Timer
-
 from ocalib.train.module import EgoMotionModule, lr_factor
 from ocalib.train.synthetic import SyntheticDataModule
 
@@ -34,8 +33,16 @@ def test_a_time_limit_that_runs_out_first_sets_the_progress():
 def test_the_trainer_anneals_by_its_max_time(tiny_synth, tmp_path):
     """A run resumed with 90 % of its ``max_time`` spent steps at the cosine's 90 % point, not its first steps'."""
     pl.seed_everything(0)
-    dm = SyntheticDataModule(presets={"handheld": [0]}, val_presets={}, frames=6, root=str(tiny_synth),
-                             height=32, width=96, batch_size=2, augmentation=None)
+    dm = SyntheticDataModule(
+        presets={"handheld": [0]},
+        val_presets={},
+        frames=6,
+        root=str(tiny_synth),
+        height=32,
+        width=96,
+        batch_size=2,
+        augmentation=None,
+    )
     module = EgoMotionModule(height=32, width=96, lr=1e-3, warmup_steps=0, min_lr_ratio=0.05)
     lrs = []
 
@@ -43,10 +50,20 @@ def test_the_trainer_anneals_by_its_max_time(tiny_synth, tmp_path):
         def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):  # the rate this step uses
             lrs.append(trainer.optimizers[0].param_groups[0]["lr"])
 
-    trainer = pl.Trainer(accelerator="cpu", max_steps=1000, max_time={"seconds": 1000}, limit_val_batches=0,
-                         logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                         enable_model_summary=False, callbacks=[Record()], default_root_dir=tmp_path,
-                         limit_train_batches=3, max_epochs=1)
+    trainer = pl.Trainer(
+        accelerator="cpu",
+        max_steps=1000,
+        max_time={"seconds": 1000},
+        limit_val_batches=0,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[Record()],
+        default_root_dir=tmp_path,
+        limit_train_batches=3,
+        max_epochs=1,
+    )
     timer = next(c for c in trainer.callbacks if isinstance(c, Timer))
     timer.load_state_dict({"time_elapsed": {"train": 900.0}})  # as a checkpoint of a run 15 min in restores it
     trainer.fit(module, datamodule=dm)
