@@ -179,6 +179,8 @@ def test_demo_prints_the_estimate_beside_the_truth_and_its_warnings(tmp_path, ca
     angle = float(rotation_angle_deg(truth[:3, :3].T @ R))
     assert doc["ground_truth_errors"][0]["rotation_error_deg"] == pytest.approx(angle, abs=1e-6)
     assert "errors against the ground truth" in captured.out and f"rotation {angle:.3f} deg" in captured.out
+    # the handheld preset's camera 1 is turned 120 deg about y: its roll and yaw read +180, never -180
+    assert "truth 120.00 deg about (+0.000, +1.000, +0.000); roll, pitch, yaw +180.0, +60.0, +180.0 deg" in captured.out
     assert [line[len("warning: ") :] for line in captured.err.splitlines() if line.startswith("warning: ")] == doc[
         "warnings"
     ]
