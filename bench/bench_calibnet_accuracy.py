@@ -28,7 +28,7 @@ from ocalib.data.layout import open_sequence
 from ocalib.sim.trajectory import add_noise
 from ocalib.synth import preset, render_sequence
 
-# A quick default; the README's table has twelve: handheld-1001 ... 1009 (odd seeds), front-left-1002 ... 1014 (even).
+# A quick default; the table of docs/results-calibrate.md has twelve: handheld-1001 ... 1009 (odd seeds), front-left-1002 ... 1014 (even).
 DEFAULT = ["handheld-1001", "front-left-1002"]
 NOISE = (0.002, 0.005)
 
