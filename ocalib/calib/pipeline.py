@@ -262,6 +262,7 @@ class CalibrationRun:
             "rotation_singular_values": [f"rotation_sv{i}" for i in range(tr["rotation_singular_values"].shape[-1])],
             "rotation_std_deg": ["rotation_std_x_deg", "rotation_std_y_deg", "rotation_std_z_deg"],
             "translation_std": ["translation_std_x", "translation_std_y", "translation_std_z"],
+            "bundle_quaternion": ["ba_qw", "ba_qx", "ba_qy", "ba_qz"], "bundle_translation": ["ba_tx", "ba_ty", "ba_tz"],
         }  # fmt: skip
         header, columns = ["frame", "time", "camera"], [
             np.repeat(tr["frame"], K),

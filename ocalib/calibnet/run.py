@@ -12,6 +12,7 @@ the scale that multiplies camera k's front-end units into camera 0's.
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -26,10 +27,14 @@ from ocalib.calib.result import Calibration
 from ocalib.calibnet.net import OnlineCalibrationNet
 from ocalib.calibnet.truth import extrinsic_errors
 from ocalib.data.layout import open_sequence
+from ocalib.data.sequence import Sequence
 from ocalib.data.stream import RigStream
 from ocalib.errors import InputError
 from ocalib.eval.predict import FrameImages, check_motion, model_view
 from ocalib.io.jsonable import finite_or_null
+
+if typing.TYPE_CHECKING:
+    from ocalib.rigba.adjust import RigAdjustment
 
 FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
@@ -43,16 +48,36 @@ TRACE_EVERY = 50  # frames gathered before their estimates are copied to the tra
 
 @dataclass
 class ImageCalibration:
-    """:func:`calibrate_sequence`'s outcome: the run (JSON, trace, warnings) and the ground-truth errors."""
+    """:func:`calibrate_sequence`'s outcome: the run (JSON, trace, warnings), the ground-truth errors, and where the
+    rig bundle adjustment ran (:func:`ocalib.rigba.stage.refine_calibration`) its result and errors."""
 
     run: CalibrationRun
     errors: list[dict] | None  # per camera k >= 1, see :func:`ocalib.calibnet.truth.extrinsic_errors`
     truth: np.ndarray | None = None  # (K, 4, 4) the true T_cam0_camk of cameras k >= 1, where the sequence has them
+    sequence: Sequence | None = None  # the sequence calibrated (its first settings["frames"] frames)
+    bundle: RigAdjustment | None = None  # the rig bundle adjustment's result
+    bundle_errors: list[dict] | None = None  # its ground-truth errors, see :func:`ocalib.rigba.adjust.adjustment_errors`
 
     def result_json(self) -> dict:
+        """The JSON of ``calibrate-poses``; with a bundle adjustment, ``extrinsics`` hold its result (the head's where
+        it is not trusted) and ``online_extrinsics`` the head's, ``bundle_adjustment`` its figures; ``units`` says what
+        the translations are in."""
         doc = self.run.result_json()
+        doc["units"] = "camera 0's front-end units"
+        if self.bundle is not None:
+            from ocalib.rigba.adjust import camera_json
+
+            online = doc["extrinsics"]
+            doc["extrinsics"] = [camera_json(self.bundle, k + 1, e) for k, e in enumerate(online)]
+            doc["online_extrinsics"] = online
+            doc["units"] = self.bundle.units
+            doc["bundle_adjustment"] = finite_or_null(self.bundle.stats)
+            doc["warnings"] = doc["warnings"] + self.bundle.warnings
         if self.errors is not None:
-            doc["ground_truth_errors"] = finite_or_null(self.errors)
+            key = "online_ground_truth_errors" if self.bundle_errors is not None else "ground_truth_errors"
+            doc[key] = finite_or_null(self.errors)
+        if self.bundle_errors is not None:
+            doc["ground_truth_errors"] = finite_or_null(self.bundle_errors)
         return doc
 
 
@@ -146,7 +171,7 @@ def calibrate_sequence(
         if all(cam.poses is not None for cam in sequence.cameras):
             truth = np.stack([cam.poses[:frames] for cam in sequence.cameras], 1)
         errors = extrinsic_errors(final, np.stack(extrinsics), trajectory, truth)
-    return ImageCalibration(run, errors, None if errors is None else np.stack(extrinsics[1:]))
+    return ImageCalibration(run, errors, None if errors is None else np.stack(extrinsics[1:]), sequence)
 
 
 def planar_advice(frontend: str, estimate: Calibration, names: list[str]) -> list[str]:

@@ -11,6 +11,9 @@ import json
 import math
 import sys
 
+from ocalib.errors import InputError
+from ocalib.rigba.options import MAPPERS
+
 REFINE_CHOICES = {"unobservable": "unobservable", "always": True, "never": False}  # --refine -> the head's refine
 
 
@@ -58,6 +61,21 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                    "(default with --align: measured better on the held-out cars, docs/results-calibrate.md)")
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
+    ba = p.add_argument_group("rig bundle adjustment (after the on-line pass: the translation from the images)")
+    ba.add_argument("--bundle-adjust", action=argparse.BooleanOptionalAction, default=True,
+                    help="refine the on-line estimate by a joint bundle adjustment of every camera's features on "
+                    "COLMAP, one rig trajectory for all cameras (default: on; --no-bundle-adjust skips it)")
+    ba.add_argument("--bundle-adjust-every", type=int, metavar="N",
+                    help="streaming: run the bundle adjustment after every N frames on the frames so far (features "
+                    "and matches kept between runs); the JSON holds each run")
+    ba.add_argument("--keyframe-step", type=int, default=2, metavar="K",
+                    help="the bundle adjustment uses every K-th frame (default 2)")
+    ba.add_argument("--mapper", choices=MAPPERS, default="global", help="COLMAP mapper (default global)")
+    ba.add_argument("--metric-trajectory", metavar="FILE",
+                    help="camera 0's trajectory in metres (KITTI: one pose a frame; TUM or EuRoC: met at the "
+                    "sequence's timestamps), e.g. wheel odometry, GNSS or the rig layout's poses.txt: the "
+                    "translation is then in metres")
+    ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
     return p
 
 

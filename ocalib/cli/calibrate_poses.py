@@ -134,12 +134,14 @@ def run(args) -> int:
 
 
 def residual_text(residuals: dict) -> str:
-    """``rotation 0.12 deg, translation 3.4 % of camera 0's motion`` (``?`` where undefined)."""
+    """``rotation 0.12 deg, translation 3.4 % of camera 0's motion`` (``?`` where undefined), or a bundle
+    adjustment's ``reprojection 0.38 px``."""
+    if "reprojection_px" in residuals:
+        px = residuals["reprojection_px"]
+        return f"reprojection {'?' if px is None else f'{px:.3g} px'} (bundle adjustment, mean)"
     rot, tr = residuals["rotation_deg"], residuals["translation_relative"]
-    return (
-        f"rotation {'?' if rot is None else f'{rot:.3g} deg'}, translation "
-        f"{'?' if tr is None else f'{100 * tr:.3g} %'} of camera 0's motion"
-    )
+    return (f"rotation {'?' if rot is None else f'{rot:.3g} deg'}, translation "
+            f"{'?' if tr is None else f'{100 * tr:.3g} %'} of camera 0's motion")
 
 
 def summary(doc: dict) -> str:

@@ -1,0 +1,314 @@
+"""The joint rig bundle adjustment: every camera's feature tracks explained by one rig trajectory and the rig's
+extrinsics, so the translation between cameras is recovered where each camera's monocular scale cannot give it.
+
+:func:`adjust_rig` builds a COLMAP workspace of the sequence (:mod:`ocalib.rigba.workspace`), maps it with the rig's
+``sensor_from_rig`` started from the on-line head's rotation and refined in every bundle adjustment
+(:mod:`ocalib.rigba.mapping`), reads camera k's extrinsic with its uncertainty (:mod:`ocalib.rigba.covariance`),
+expresses it in metres (a Sim(3) fit of camera 0's reconstructed trajectory to a metric one) or in camera 0's
+front-end units, and checks the result. What goes wrong is said: a camera whose frames do not register, a
+reconstruction in pieces or drifting, a rotation moved far from the head's. Such a camera keeps the head's estimate.
+
+Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); trajectories are camera-to-world (N, 4, 4); the scale
+multiplies camera k's front-end units into camera 0's.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+import torch
+from tqdm import tqdm
+
+from ocalib.calibnet.truth import angle_deg, trajectory_scale
+from ocalib.data.sequence import Sequence
+from ocalib.errors import InputError
+from ocalib.eval.alignment import umeyama
+from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
+from ocalib.io.jsonable import finite_or_null
+from ocalib.rigba.colmap import camera_to_world, to_matrix
+from ocalib.rigba.covariance import ExtrinsicUncertainty, extrinsic_uncertainty
+from ocalib.rigba.mapping import map_rig
+from ocalib.rigba.options import BundleOptions, MapperOptions
+from ocalib.rigba.workspace import Workspace, create_workspace
+
+MAX_ROTATION_CHANGE_DEG = 5.0  # a bundle-adjusted rotation this far from the head's is not trusted
+MIN_REGISTERED = 0.5  # share of a camera's frames below which its extrinsic is not trusted
+WARN_REGISTERED = 0.9  # share below which the missing frames are reported
+MIN_KEYPOINTS = 100  # median keypoints an image below which the images are reported as too poor in features
+MAX_DRIFT = 0.05  # RMS position error over the path length, after the Sim(3) fit to a metric trajectory
+
+
+@dataclass
+class RigAdjustment:
+    """The outcome of :func:`adjust_rig`.
+
+    ``extrinsics`` (C, 4, 4) ``T_cam0_camk`` in ``units``; ``trusted`` (C,) bool (camera 0 always True): where False
+    the caller keeps the head's estimate (``warnings`` say why); ``uncertainty`` per camera k >= 1 (None when the
+    reconstruction has none); ``scale`` (C,) camera k's front-end units into camera 0's (1 without a front end);
+    ``trajectory`` (N, 4, 4) camera 0's camera-to-world pose in ``units`` at ``frames`` (NaN where not registered);
+    ``registered`` (N, C) bool.
+    """
+
+    extrinsics: np.ndarray
+    trusted: np.ndarray
+    uncertainty: list[ExtrinsicUncertainty | None]
+    scale: np.ndarray
+    frames: np.ndarray
+    trajectory: np.ndarray
+    registered: np.ndarray
+    units: str
+    stats: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def adjust_rig(sequence: Sequence, initial: np.ndarray, frames: int | None = None, front_end: np.ndarray | None = None,
+               metric: np.ndarray | None = None, options: BundleOptions = BundleOptions(),
+               workdir: str | Path | None = None, every: int | None = None, progress: bool | None = None) -> RigAdjustment:
+    """Refine the extrinsics ``initial`` (C, 4, 4) of ``sequence``'s cameras by a joint rig bundle adjustment over its
+    first ``frames`` frames (all by default).
+
+    Only ``initial``'s rotations are used (its translations are in another unit); the lever arms start at zero.
+    ``front_end`` (T, C, 4, 4): each camera's front-end trajectory (the units of the result and the scale; optional);
+    ``metric`` (T, 4, 4): camera 0's trajectory in metres (then the result is in metres). ``every``: streaming, the
+    stage runs after every ``every`` frames on the frames so far (features and matches kept between runs), and
+    ``stats["stream"]`` holds each run's frame, extrinsics and seconds. ``workdir``: keep the COLMAP workspace there
+    (default: a temporary folder, removed). progress: a bar over the runs (None: on a terminal).
+    """
+    start = time.perf_counter()
+    frames = len(sequence) if frames is None else min(frames, len(sequence))
+    index = np.arange(0, frames, max(1, options.keyframe_step))
+    ends = [frames] if not every else sorted({*range(every, frames, every), frames})
+    rig_init = np.array(initial, dtype=np.float64)
+    rig_init[1:, :3, 3] = 0.0
+    stream = []
+    with tempfile.TemporaryDirectory(prefix="ocalib-rigba-") as tmp:
+        ws = create_workspace(Path(workdir) if workdir is not None else Path(tmp), sequence, rig_init, options.features)
+        for end in tqdm(ends, desc="bundle adjustment", unit="run", disable=None if progress is None else not progress):
+            run_start = time.perf_counter()
+            out = _solve(ws, index[index < end], initial, front_end, metric, options.mapper)
+            stream.append({"frame": end, "extrinsics": out.extrinsics[1:].tolist(), "trusted": out.trusted[1:].tolist(),
+                           "seconds": time.perf_counter() - run_start})
+    out.stats.update(seconds=time.perf_counter() - start, **{f"{k}_seconds": v for k, v in ws.seconds.items()})
+    if every:
+        out.stats["stream"] = stream
+    return out
+
+
+def _solve(ws: Workspace, index: np.ndarray, initial: np.ndarray, front_end: np.ndarray | None,
+           metric: np.ndarray | None, options: MapperOptions) -> RigAdjustment:
+    """Add the frames ``index`` to ``ws``, map them and read the result, checked."""
+    ws.add_frames(index.tolist())
+    start = time.perf_counter()
+    models = map_rig(ws, options)
+    mapping = time.perf_counter() - start
+    keypoints = _median_keypoints(ws.database)
+    if not models:
+        out = _failed(ws.sequence, initial, index, [
+            f"bundle adjustment: no reconstruction from the images ({keypoints:.0f} keypoints an image, median; "
+            "textureless images, too little motion, or wrong intrinsics?); the on-line estimate is kept"])
+    else:
+        out = _read(models[0], ws, index, front_end, metric)
+        out.warnings = _checks(out, ws.sequence, initial, models, keypoints) + out.warnings
+    out.stats.update(models=len(models), keypoints_median=keypoints, mapping_seconds=mapping,
+                     registered_frames_other_models=[m.num_reg_frames() for m in models[1:]])
+    return out
+
+
+def _read(rec: pycolmap.Reconstruction, ws: Workspace, index: np.ndarray, front_end: np.ndarray | None,
+          metric: np.ndarray | None) -> RigAdjustment:
+    """The extrinsics, trajectories and uncertainty of the reconstruction ``rec``, in metres or front-end units."""
+    C = len(ws.sequence.cameras)
+    camera_ids = ws.camera_ids
+    rig = next(iter(rec.rigs.values()))
+    extrinsics = np.stack([np.eye(4)] + [np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(cid))))
+                                         for cid in camera_ids[1:]])
+    poses = np.full((len(index), C, 4, 4), np.nan)
+    row = {int(t): i for i, t in enumerate(index)}
+    for image in rec.images.values():
+        if image.has_pose:
+            k, t = int(image.name[1:image.name.index("/")]), int(Path(image.name).stem)
+            poses[row[t], k] = camera_to_world(image)
+    registered = ~np.isnan(poses[:, :, 0, 0])
+    start = time.perf_counter()
+    try:
+        uncertainty = extrinsic_uncertainty(rec, camera_ids)
+    except np.linalg.LinAlgError:
+        uncertainty = [None] * (C - 1)
+    seconds = time.perf_counter() - start
+    units, scale, warnings = "reconstruction", 1.0, []
+    ok = registered[:, 0]
+    reference = metric if metric is not None else (front_end[:, 0] if front_end is not None else None)
+    if reference is not None and ok.sum() >= 3:
+        try:
+            scale, R, t = umeyama(poses[ok, 0, :3, 3], reference[index[ok], :3, 3])
+            units = "metres" if metric is not None else "camera 0's front-end units"
+        except InputError as err:
+            warnings.append(f"bundle adjustment: cannot scale the translation ({err}); it is in the reconstruction's units")
+    extrinsics[:, :3, 3] *= scale
+    poses[..., :3, 3] *= scale
+    for u in uncertainty:
+        if u is not None:
+            u.covariance[3:, :] *= scale
+            u.covariance[:, 3:] *= scale
+    out = RigAdjustment(extrinsics=extrinsics, trusted=np.ones(C, bool), uncertainty=[None] + uncertainty,
+                        scale=_camera_scales(poses, registered, front_end, index), frames=index,
+                        trajectory=poses[:, 0], registered=registered, units=units, warnings=warnings)
+    out.stats = {"registered_frames": int(rec.num_reg_frames()), "frames": len(index), "points": int(rec.num_points3D()),
+                 "observations": int(rec.compute_num_observations()),
+                 "reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+                 "mean_track_length": float(rec.compute_mean_track_length()), "uncertainty_seconds": seconds}
+    if metric is not None and units == "metres":
+        out.stats["drift"] = _drift(poses[ok, 0, :3, 3], metric[index[ok], :3, 3])
+    return out
+
+
+def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: list, keypoints: float) -> list[str]:
+    """Warnings on what went wrong, and ``out.trusted`` cleared for the cameras whose extrinsic cannot be used."""
+    warnings = []
+    names = sequence.names
+    N = len(out.frames)
+    if keypoints < MIN_KEYPOINTS:
+        warnings.append(f"bundle adjustment: {keypoints:.0f} keypoints an image (median): the images are poor in "
+                        "texture, the result is weak")
+    if len(models) > 1:
+        warnings.append(f"bundle adjustment: the reconstruction fell apart into {len(models)} pieces; the largest, "
+                        f"{models[0].num_reg_frames()} of {N} frames, is used")
+    for k, name in enumerate(names):
+        share = out.registered[:, k].mean()
+        if share < WARN_REGISTERED:
+            missing = np.flatnonzero(~out.registered[:, k])
+            warnings.append(f"bundle adjustment: {name}: {N - out.registered[:, k].sum()} of {N} frames did not "
+                            f"register (first: frame {out.frames[missing[0]]})")
+        if share < MIN_REGISTERED:
+            out.trusted[k] = False
+    if not out.trusted[0]:
+        out.trusted[:] = False
+    if out.stats.get("drift", 0.0) > MAX_DRIFT:
+        warnings.append(f"bundle adjustment: the reconstruction drifts from the metric trajectory (RMS "
+                        f"{out.stats['drift']:.1%} of the path length)")
+        out.trusted[:] = False
+    for k in range(1, len(names)):
+        change = _angle_deg(out.extrinsics[k, :3, :3], initial[k, :3, :3])
+        if change > MAX_ROTATION_CHANGE_DEG:
+            warnings.append(f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
+                            "estimate; not trusted")
+            out.trusted[k] = False
+    for k in np.flatnonzero(~out.trusted[1:]) + 1:
+        warnings.append(f"bundle adjustment: {names[k]}: the on-line estimate is kept")
+    out.trusted[0] = True
+    return warnings
+
+
+def _failed(sequence: Sequence, initial: np.ndarray, index: np.ndarray, warnings: list[str]) -> RigAdjustment:
+    C = len(sequence.cameras)
+    return RigAdjustment(extrinsics=np.array(initial, dtype=np.float64), trusted=np.eye(1, C, dtype=bool)[0],
+                         uncertainty=[None] * C, scale=np.ones(C), frames=index,
+                         trajectory=np.full((len(index), 4, 4), np.nan), registered=np.zeros((len(index), C), bool),
+                         units="none", warnings=warnings)
+
+
+def _camera_scales(poses: np.ndarray, registered: np.ndarray, front_end: np.ndarray | None, index: np.ndarray) -> np.ndarray:
+    """(C,) the scale that multiplies camera k's front-end units into camera 0's, through the one rig trajectory."""
+    C = poses.shape[1]
+    if front_end is None:
+        return np.ones(C)
+    ratio = np.full(C, np.nan)
+    for k in range(C):
+        ok = registered[:, k]
+        if ok.sum() >= 3:
+            ratio[k] = trajectory_scale(front_end[index[ok], k], np.linalg.inv(poses[ok, k][:1]) @ poses[ok, k])
+    return ratio / ratio[0]
+
+
+def _drift(positions: np.ndarray, metric: np.ndarray) -> float:
+    """RMS position error after a Sim(3) fit, over the metric path's length."""
+    s, R, t = umeyama(positions, metric)
+    error = np.sqrt(np.mean(np.sum((s * positions @ R.T + t - metric) ** 2, axis=1)))
+    length = np.sum(np.linalg.norm(np.diff(metric, axis=0), axis=1))
+    return float(error / length) if length > 0 else math.inf
+
+
+def _median_keypoints(database: Path) -> float:
+    db = pycolmap.Database.open(database)
+    try:
+        counts = [db.num_keypoints_for_image(image.image_id) for image in db.read_all_images()]
+    finally:
+        db.close()
+    return float(np.median(counts)) if counts else 0.0
+
+
+def _sensor(camera_id: int) -> pycolmap.sensor_t:
+    return pycolmap.sensor_t(pycolmap.SensorType.CAMERA, camera_id)
+
+
+def _angle_deg(R1: np.ndarray, R2: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip((np.trace(R1.T @ R2) - 1) / 2, -1.0, 1.0)))
+
+
+def camera_json(adjustment: RigAdjustment, k: int, online: dict) -> dict:
+    """Camera k's (>= 1) JSON object in the format of ``calibrate-poses`` (``online``: the head's, whose
+    rotation-system observability it keeps), with ``source`` ``"bundle_adjustment"``; the head's where not trusted."""
+    if not adjustment.trusted[k]:
+        return online | {"source": "online"}
+    E = adjustment.extrinsics[k]
+    u = adjustment.uncertainty[k]
+    q = rotation_matrix_to_quaternion(torch.from_numpy(E[:3, :3])).numpy()
+    registered = int(adjustment.registered[:, k].sum())
+    observability = dict(online["observability"])
+    if u is not None:
+        weakest = u.unobservable[0] if len(u.unobservable) else _weakest(u.covariance[3:, 3:])
+        observability.update(unobservable_translation_directions=u.unobservable.tolist(),
+                             weakest_translation_direction=weakest.tolist())
+    return {
+        "camera": online["camera"], "rotation": E[:3, :3].tolist(), "quaternion_wxyz": (q if q[0] >= 0 else -q).tolist(),
+        "translation": E[:3, 3].tolist(), "scale": float(adjustment.scale[k]), "time_offset": online["time_offset"],
+        "frames_used": registered, "frames_rejected": len(adjustment.frames) - registered,
+        "rotation_std_deg": None if u is None else np.degrees(u.rotation_std).tolist(),
+        "translation_std": None if u is None else finite_or_null(u.translation_std.tolist()),
+        "scale_std": None, "observability": observability,
+        "residuals": {"reprojection_px": adjustment.stats.get("reprojection_error_px")},
+        "source": "bundle_adjustment",
+    }
+
+
+def _weakest(cov: np.ndarray) -> np.ndarray:
+    lam, V = np.linalg.eigh(cov)
+    return V[:, -1]
+
+
+def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: np.ndarray | None) -> list[dict]:
+    """Per camera k >= 1: the bundle-adjusted extrinsic's errors against the true ``extrinsics`` (C, 4, 4), as
+    :func:`ocalib.calibnet.truth.extrinsic_errors` gives the head's: ``rotation_error_deg``,
+    ``translation_direction_error_deg`` (with the unobservable directions projected out: ``compared_in_plane``), and
+    with ``truth`` (T, C, 4, 4) ground-truth poses: ``metric_scale`` (the result's units -> metres, a Sim(3) fit of
+    camera 0's reconstructed trajectory to its truth; 1 in metres), ``translation_error`` (metres) and
+    ``translation_error_rel_baseline``."""
+    rel = np.linalg.inv(extrinsics[0]) @ extrinsics
+    scale = 1.0
+    ok = adjustment.registered[:, 0]
+    if truth is not None and adjustment.units != "metres" and ok.sum() >= 3:
+        rebased = np.linalg.inv(truth[:1, 0]) @ truth[:, 0]
+        scale = umeyama(adjustment.trajectory[ok, :3, 3], rebased[adjustment.frames[ok], :3, 3])[0]
+    out = []
+    for k in range(1, len(extrinsics)):
+        E, u = adjustment.extrinsics[k], adjustment.uncertainty[k]
+        t, t_true = scale * E[:3, 3], rel[k, :3, 3]
+        project = np.eye(3)
+        if u is not None and len(u.unobservable):
+            project = project - u.unobservable.T @ u.unobservable
+        e = {"camera": k, "rotation_error_deg": _angle_deg(E[:3, :3], rel[k, :3, :3]),
+             "translation_direction_error_deg": angle_deg(project @ t, project @ t_true),
+             "compared_in_plane": bool(u is not None and len(u.unobservable))}
+        if truth is not None:
+            error = float(np.linalg.norm(project @ (t - t_true)))
+            baseline = float(np.linalg.norm(project @ t_true))
+            e.update(metric_scale=scale, translation_error=error,
+                     translation_error_rel_baseline=error / baseline if baseline > 0 else math.nan)
+        out.append(e)
+    return out

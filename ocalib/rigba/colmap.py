@@ -1,0 +1,41 @@
+"""The boundary to COLMAP: intrinsics, poses and rigs converted once, here.
+
+Convention: ocalib's K has integer pixel centres (kornia's); COLMAP's PINHOLE model puts them at +0.5, so its
+principal point is ``K[:2, 2] + 0.5``. COLMAP stores world-to-camera transforms (``cam_from_world``) and each
+sensor's ``sensor_from_rig``; with camera 0 as the rig frame, ``T_cam0_camk = inverse(sensor_from_rig_k)``
+(``p_cam0 = R p_camk + t``) and camera 0's camera-to-world pose is ``inverse(cam_from_world)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pycolmap
+
+
+def pinhole_params(K: np.ndarray) -> list[float]:
+    """COLMAP PINHOLE parameters ``fx, fy, cx, cy`` of ocalib's K (3, 3) (pixel centres shifted by +0.5)."""
+    return [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5]
+
+
+def intrinsics_matrix(params) -> np.ndarray:
+    """ocalib's K (3, 3) of COLMAP PINHOLE parameters (the inverse of :func:`pinhole_params`)."""
+    fx, fy, cx, cy = (float(v) for v in params)
+    return np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
+
+
+def to_rigid(T: np.ndarray) -> pycolmap.Rigid3d:
+    """A 4x4 rigid transform as COLMAP's Rigid3d (same direction: ``Rigid3d * p = R p + t``)."""
+    T = np.asarray(T, dtype=np.float64)
+    return pycolmap.Rigid3d(pycolmap.Rotation3d(T[:3, :3]), T[:3, 3])
+
+
+def to_matrix(rigid: pycolmap.Rigid3d) -> np.ndarray:
+    """COLMAP's Rigid3d as a 4x4 float64 matrix (same direction)."""
+    T = np.eye(4)
+    T[:3, :] = rigid.matrix()
+    return T
+
+
+def camera_to_world(image: pycolmap.Image) -> np.ndarray:
+    """A registered image's camera-to-world pose (4, 4)."""
+    return np.linalg.inv(to_matrix(image.cam_from_world()))

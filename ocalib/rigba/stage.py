@@ -1,0 +1,94 @@
+"""The rig bundle adjustment as the stage after the on-line pass of ``ocalib calibrate``: it starts from the head's
+rotations and the front end's trajectories, and leaves its result beside the head's.
+
+Convention: as :mod:`ocalib.rigba.adjust`; ``metric`` is camera 0's camera-to-world trajectory in metres at the
+sequence's frames (T, 4, 4).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ocalib.calibnet.run import ImageCalibration
+from ocalib.data.sequence import Sequence
+from ocalib.errors import InputError
+from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
+from ocalib.io.poses import describe_invalid, pose_validity, read_poses
+from ocalib.io.timing import interpolate
+from ocalib.rigba.adjust import adjust_rig, adjustment_errors
+from ocalib.rigba.options import BundleOptions
+
+INTERPOLATE_GAP = 1.25  # frame periods of the metric trajectory bridged by interpolation (as calibrate-poses)
+
+
+def refine_calibration(result: ImageCalibration, metric: np.ndarray | None = None,
+                       options: BundleOptions = BundleOptions(), every: int | None = None, workdir=None,
+                       progress: bool | None = None) -> ImageCalibration:
+    """Run the rig bundle adjustment over the frames ``result`` calibrated; its result and (where the sequence has a
+    truth) its errors go into ``result.bundle`` and ``result.bundle_errors``. Returns ``result``."""
+    sequence, run = result.sequence, result.run
+    if sequence is None:
+        raise InputError("the bundle adjustment needs the calibrated sequence's images")
+    frames = run.settings["frames"]
+    if metric is not None and len(metric) < frames:
+        raise InputError(f"the metric trajectory has {len(metric)} poses for {frames} frames")
+    C = len(sequence.cameras)
+    initial = np.tile(np.eye(4), (C, 1, 1))
+    initial[1:, :3, :3] = run.final.rotation[0].double().numpy()
+    initial[1:, :3, 3] = run.final.translation[0].double().numpy()
+    result.bundle = adjust_rig(sequence, initial, frames, front_end=run.rig.poses,
+                               metric=None if metric is None else np.linalg.inv(metric[:1]) @ metric[:frames],
+                               options=options, workdir=workdir, every=every, progress=progress)
+    _trace(result)
+    if result.truth is not None:
+        truth = None
+        if all(cam.poses is not None for cam in sequence.cameras):
+            truth = np.stack([cam.poses[:frames] for cam in sequence.cameras], 1)
+        errors = adjustment_errors(result.bundle, np.concatenate([np.eye(4)[None], result.truth]), truth)
+        trusted = result.bundle.trusted[1:]  # where the head's estimate is kept, so are its errors
+        result.bundle_errors = [e if ok else head for e, head, ok in zip(errors, result.errors, trusted)]
+    return result
+
+
+def _trace(result: ImageCalibration) -> None:
+    """The bundle adjustment's extrinsics into the run's trace (``bundle_quaternion`` (F, K, 4), ``bundle_translation``
+    (F, K, 3)) at the last frame each run saw, NaN elsewhere and where a camera's result is not trusted."""
+    trace, adjustment = result.run.trace, result.bundle
+    runs = adjustment.stats.get("stream") or [{"frame": len(trace["frame"]), "extrinsics": adjustment.extrinsics[1:],
+                                               "trusted": adjustment.trusted[1:]}]
+    F, K = trace["quaternion"].shape[:2]
+    quaternion, translation = np.full((F, K, 4), np.nan), np.full((F, K, 3), np.nan)
+    for r in runs:
+        E, ok = np.asarray(r["extrinsics"]), np.asarray(r["trusted"])
+        q = rotation_matrix_to_quaternion(torch.from_numpy(E[:, :3, :3])).numpy()
+        quaternion[r["frame"] - 1] = np.where(ok[:, None], q * np.sign(q[:, :1] + 1e-300), np.nan)
+        translation[r["frame"] - 1] = np.where(ok[:, None], E[:, :3, 3], np.nan)
+    trace["bundle_quaternion"], trace["bundle_translation"] = quaternion, translation
+
+
+def read_metric_trajectory(path, sequence: Sequence, frames: int) -> np.ndarray:
+    """Camera 0's trajectory in metres at the sequence's first ``frames`` frames (frames, 4, 4), from a KITTI file
+    (one pose a frame) or a timestamped file (TUM, EuRoC: interpolated at the sequence's timestamps, as
+    ``calibrate-poses`` does). Every problem is an :class:`InputError` naming the file."""
+    trajectory = read_poses(path)
+    if trajectory.times is None:
+        if len(trajectory) != len(sequence):
+            raise InputError(f"{path}: {len(trajectory)} poses for the {len(sequence)} frames of {sequence.path}; a "
+                             "file without timestamps (KITTI) must hold one pose per frame")
+        poses, lines = trajectory.poses[:frames], trajectory.lines[:frames]
+    else:
+        if sequence.times is None:
+            raise InputError(f"{path}: timestamped poses, but {sequence.path} has no timestamps to meet them at")
+        period = float(np.median(np.diff(trajectory.times))) if len(trajectory) > 1 else 0.0
+        keep, poses, idx = interpolate(sequence.times[:frames], trajectory.times, trajectory.poses,
+                                       INTERPOLATE_GAP * period, names=(str(sequence.path), str(path)))
+        if len(keep) < frames:
+            missing = np.setdiff1d(np.arange(frames), keep)
+            raise InputError(f"{path}: no pose at {len(missing)} of the {frames} frames' timestamps (first: frame "
+                             f"{missing[0]}, t = {sequence.times[missing[0]]:.6f} s)")
+        lines = trajectory.lines[idx]
+    problem = describe_invalid(path, pose_validity(poses), lines)
+    if problem:
+        raise InputError(problem)
+    return poses
