@@ -75,7 +75,7 @@ def load_model(path=None) -> EgoMotionModel:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
-        raise InputError(f"{path}: not a torch checkpoint (a corrupt file or another kind of file)") from None
+        raise InputError(f"{path}: not a readable torch checkpoint (a corrupt file or another kind of file)") from None
     except Exception as err:  # noqa: BLE001 - torch raises many kinds for a foreign or corrupt file
         raise InputError(
             f"{path}: not a readable torch checkpoint ({type(err).__name__}: "

@@ -103,7 +103,7 @@ def test_a_bad_option_of_calibrate_poses_is_one_line(files, option, message, cap
 
 
 @pytest.mark.parametrize("option, message", [
-    (["--checkpoint", "binary.bin"], "binary.bin: not a torch checkpoint"),
+    (["--checkpoint", "binary.bin"], "binary.bin: not a readable torch checkpoint"),
     (["--checkpoint", "folder"], "folder: a folder, not a checkpoint file"),
     (["--forgetting", "2"], "forgetting must be in (0, 1], got 2.0"),
     (["--cameras", "cam0", "nocam"], "no camera 'nocam'"),
