@@ -70,6 +70,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
                     "and matches kept between runs); the JSON holds each run")
     ba.add_argument("--keyframe-step", type=int, default=2, metavar="K",
                     help="the bundle adjustment uses every K-th frame (default 2)")
+    ba.add_argument("--cross-camera", action="store_true",
+                    help="also match features between cameras (for cameras that share a view, e.g. a stereo pair)")
     ba.add_argument("--mapper", choices=MAPPERS, default="global", help="COLMAP mapper (default global)")
     ba.add_argument("--metric-trajectory", metavar="FILE",
                     help="camera 0's trajectory in metres (KITTI: one pose a frame; TUM or EuRoC: met at the "
@@ -83,6 +85,7 @@ def run(args) -> int:
     from ocalib.calibnet.run import calibrate_sequence
     from ocalib.cli.calibrate_poses import summary
 
+    metric = _metric_trajectory(args)
     writer = None
     if args.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
@@ -97,6 +100,13 @@ def run(args) -> int:
     finally:
         if writer:
             writer.close()
+    if args.bundle_adjust:
+        from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
+        from ocalib.rigba.stage import refine_calibration
+
+        options = BundleOptions(FeatureOptions(cross_camera=args.cross_camera), MapperOptions(kind=args.mapper),
+                                args.keyframe_step)
+        refine_calibration(result, metric, options, args.bundle_adjust_every, args.colmap_workspace)
     doc = result.result_json()
     if args.out:
         with open(args.out, "w") as f:
@@ -116,10 +126,32 @@ def run(args) -> int:
         for c, name in enumerate(result.run.rig.files):
             write_kitti(Path(args.trajectories) / f"{name}.txt", result.run.rig.poses[:, c])
     print(summary(doc))
-    if result.errors:
+    if result.errors and result.bundle_errors:
+        print(errors_table(result.errors, result.run.rig.files, "on-line head"))
+        print(errors_table(result.bundle_errors, result.run.rig.files, "after the rig bundle adjustment"))
+    elif result.errors:
         print(errors_table(result.errors, result.run.rig.files))
     print_warnings(doc)
     return 0
+
+
+def _metric_trajectory(args):
+    """The --metric-trajectory at the frames to calibrate, read before the on-line pass so that bad input costs no
+    work; None without it."""
+    if args.bundle_adjust_every is not None and args.bundle_adjust_every < 1:
+        raise InputError(f"--bundle-adjust-every must be at least 1 frame, got {args.bundle_adjust_every}")
+    if args.keyframe_step < 1:
+        raise InputError(f"--keyframe-step must be at least 1, got {args.keyframe_step}")
+    if not args.metric_trajectory:
+        return None
+    if not args.bundle_adjust:
+        raise InputError("--metric-trajectory scales the bundle adjustment's translation: drop --no-bundle-adjust")
+    from ocalib.data.layout import open_sequence
+    from ocalib.rigba.stage import read_metric_trajectory
+
+    sequence = open_sequence(args.sequence, args.cameras, args.intrinsics)
+    frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
+    return read_metric_trajectory(args.metric_trajectory, sequence, frames)
 
 
 def print_warnings(doc: dict) -> None:
@@ -128,18 +160,19 @@ def print_warnings(doc: dict) -> None:
         print(f"warning: {w}", file=sys.stderr)
 
 
-def errors_table(errors: list[dict], cameras: list[str]) -> str:
-    """The ground-truth errors, one line per camera."""
+def errors_table(errors: list[dict], cameras: list[str], what: str | None = None) -> str:
+    """The ground-truth errors, one line per camera (``what``: whose, e.g. the on-line head's)."""
     from ocalib.calibnet.truth import WANDER_WINDOW
 
-    lines = ["errors against the ground truth:"]
+    lines = ["errors against the ground truth" + (f", {what}:" if what else ":")]
     for e in errors:
         text = (f"  {cameras[e['camera']]}: rotation {e['rotation_error_deg']:.3f} deg, translation direction "
                 f"{e['translation_direction_error_deg']:.2f} deg" + (" (in the plane)" if e["compared_in_plane"] else ""))
         if "translation_error_rel_baseline" in e:
             text += (f", translation {e['translation_error']:.3f} m = {e['translation_error_rel_baseline']:.1%} of the "
-                     f"baseline (camera 0 scaled to metres x{e['metric_scale']:.3g}), scale {e['scale']:.3f} "
-                     f"(true {e['scale_true']:.3f})")
+                     f"baseline" + ("" if e["metric_scale"] == 1 else f" (camera 0 scaled to metres x{e['metric_scale']:.3g})"))
+        if "scale_true" in e:  # the on-line head's: what the front end's motions held
+            text += f", scale {e['scale']:.3f} (true {e['scale_true']:.3f})"
             gains = lambda g: "/".join(f"{x:.2f}" for x in g)  # noqa: E731
             text += (f"\n    front-end rotation gain x/y/z (1: unbiased): {cameras[0]} {gains(e['rotation_gain_reference'])}, "
                      f"{cameras[e['camera']]} {gains(e['rotation_gain'])}")

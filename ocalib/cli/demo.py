@@ -26,6 +26,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", metavar="CKPT", help="ego-motion model (default: the shipped one)")
     p.add_argument("--frontend", choices=("network", "opencv"), default="network", help="ego-motion front end")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    p.add_argument("--bundle-adjust", action=argparse.BooleanOptionalAction, default=True,
+                   help="refine by the rig bundle adjustment, in metres through camera 0's rendered poses (as wheel "
+                   "odometry would give them); default on")
     return p
 
 
@@ -50,13 +53,21 @@ def run(args) -> int:
     render_sequence(cfg, sequence, overwrite=True, workers=2)
     result = calibrate_sequence(sequence, frontend=args.frontend, checkpoint=args.checkpoint, device=args.device,
                                 progress=None)
+    if args.bundle_adjust:
+        from ocalib.rigba.stage import refine_calibration
+
+        refine_calibration(result, result.sequence.cameras[0].poses)  # the rendered poses stand for odometry
     doc = result.result_json()
     (out / "result.json").write_text(json.dumps(doc, indent=2))
     result.run.write_trace(out / "trace.csv")
     plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png", truth=result.truth)
     print(summary(doc))
     print(truth_table(sequence, doc))
-    print(errors_table(result.errors, result.run.rig.files))
+    if result.bundle_errors is not None:
+        print(errors_table(result.errors, result.run.rig.files, "on-line head"))
+        print(errors_table(result.bundle_errors, result.run.rig.files, "after the rig bundle adjustment"))
+    else:
+        print(errors_table(result.errors, result.run.rig.files))
     print_warnings(doc)
     print(f"wrote {out / 'result.json'}, {out / 'trace.csv'} and {out / 'trace.png'}")
     return 0
@@ -84,6 +95,8 @@ def truth_table(sequence, doc: dict) -> str:
             f"  {'':{len(cam.name)}}  translation direction {_vec(t / max(np.linalg.norm(t), 1e-12))} vs "
             f"{_vec(t_true / np.linalg.norm(t_true))} (true baseline {np.linalg.norm(t_true):.3f} m)",
         ]
+        if doc["units"] == "metres":
+            lines.append(f"  {'':{len(cam.name)}}  translation {_vec(t)} m vs {_vec(t_true)} m")
     return "\n".join(lines)
 
 

@@ -69,7 +69,8 @@ class RigAdjustment:
 
 def adjust_rig(sequence: Sequence, initial: np.ndarray, frames: int | None = None, front_end: np.ndarray | None = None,
                metric: np.ndarray | None = None, options: BundleOptions = BundleOptions(),
-               workdir: str | Path | None = None, every: int | None = None, progress: bool | None = None) -> RigAdjustment:
+               workdir: str | Path | None = None, every: int | None = None, progress: bool | None = None,
+               check_rotation: np.ndarray | None = None) -> RigAdjustment:
     """Refine the extrinsics ``initial`` (C, 4, 4) of ``sequence``'s cameras by a joint rig bundle adjustment over its
     first ``frames`` frames (all by default).
 
@@ -78,7 +79,9 @@ def adjust_rig(sequence: Sequence, initial: np.ndarray, frames: int | None = Non
     ``metric`` (T, 4, 4): camera 0's trajectory in metres (then the result is in metres). ``every``: streaming, the
     stage runs after every ``every`` frames on the frames so far (features and matches kept between runs), and
     ``stats["stream"]`` holds each run's frame, extrinsics and seconds. ``workdir``: keep the COLMAP workspace there
-    (default: a temporary folder, removed). progress: a bar over the runs (None: on a terminal).
+    (default: a temporary folder, removed). progress: a bar over the runs (None: on a terminal). check_rotation (C,)
+    bool: the cameras whose initial rotation is an estimate the result must stay near (default all; the head's
+    unobservable rotations are not).
     """
     start = time.perf_counter()
     frames = len(sequence) if frames is None else min(frames, len(sequence))
@@ -91,7 +94,7 @@ def adjust_rig(sequence: Sequence, initial: np.ndarray, frames: int | None = Non
         ws = create_workspace(Path(workdir) if workdir is not None else Path(tmp), sequence, rig_init, options.features)
         for end in tqdm(ends, desc="bundle adjustment", unit="run", disable=None if progress is None else not progress):
             run_start = time.perf_counter()
-            out = _solve(ws, index[index < end], initial, front_end, metric, options.mapper)
+            out = _solve(ws, index[index < end], initial, front_end, metric, options.mapper, check_rotation)
             stream.append({"frame": end, "extrinsics": out.extrinsics[1:].tolist(), "trusted": out.trusted[1:].tolist(),
                            "seconds": time.perf_counter() - run_start})
     out.stats.update(seconds=time.perf_counter() - start, **{f"{k}_seconds": v for k, v in ws.seconds.items()})
@@ -101,7 +104,7 @@ def adjust_rig(sequence: Sequence, initial: np.ndarray, frames: int | None = Non
 
 
 def _solve(ws: Workspace, index: np.ndarray, initial: np.ndarray, front_end: np.ndarray | None,
-           metric: np.ndarray | None, options: MapperOptions) -> RigAdjustment:
+           metric: np.ndarray | None, options: MapperOptions, check_rotation: np.ndarray | None) -> RigAdjustment:
     """Add the frames ``index`` to ``ws``, map them and read the result, checked."""
     ws.add_frames(index.tolist())
     start = time.perf_counter()
@@ -114,7 +117,9 @@ def _solve(ws: Workspace, index: np.ndarray, initial: np.ndarray, front_end: np.
             "textureless images, too little motion, or wrong intrinsics?); the on-line estimate is kept"])
     else:
         out = _read(models[0], ws, index, front_end, metric)
-        out.warnings = _checks(out, ws.sequence, initial, models, keypoints) + out.warnings
+        check = np.ones(len(initial), bool) if check_rotation is None else np.asarray(check_rotation, bool)
+        out.warnings = _checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models,
+                               keypoints) + out.warnings
     out.stats.update(models=len(models), keypoints_median=keypoints, mapping_seconds=mapping,
                      registered_frames_other_models=[m.num_reg_frames() for m in models[1:]])
     return out
@@ -169,7 +174,8 @@ def _read(rec: pycolmap.Reconstruction, ws: Workspace, index: np.ndarray, front_
 
 
 def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: list, keypoints: float) -> list[str]:
-    """Warnings on what went wrong, and ``out.trusted`` cleared for the cameras whose extrinsic cannot be used."""
+    """Warnings on what went wrong, and ``out.trusted`` cleared for the cameras whose extrinsic cannot be used
+    (``initial``: NaN where its rotation is not to be checked against)."""
     warnings = []
     names = sequence.names
     N = len(out.frames)
@@ -195,7 +201,7 @@ def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models:
         out.trusted[:] = False
     for k in range(1, len(names)):
         change = _angle_deg(out.extrinsics[k, :3, :3], initial[k, :3, :3])
-        if change > MAX_ROTATION_CHANGE_DEG:
+        if change > MAX_ROTATION_CHANGE_DEG:  # False for NaN: not checked
             warnings.append(f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
                             "estimate; not trusted")
             out.trusted[k] = False

@@ -37,9 +37,11 @@ def refine_calibration(result: ImageCalibration, metric: np.ndarray | None = Non
     initial = np.tile(np.eye(4), (C, 1, 1))
     initial[1:, :3, :3] = run.final.rotation[0].double().numpy()
     initial[1:, :3, 3] = run.final.translation[0].double().numpy()
+    known = (run.final.rotation_observable | run.final.planar_motion)[0].numpy()  # the head's rotations to check against
     result.bundle = adjust_rig(sequence, initial, frames, front_end=run.rig.poses,
                                metric=None if metric is None else np.linalg.inv(metric[:1]) @ metric[:frames],
-                               options=options, workdir=workdir, every=every, progress=progress)
+                               options=options, workdir=workdir, every=every, progress=progress,
+                               check_rotation=np.concatenate([[True], known]))
     _trace(result)
     if result.truth is not None:
         truth = None

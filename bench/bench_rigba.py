@@ -1,0 +1,107 @@
+"""The rig bundle adjustment on held-out rendered rigs: accuracy beside the on-line head's, wall time, peak memory.
+
+For each sequence (rendered by ``ocalib synth`` with a held-out seed when missing) and each front end, runs
+``ocalib calibrate``'s on-line pass and then the stage with the sequence's camera-0 poses as the metric trajectory.
+Reports the head's and the bundle adjustment's rotation error, translation direction error (with the unobservable
+direction projected out: in the ground plane on cars) and translation error over the baseline in metres; the stage's
+wall time, its peak memory above the process's resident size before it, and its share of calibrate's time. Prints a
+table, writes JSON.
+
+    python bench/bench_rigba.py [--sequences front-left-1002 handheld-1001 ...] [--frontends network opencv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from bench_calibnet_accuracy import ensure
+from common import write_json
+
+from ocalib.calibnet.run import calibrate_sequence
+from ocalib.rigba.options import BundleOptions
+from ocalib.rigba.stage import refine_calibration
+
+DEFAULT = ["front-left-1002", "handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001"]
+
+
+def rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+class PeakMemory:
+    """The peak resident size above the size at entry, sampled every 50 ms (COLMAP's memory is not Python's)."""
+
+    def __enter__(self):
+        self.base, self.peak, self._stop = rss_mb(), 0.0, threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def _sample(self):
+        while not self._stop.wait(0.05):
+            self.peak = max(self.peak, rss_mb() - self.base)
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+
+
+def errors_row(e: dict) -> dict:
+    return {"rotation_deg": e["rotation_error_deg"], "direction_deg": e["translation_direction_error_deg"],
+            "translation_rel_baseline": e.get("translation_error_rel_baseline"), "in_plane": e["compared_in_plane"]}
+
+
+def run(path: Path, frontend: str, frames: int, options: BundleOptions) -> dict:
+    start = time.perf_counter()
+    result = calibrate_sequence(path, frontend=frontend, max_frames=frames, progress=False)
+    online = time.perf_counter() - start
+    metric = result.sequence.cameras[0].poses
+    with PeakMemory() as memory:
+        start = time.perf_counter()
+        refine_calibration(result, metric, options, progress=False)
+        stage = time.perf_counter() - start
+    b = result.bundle
+    return {"head": errors_row(result.errors[0]), "bundle": errors_row(result.bundle_errors[0]),
+            "trusted": bool(b.trusted[1]), "warnings": b.warnings, "online_seconds": online, "stage_seconds": stage,
+            "stage_share": stage / (online + stage), "stage_peak_mb": memory.peak,
+            "stats": {k: v for k, v in b.stats.items() if k != "stream"}}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
+    p.add_argument("--sequences", nargs="+", default=DEFAULT,
+                   help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing")
+    p.add_argument("--frontends", nargs="+", default=["network", "opencv"])
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--keyframe-step", type=int, default=BundleOptions().keyframe_step)
+    p.add_argument("--out", default="bench/results/rigba.json")
+    args = p.parse_args()
+    torch.set_num_threads(2)
+    options = BundleOptions(keyframe_step=args.keyframe_step)
+    results = {}
+    header = (f"{'sequence':16} {'front end':9} {'head rot/dir/t':>22} {'+ BA rot/dir/t':>22} {'BA s':>6} "
+              f"{'share':>6} {'MB':>6}")
+    print(header)
+    for name in args.sequences:
+        path = ensure(Path(args.root), name, args.frames)
+        for frontend in args.frontends:
+            r = results.setdefault(path.name, {})[frontend] = run(path, frontend, args.frames, options)
+            cell = lambda e: (f"{e['rotation_deg']:6.2f} {e['direction_deg']:6.1f} "  # noqa: E731
+                              f"{np.nan if e['translation_rel_baseline'] is None else e['translation_rel_baseline']:6.2f}")
+            print(f"{path.name:16} {frontend:9} {cell(r['head']):>22} {cell(r['bundle']):>22} "
+                  f"{r['stage_seconds']:6.1f} {r['stage_share']:6.0%} {r['stage_peak_mb']:6.0f}"
+                  + ("" if r["trusted"] else "  (BA not trusted: head kept)"), flush=True)
+    write_json(args.out, {"frames": args.frames, "keyframe_step": args.keyframe_step, "results": results})
+
+
+if __name__ == "__main__":
+    main()
