@@ -116,7 +116,7 @@ def run(args) -> int:
     if args.plot:
         from ocalib.viz.calibration import plot_trace
 
-        plot_trace(result.run.trace, result.run.rig.files[1:], args.plot, truth=result.truth)
+        plot_trace(result.run.trace, result.run.rig.files[1:], args.plot, truth=result.truth, units=doc["units"])
     if args.trajectories:
         from pathlib import Path
 

@@ -60,7 +60,7 @@ def run(args) -> int:
     doc = result.result_json()
     (out / "result.json").write_text(json.dumps(doc, indent=2))
     result.run.write_trace(out / "trace.csv")
-    plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png", truth=result.truth)
+    plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png", truth=result.truth, units=doc["units"])
     print(summary(doc))
     print(truth_table(sequence, doc))
     if result.bundle_errors is not None:

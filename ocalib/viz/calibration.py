@@ -21,9 +21,14 @@ COLORS = ("tab:red", "tab:green", "tab:blue", "tab:gray")
 
 
 def plot_trace(
-    trace: dict[str, np.ndarray], cameras: list[str], path: str | Path, truth: np.ndarray | None = None
+    trace: dict[str, np.ndarray],
+    cameras: list[str],
+    path: str | Path,
+    truth: np.ndarray | None = None,
+    units: str | None = None,
 ) -> None:
-    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values / residuals.
+    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values / residuals, and
+    where the trace holds the rig bundle adjustment's results (``bundle_*``, in ``units``) a row of those.
 
     truth: (K, 4, 4) the true ``T_cam0_camk``, or None. With it the rotation row shows each frame's error against
     the truth (with the reported 1-sigma band: an honest band covers zero about two times in three) and the
@@ -35,7 +40,8 @@ def plot_trace(
     import matplotlib.pyplot as plt
 
     frames, K = trace["frame"], trace["quaternion"].shape[1]
-    fig, axes = plt.subplots(5, K, figsize=(6.5 * K, 13.5), sharex=True, squeeze=False)
+    bundle = "bundle_translation" in trace
+    fig, axes = plt.subplots(5 + bundle, K, figsize=(6.5 * K, 13.5 + 2.7 * bundle), sharex=True, squeeze=False)
     for k in range(K):
         q = trace["quaternion"][:, k]
         ax = axes[0, k]
@@ -125,13 +131,40 @@ def plot_trace(
                 ax.set_yscale("log")
         ax.set_title("fit residuals, RMS over the motion pairs (absolute poses: frames) so far", fontsize=9)
         ax.set_xlabel("frame")
+        if bundle:
+            _bundle_row(axes[5, k], frames, trace, k, None if truth is None else truth[k], units)
     for ax in axes.flat:
         ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
+        if ax.get_legend_handles_labels()[0] and ax.get_legend() is None:
             ax.legend(fontsize=8, loc="lower right" if ax.get_yscale() == "log" else "upper right")
         if ax.get_yscale() == "linear":
             ax.ticklabel_format(axis="y", useOffset=False)
     save_figure(fig, path, dpi=110)
+
+
+def _bundle_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | None, units: str | None) -> None:
+    """The rig bundle adjustment's translation at the frames where it ran (markers), the truth dashed (when in
+    metres), and its rotation's error against the truth in the title."""
+    t, q = trace["bundle_translation"][:, k], trace["bundle_quaternion"][:, k]
+    ran = np.isfinite(t[:, 0])
+    title = f"rig bundle adjustment: translation ({units or 'its units'})"
+    metric_truth = truth is not None and units == "metres"
+    for i in range(3):
+        label = f"t{AXES[i]}" + (f" = {t[ran][-1, i]:+.4f}" if ran.any() else "")
+        ax.plot(frames[ran], t[ran, i], marker="o", color=COLORS[i], lw=1,
+                label=label + (f", truth {truth[i, 3]:+.4f}" if metric_truth else ""))
+        if metric_truth:
+            ax.axhline(truth[i, 3], color=COLORS[i], lw=1, ls="--")
+    if truth is not None and ran.any():
+        q_true = rotation_matrix_to_quaternion(torch.from_numpy(truth[:3, :3])).numpy()
+        error = np.linalg.norm(rotation_error_deg(q[ran][-1:], q_true)[-1])
+        title += f"; rotation {error:.3f} deg off the truth" + (", truth dashed" if metric_truth else "")
+    if not ran.any():
+        ax.text(0.5, 0.5, "not trusted: the on-line estimate is kept (see the warnings)", transform=ax.transAxes,
+                ha="center", va="center", color="red", fontsize=10)
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("frame")
+    ax.legend(fontsize=8, loc="upper left")
 
 
 def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str], min_span: float = 0.0) -> None:

@@ -45,7 +45,8 @@ def test_stereo_kitti_tree_recovers_its_baseline(stereo, tmp_path):
     folder, poses, baseline = stereo
     out = tmp_path / "r.json"
     args = ["calibrate", "--sequence", str(folder), "--frontend", "opencv", "--cross-camera", "--keyframe-step", "1",
-            "--metric-trajectory", str(poses), "--out", str(out), "--trace", str(tmp_path / "t.csv")]
+            "--metric-trajectory", str(poses), "--out", str(out), "--trace", str(tmp_path / "t.csv"),
+            "--plot", str(tmp_path / "p.png")]
     assert main(args) == 0
     doc = json.loads(out.read_text())
     assert doc["units"] == "metres"
