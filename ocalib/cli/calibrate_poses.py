@@ -140,8 +140,10 @@ def residual_text(residuals: dict) -> str:
         px = residuals["reprojection_px"]
         return f"reprojection {'?' if px is None else f'{px:.3g} px'} (bundle adjustment, mean)"
     rot, tr = residuals["rotation_deg"], residuals["translation_relative"]
-    return (f"rotation {'?' if rot is None else f'{rot:.3g} deg'}, translation "
-            f"{'?' if tr is None else f'{100 * tr:.3g} %'} of camera 0's motion")
+    return (
+        f"rotation {'?' if rot is None else f'{rot:.3g} deg'}, translation "
+        f"{'?' if tr is None else f'{100 * tr:.3g} %'} of camera 0's motion"
+    )
 
 
 def summary(doc: dict) -> str:

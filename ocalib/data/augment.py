@@ -18,7 +18,6 @@ import torch
 
 from ocalib.data.transforms import crop, hflip, resize
 
-
 _RGB_TO_YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
 
 

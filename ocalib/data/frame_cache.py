@@ -6,7 +6,7 @@ epoch. Measured (the synthetic presets at 64x208): PNG decoding was a third of t
 
 from __future__ import annotations
 
-from typing import Callable, Hashable
+from collections.abc import Callable, Hashable
 
 import numpy as np
 

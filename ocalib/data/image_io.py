@@ -27,16 +27,18 @@ def _imread(path: Path) -> np.ndarray:
     return array
 
 
-def read_image(path: str | Path, size: tuple[int, int] | None = None,
-               out_size: tuple[int, int] | None = None) -> Tensor:
+def read_image(
+    path: str | Path, size: tuple[int, int] | None = None, out_size: tuple[int, int] | None = None
+) -> Tensor:
     """Read an image -> (3, H, W) float32 in [0, 1]. ``size`` (H, W), if given, must match the file;
     ``out_size`` (H', W') resizes it (cv2: area when shrinking, else bilinear; pixel centres map as
     u -> (u + 0.5) s - 0.5, see :func:`ocalib.data.intrinsics.resize_intrinsics`)."""
     return image_tensor(decode_image(path, size, out_size))
 
 
-def decode_image(path: str | Path, size: tuple[int, int] | None = None,
-                 out_size: tuple[int, int] | None = None) -> np.ndarray:
+def decode_image(
+    path: str | Path, size: tuple[int, int] | None = None, out_size: tuple[int, int] | None = None
+) -> np.ndarray:
     """:func:`read_image` before the conversion: (H, W, 3) RGB or (H, W) grey, uint8 or uint16."""
     path = Path(path)
     array = _checked_size(_imread(path), size, path, "image")
@@ -46,7 +48,9 @@ def decode_image(path: str | Path, size: tuple[int, int] | None = None,
         array = cv2.cvtColor(array[:, :, :3], cv2.COLOR_BGR2RGB) if array.shape[2] >= 3 else array[:, :, 0]
     if out_size is not None and tuple(out_size) != array.shape[:2]:
         shrink = out_size[0] <= array.shape[0] and out_size[1] <= array.shape[1]
-        array = cv2.resize(array, (out_size[1], out_size[0]), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+        array = cv2.resize(
+            array, (out_size[1], out_size[0]), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
+        )
     return array
 
 
@@ -56,15 +60,17 @@ def image_tensor(array: np.ndarray) -> Tensor:
     return image.permute(2, 0, 1).contiguous() if image.ndim == 3 else image.expand(3, -1, -1).contiguous()
 
 
-def read_depth(path: str | Path, scale: float = 256.0, size: tuple[int, int] | None = None,
-               out_size: tuple[int, int] | None = None) -> Tensor:
+def read_depth(
+    path: str | Path, scale: float = 256.0, size: tuple[int, int] | None = None, out_size: tuple[int, int] | None = None
+) -> Tensor:
     """Read a uint16 depth PNG (metres x ``scale``, 0 = no surface) -> (1, H, W) float32 metres; ``size`` and
     ``out_size`` as :func:`read_image`, resizing by nearest neighbour (``INTER_NEAREST_EXACT``)."""
     return depth_tensor(decode_depth(path, size, out_size), scale)
 
 
-def decode_depth(path: str | Path, size: tuple[int, int] | None = None,
-                 out_size: tuple[int, int] | None = None) -> np.ndarray:
+def decode_depth(
+    path: str | Path, size: tuple[int, int] | None = None, out_size: tuple[int, int] | None = None
+) -> np.ndarray:
     """:func:`read_depth` before the conversion: (H, W) uint16."""
     path = Path(path)
     array = _checked_size(_imread(path), size, path, "depth")

@@ -16,16 +16,17 @@ import torch
 import yaml
 from torch import Tensor
 
-from ocalib.errors import InputError, read_text
 from ocalib.data.image_io import read_numbers
+from ocalib.errors import InputError, read_text
 
 
 def scale_intrinsics(K: Tensor, sx, sy) -> Tensor:
     """K (..., 3, 3) after resizing by ``sx`` horizontally and ``sy`` vertically (floats or (...) tensors)."""
     K = K.clone()
     # python numbers stay numbers: a tensor made from one is a host-to-device copy on CUDA
-    sx, sy = (s if isinstance(s, (int, float)) else torch.as_tensor(s, dtype=K.dtype, device=K.device)
-              for s in (sx, sy))
+    sx, sy = (
+        s if isinstance(s, (int, float)) else torch.as_tensor(s, dtype=K.dtype, device=K.device) for s in (sx, sy)
+    )
     K[..., 0, :] *= sx[..., None] if isinstance(sx, Tensor) and sx.ndim else sx
     K[..., 1, :] *= sy[..., None] if isinstance(sy, Tensor) and sy.ndim else sy
     K[..., 0, 2] += 0.5 * (sx - 1)  # (cx + 0.5) s - 0.5 = s cx + 0.5 (s - 1)

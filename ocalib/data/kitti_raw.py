@@ -73,9 +73,14 @@ def oxts_to_poses(packets: np.ndarray) -> np.ndarray:
     """
     lat, lon, alt, roll, pitch, yaw = packets[:, :6].T
     scale = np.cos(np.deg2rad(lat[0]))
-    t = np.stack([scale * EARTH_RADIUS * np.deg2rad(lon),
-                  scale * EARTH_RADIUS * np.log(np.tan(np.deg2rad(90.0 + lat) / 2)),
-                  alt], -1)
+    t = np.stack(
+        [
+            scale * EARTH_RADIUS * np.deg2rad(lon),
+            scale * EARTH_RADIUS * np.log(np.tan(np.deg2rad(90.0 + lat) / 2)),
+            alt,
+        ],
+        -1,
+    )
     poses = np.tile(np.eye(4), (len(packets), 1, 1))
     poses[:, :3, :3] = _rot(yaw, 2) @ _rot(pitch, 1) @ _rot(roll, 0)
     poses[:, :3, 3] = t - t[0]
@@ -103,14 +108,18 @@ def read_timestamps(path: Path) -> np.ndarray:
             whole = datetime.strptime(f"{day} {hms}", "%Y-%m-%d %H:%M:%S").replace(tzinfo=timezone.utc)
             times.append(whole.timestamp() + float(f"0.{fraction or 0}"))
         except ValueError:
-            raise InputError(f"{path}:{lineno}: expected 'YYYY-MM-DD HH:MM:SS.fraction', got {line.strip()[:40]!r}") from None
+            raise InputError(
+                f"{path}:{lineno}: expected 'YYYY-MM-DD HH:MM:SS.fraction', got {line.strip()[:40]!r}"
+            ) from None
     return np.asarray(times)
 
 
 def _read_packet(path: Path) -> np.ndarray:
     values = read_numbers(path)[0]
     if values.size < 6:
-        raise InputError(f"{path}: an OXTS packet needs at least lat, lon, alt, roll, pitch, yaw; got {values.size} numbers")
+        raise InputError(
+            f"{path}: an OXTS packet needs at least lat, lon, alt, roll, pitch, yaw; got {values.size} numbers"
+        )
     return values[:6]
 
 

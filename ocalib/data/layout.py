@@ -65,13 +65,19 @@ def open_sequence(path: str | Path, cameras: list[str] | None = None, intrinsics
     if layout is None:
         if path.is_dir() and not any(path.iterdir()):
             raise InputError(f"{path}: the folder is empty")
-        raise InputError(f"{path}: not a sequence folder of a known layout ({', '.join(LAYOUTS)}); "
-                         "a plain image folder needs an intrinsics file (intrinsics.yaml, K.txt, cam.txt)")
+        raise InputError(
+            f"{path}: not a sequence folder of a known layout ({', '.join(LAYOUTS)}); "
+            "a plain image folder needs an intrinsics file (intrinsics.yaml, K.txt, cam.txt)"
+        )
     if layout == "folder":
         sequence = open_folder(path, intrinsics)
     else:
-        sequence = {"rig": open_rig, "kitti_raw": open_kitti_raw, "kitti_odometry": open_kitti_odometry,
-                    "sfmlearner": open_sfmlearner_scene}[layout](path)
+        sequence = {
+            "rig": open_rig,
+            "kitti_raw": open_kitti_raw,
+            "kitti_odometry": open_kitti_odometry,
+            "sfmlearner": open_sfmlearner_scene,
+        }[layout](path)
     return sequence.select(cameras)
 
 

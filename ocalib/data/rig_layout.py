@@ -38,8 +38,10 @@ def open_rig(path: str | Path) -> Sequence:
         if (folder / "depth").is_dir():
             cam.depth = list_frames(folder / "depth", (".png",))
             if [p.stem for p in cam.depth] != [p.stem for p in cam.images]:
-                raise InputError(f"{folder / 'depth'}: depth frames do not match {folder / 'images'} "
-                                 f"({len(cam.depth)} vs {len(cam.images)} files)")
+                raise InputError(
+                    f"{folder / 'depth'}: depth frames do not match {folder / 'images'} "
+                    f"({len(cam.depth)} vs {len(cam.images)} files)"
+                )
         if (folder / "poses.txt").is_file():
             cam.poses = read_kitti(folder / "poses.txt")
             if len(cam.poses) != len(cam.images):

@@ -70,7 +70,7 @@ class Sequence:
                 return cam
         raise InputError(f"{self.path}: no camera {name!r} (cameras: {', '.join(self.names)})")
 
-    def select(self, names: list[str] | None) -> "Sequence":
+    def select(self, names: list[str] | None) -> Sequence:
         """The sequence with only the cameras ``names`` (in that order); extrinsics are re-referenced to
         the first of them. ``None`` keeps all."""
         if names is None:
@@ -91,7 +91,8 @@ def _count_mismatch(a: Camera, b: Camera) -> str:
             extra = [p for p in other.images if p.stem not in others]
             if extra:
                 missing = cam.images[0].with_name(extra[0].stem + cam.images[0].suffix)
-                return (f"{missing}: frame is missing "
-                        f"(camera {other.name} has it; {len(other)} vs {len(cam)} frames)")
-    return (f"unequal frame counts: {a.images[0].parent if a.images else a.name} has {len(a)} frames, "
-            f"{b.images[0].parent if b.images else b.name} has {len(b)}")
+                return f"{missing}: frame is missing (camera {other.name} has it; {len(other)} vs {len(cam)} frames)"
+    return (
+        f"unequal frame counts: {a.images[0].parent if a.images else a.name} has {len(a)} frames, "
+        f"{b.images[0].parent if b.images else b.name} has {len(b)}"
+    )

@@ -14,7 +14,7 @@ Convention: camera-to-world poses; K with integer pixel centres, scaled with eve
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -37,9 +37,15 @@ class SnippetDataset(Dataset):
     (at the output size) kept in memory, per process (:class:`ocalib.data.frame_cache.FrameCache`; 0: none).
     """
 
-    def __init__(self, sequences: list[Sequence], offsets=(-1, 1), size: tuple[int, int] | None = None,
-                 static_threshold: float = 0.0, transform: Callable[[dict], dict] | None = None,
-                 cache_mb: float = 0.0):
+    def __init__(
+        self,
+        sequences: list[Sequence],
+        offsets=(-1, 1),
+        size: tuple[int, int] | None = None,
+        static_threshold: float = 0.0,
+        transform: Callable[[dict], dict] | None = None,
+        cache_mb: float = 0.0,
+    ):
         self.offsets = [int(o) for o in offsets]
         if not self.offsets or 0 in self.offsets:
             raise InputError(f"snippet offsets must be non-empty and non-zero, got {self.offsets}")
@@ -66,16 +72,21 @@ class SnippetDataset(Dataset):
         frames = [t] + [t + o for o in self.offsets]
         size = tuple(self.size or cam.size)
         sample = {
-            "image": torch.stack([image_tensor(self._decoded(decode_image, cam.images[f], cam.size, size))
-                                  for f in frames]),
+            "image": torch.stack(
+                [image_tensor(self._decoded(decode_image, cam.images[f], cam.size, size)) for f in frames]
+            ),
             "K": resize_intrinsics(torch.from_numpy(cam.K), cam.size, size).float(),
             "sequence": seq.name,
             "camera": cam.name,
             "frame": t,
         }
         if cam.depth is not None:
-            sample["depth"] = torch.stack([depth_tensor(self._decoded(decode_depth, cam.depth[f], cam.size, size),
-                                                        cam.depth_scale) for f in frames])
+            sample["depth"] = torch.stack(
+                [
+                    depth_tensor(self._decoded(decode_depth, cam.depth[f], cam.size, size), cam.depth_scale)
+                    for f in frames
+                ]
+            )
         if cam.poses is not None:
             poses = np.linalg.inv(cam.poses[t]) @ cam.poses[frames]
             sample["poses"] = torch.from_numpy(poses).float()

@@ -55,10 +55,14 @@ class RigStream(Dataset):
         sizes = [tuple(self.size or cam.size) for cam in cams]
         frame = {
             "image": torch.stack([read_image(c.images[t], c.size, s) for c, s in zip(cams, sizes)]),
-            "K": torch.stack([resize_intrinsics(torch.from_numpy(c.K), c.size, s) for c, s in zip(cams, sizes)]).float(),
+            "K": torch.stack(
+                [resize_intrinsics(torch.from_numpy(c.K), c.size, s) for c, s in zip(cams, sizes)]
+            ).float(),
         }
         if all(cam.depth is not None for cam in cams):
-            frame["depth"] = torch.stack([read_depth(c.depth[t], c.depth_scale, c.size, s) for c, s in zip(cams, sizes)])
+            frame["depth"] = torch.stack(
+                [read_depth(c.depth[t], c.depth_scale, c.size, s) for c, s in zip(cams, sizes)]
+            )
         if all(cam.poses is not None for cam in cams):
             frame["poses"] = torch.from_numpy(np.stack([cam.poses[t] for cam in cams]))
         if self.extrinsics is not None:

@@ -23,8 +23,9 @@ def resize(sample: dict, size: tuple[int, int]) -> dict:
         return sample
     out = dict(sample)
     antialias = size[0] < old[0] or size[1] < old[1]
-    out["image"] = F.interpolate(sample["image"], size, mode="bilinear", align_corners=False,
-                                 antialias=antialias).clamp(0, 1)
+    out["image"] = F.interpolate(
+        sample["image"], size, mode="bilinear", align_corners=False, antialias=antialias
+    ).clamp(0, 1)
     out["K"] = resize_intrinsics(sample["K"], old, size)
     if "depth" in sample:
         out["depth"] = F.interpolate(sample["depth"], size, mode="nearest-exact")

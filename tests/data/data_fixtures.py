@@ -99,8 +99,15 @@ def write_oxts(drive: Path, packets: np.ndarray) -> None:
         path.write_text(" ".join(f"{v:.15g}" for v in p) + "\n")
 
 
-def write_kitti_raw(root: Path, n: int = 4, calib_beside: bool = True, cams=(0, 1, 2, 3),
-                    T_cam0_velo=T_CAM0_VELO, T_velo_imu=T_VELO_IMU, R_rect=R_RECT) -> dict:
+def write_kitti_raw(
+    root: Path,
+    n: int = 4,
+    calib_beside: bool = True,
+    cams=(0, 1, 2, 3),
+    T_cam0_velo=T_CAM0_VELO,
+    T_velo_imu=T_VELO_IMU,
+    R_rect=R_RECT,
+) -> dict:
     """A date folder with one drive; camera 0 follows :func:`trajectory` (in the Mercator world frame)."""
     date = root / "2011_09_26"
     drive = date / "2011_09_26_drive_0001_sync"
@@ -108,18 +115,22 @@ def write_kitti_raw(root: Path, n: int = 4, calib_beside: bool = True, cams=(0, 
     calib_dir.mkdir(parents=True, exist_ok=True)
     cam_calib = "calib_time: 09-Jan-2012 13:57:47\ncorner_dist: 9.950000e-02\n"
     for i in range(4):
-        cam_calib += kv(**{f"S_rect_0{i}": [W, H], f"R_rect_0{i}": R_rect if i == 0 else np.eye(3),
-                           f"P_rect_0{i}": projection(i)})
+        cam_calib += kv(
+            **{f"S_rect_0{i}": [W, H], f"R_rect_0{i}": R_rect if i == 0 else np.eye(3), f"P_rect_0{i}": projection(i)}
+        )
     (calib_dir / "calib_cam_to_cam.txt").write_text(cam_calib)
     (calib_dir / "calib_velo_to_cam.txt").write_text(
-        "calib_time: 15-Mar-2012 11:37:16\n" + kv(R=T_cam0_velo[:3, :3], T=T_cam0_velo[:3, 3]))
+        "calib_time: 15-Mar-2012 11:37:16\n" + kv(R=T_cam0_velo[:3, :3], T=T_cam0_velo[:3, 3])
+    )
     (calib_dir / "calib_imu_to_velo.txt").write_text(
-        "calib_time: 25-May-2012 16:47:16\n" + kv(R=T_velo_imu[:3, :3], T=T_velo_imu[:3, 3]))
+        "calib_time: 25-May-2012 16:47:16\n" + kv(R=T_velo_imu[:3, :3], T=T_velo_imu[:3, 3])
+    )
     for i in cams:
         for t in range(n):
             write_png(drive / f"image_0{i}" / "data" / f"{t:010d}.png", noise_image(10 * i + t, grey=i < 2))
         (drive / f"image_0{i}" / "timestamps.txt").write_text(
-            "".join(f"2011-09-26 13:02:{25.964389445 + 0.1036 * t:012.9f}\n" for t in range(n)))
+            "".join(f"2011-09-26 13:02:{25.964389445 + 0.1036 * t:012.9f}\n" for t in range(n))
+        )
     poses_cam0 = trajectory(n)  # rectified camera 0 in the world
     T_rect0_imu = pose(R_rect) @ T_cam0_velo @ T_velo_imu
     write_oxts(drive, oxts_packets(poses_cam0 @ T_rect0_imu))
@@ -130,9 +141,12 @@ def write_kitti_raw(root: Path, n: int = 4, calib_beside: bool = True, cams=(0, 
 def write_kitti_odometry(root: Path, n: int = 4, seq: str = "00", with_poses: bool = True) -> Path:
     folder = root / "dataset" / "sequences" / seq
     folder.mkdir(parents=True)
-    (folder / "calib.txt").write_text("".join(
-        f"P{i}: {' '.join(f'{v:.12e}' for v in projection(i).ravel())}\n" for i in range(4))
-        + "Tr: " + " ".join(["0"] * 12) + "\n")
+    (folder / "calib.txt").write_text(
+        "".join(f"P{i}: {' '.join(f'{v:.12e}' for v in projection(i).ravel())}\n" for i in range(4))
+        + "Tr: "
+        + " ".join(["0"] * 12)
+        + "\n"
+    )
     (folder / "times.txt").write_text("".join(f"{0.1 * t:.6e}\n" for t in range(n)))
     for i in range(4):
         for t in range(n):
@@ -156,7 +170,10 @@ def write_sfmlearner(root: Path, scenes=("s1_02", "s2_02", "s3_03"), n: int = 4,
 def write_folder(folder: Path, n: int = 4, intrinsics: str = "intrinsics.yaml", text: str | None = None) -> Path:
     for t in range(n):
         write_png(folder / f"frame_{t + 1}.png", noise_image(t, grey=True))
-    default = f"fx: 50.0\nfy: 50.0\ncx: 39.5\ncy: 11.5\n" if intrinsics.endswith((".yaml", ".yml")) else \
-        "\n".join(" ".join(str(v) for v in row) for row in K)
+    default = (
+        "fx: 50.0\nfy: 50.0\ncx: 39.5\ncy: 11.5\n"
+        if intrinsics.endswith((".yaml", ".yml"))
+        else "\n".join(" ".join(str(v) for v in row) for row in K)
+    )
     (folder / intrinsics).write_text(text if text is not None else default)
     return folder

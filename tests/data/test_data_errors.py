@@ -1,9 +1,16 @@
 """Bad input: each case is an InputError whose message names the file at fault."""
 
 import pytest
+from data_fixtures import (
+    noise_image,
+    write_folder,
+    write_kitti_odometry,
+    write_kitti_raw,
+    write_png,
+    write_rig,
+    write_sfmlearner,
+)
 
-from data_fixtures import write_folder, write_kitti_odometry, write_kitti_raw, write_png, write_rig, \
-    write_sfmlearner, noise_image
 from ocalib.data import RigStream, SnippetDataset, find_sequences, open_sequence
 from ocalib.errors import InputError
 
@@ -102,14 +109,17 @@ def test_malformed_odometry_calibration_and_poses(tmp_path):
     raises_naming(poses, open_sequence, folder)
 
 
-@pytest.mark.parametrize("name,text", [
-    ("cam.txt", "50 0 39.5\n0 50 11.5\n0 0\n"),
-    ("cam.txt", "50 0 39.5\n0 50 eleven\n0 0 1\n"),
-    ("cam.txt", "-50 0 39.5\n0 50 11.5\n0 0 1\n"),
-    ("intrinsics.yaml", "fx: 50\nfy: 50\ncx: 39.5\n"),
-    ("intrinsics.yaml", "K: [[50, 0, 39.5], [0, 50, 11.5]]\n"),
-    ("intrinsics.yaml", "fx: [50\n"),
-])
+@pytest.mark.parametrize(
+    "name,text",
+    [
+        ("cam.txt", "50 0 39.5\n0 50 11.5\n0 0\n"),
+        ("cam.txt", "50 0 39.5\n0 50 eleven\n0 0 1\n"),
+        ("cam.txt", "-50 0 39.5\n0 50 11.5\n0 0 1\n"),
+        ("intrinsics.yaml", "fx: 50\nfy: 50\ncx: 39.5\n"),
+        ("intrinsics.yaml", "K: [[50, 0, 39.5], [0, 50, 11.5]]\n"),
+        ("intrinsics.yaml", "fx: [50\n"),
+    ],
+)
 def test_malformed_intrinsics(tmp_path, name, text):
     folder = write_folder(tmp_path / "video", intrinsics=name, text=text)
     raises_naming(folder / name, open_sequence, folder)

@@ -19,16 +19,18 @@ def project(K, X):
 
 def blob(uv, size=(H, W), sigma=2.0):
     """An image (1, 3, H, W) of a Gaussian blob centred at pixel position uv (integer pixel centres)."""
-    v, u = torch.meshgrid(torch.arange(size[0], dtype=torch.float64), torch.arange(size[1], dtype=torch.float64),
-                          indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(size[0], dtype=torch.float64), torch.arange(size[1], dtype=torch.float64), indexing="ij"
+    )
     g = torch.exp(-((u - uv[0]) ** 2 + (v - uv[1]) ** 2) / (2 * sigma**2))
     return g.expand(1, 3, *size).float()
 
 
 def centroid(image):
     g = image[0, 0].double()
-    v, u = torch.meshgrid(torch.arange(g.shape[0], dtype=torch.float64), torch.arange(g.shape[1], dtype=torch.float64),
-                          indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(g.shape[0], dtype=torch.float64), torch.arange(g.shape[1], dtype=torch.float64), indexing="ij"
+    )
     return torch.stack([(g * u).sum(), (g * v).sum()]) / g.sum()
 
 
@@ -55,8 +57,9 @@ def test_crop():
 
 def test_flip():
     out = hflip(sample())
-    np.testing.assert_allclose(centroid(out["image"]), project(out["K"].double(), POINT * torch.tensor([-1, 1, 1])),
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        centroid(out["image"]), project(out["K"].double(), POINT * torch.tensor([-1, 1, 1])), atol=1e-3
+    )
     np.testing.assert_allclose(flip_intrinsics(flip_intrinsics(K, W), W), K)
 
 
@@ -105,5 +108,7 @@ def test_hue_rotation_keeps_grey_and_luma():
     torch.testing.assert_close(rotate_hue(grey, 1.0), grey)
     colour = torch.rand(3, 4, 4)
     luma = torch.tensor([0.299, 0.587, 0.114])
-    torch.testing.assert_close(torch.einsum("c,chw->hw", luma, rotate_hue(colour, 0.7)), torch.einsum("c,chw->hw", luma, colour))
+    torch.testing.assert_close(
+        torch.einsum("c,chw->hw", luma, rotate_hue(colour, 0.7)), torch.einsum("c,chw->hw", luma, colour)
+    )
     assert not torch.allclose(rotate_hue(colour, 0.7), colour)

@@ -1,8 +1,8 @@
 """The OXTS conversion against facts of the world, independent of the fixture's inverse conversion."""
 
 import numpy as np
-
 from data_fixtures import EARTH_RADIUS, pose, write_kitti_raw, write_oxts
+
 from ocalib.data import open_sequence
 from ocalib.data.kitti_raw import oxts_to_poses
 

@@ -2,9 +2,19 @@
 
 import numpy as np
 import pytest
+from data_fixtures import (
+    BASELINES,
+    H,
+    K,
+    W,
+    trajectory,
+    write_folder,
+    write_kitti_odometry,
+    write_kitti_raw,
+    write_rig,
+    write_sfmlearner,
+)
 
-from data_fixtures import BASELINES, H, K, W, trajectory, write_folder, write_kitti_odometry, write_kitti_raw, \
-    write_rig, write_sfmlearner
 from ocalib.data import detect_layout, find_sequences, open_sequence
 
 
@@ -80,12 +90,15 @@ def test_sfmlearner_root_and_splits(tmp_path):
     np.testing.assert_allclose(seq.cameras[0].K, K)
 
 
-@pytest.mark.parametrize("name,text", [
-    ("intrinsics.yaml", None),
-    ("intrinsics.yml", "K: [[50, 0, 39.5], [0, 50, 11.5], [0, 0, 1]]\n"),
-    ("intrinsics.yaml", "fx: 100\nfy: 100\ncx: 79.5\ncy: 23.5\nwidth: 160\nheight: 48\n"),  # rescaled to 80x24
-    ("K.txt", None),
-])
+@pytest.mark.parametrize(
+    "name,text",
+    [
+        ("intrinsics.yaml", None),
+        ("intrinsics.yml", "K: [[50, 0, 39.5], [0, 50, 11.5], [0, 0, 1]]\n"),
+        ("intrinsics.yaml", "fx: 100\nfy: 100\ncx: 79.5\ncy: 23.5\nwidth: 160\nheight: 48\n"),  # rescaled to 80x24
+        ("K.txt", None),
+    ],
+)
 def test_plain_folder(tmp_path, name, text):
     folder = write_folder(tmp_path / "video", n=12, intrinsics=name, text=text)
     seq = open_sequence(folder)

@@ -5,9 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from data_fixtures import H, K, W, noise_image, trajectory, write_kitti_odometry, write_kitti_raw, write_png, write_rig
 
-from data_fixtures import H, K, W, noise_image, trajectory, write_kitti_odometry, write_kitti_raw, write_png, \
-    write_rig
 from ocalib.data import RigStream, SnippetAugmentation, SnippetDataset, collate_snippets, open_sequence
 from ocalib.data.frame_cache import FrameCache
 from ocalib.data.intrinsics import flip_pose
@@ -124,8 +123,12 @@ def blob_snippet(poses, point):
     for T in poses:
         uv = project(K_big, torch.linalg.inv(T) @ point)
         frames.append(torch.exp(-((u - uv[0]) ** 2 + (v - uv[1]) ** 2) / 8).expand(3, 48, 160))
-    return {"image": torch.stack(frames), "K": K_big.float(), "poses": poses.float(),
-            "depth": torch.ones(len(poses), 1, 48, 160)}
+    return {
+        "image": torch.stack(frames),
+        "K": K_big.float(),
+        "poses": poses.float(),
+        "depth": torch.ones(len(poses), 1, 48, 160),
+    }
 
 
 def project(K, X):
