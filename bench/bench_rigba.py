@@ -59,8 +59,12 @@ class PeakMemory:
 
 
 def errors_row(e: dict) -> dict:
-    return {"rotation_deg": e["rotation_error_deg"], "direction_deg": e["translation_direction_error_deg"],
-            "translation_rel_baseline": e.get("translation_error_rel_baseline"), "in_plane": e["compared_in_plane"]}
+    return {
+        "rotation_deg": e["rotation_error_deg"],
+        "direction_deg": e["translation_direction_error_deg"],
+        "translation_rel_baseline": e.get("translation_error_rel_baseline"),
+        "in_plane": e["compared_in_plane"],
+    }
 
 
 def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: int | None) -> dict:
@@ -73,17 +77,29 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
         refine_calibration(result, metric, options, every=every, progress=False)
         stage = time.perf_counter() - start
     b = result.bundle
-    return {"head": errors_row(result.errors[0]), "bundle": errors_row(result.bundle_errors[0]),
-            "trusted": bool(b.trusted[1]), "warnings": b.warnings, "online_seconds": online, "stage_seconds": stage,
-            "stage_share": stage / (online + stage), "stage_peak_mb": memory.peak,
-            "stage_seconds_per_frame": stage / frames, "stats": b.stats}
+    return {
+        "head": errors_row(result.errors[0]),
+        "bundle": errors_row(result.bundle_errors[0]),
+        "trusted": bool(b.trusted[1]),
+        "warnings": b.warnings,
+        "online_seconds": online,
+        "stage_seconds": stage,
+        "stage_share": stage / (online + stage),
+        "stage_peak_mb": memory.peak,
+        "stage_seconds_per_frame": stage / frames,
+        "stats": b.stats,
+    }
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
-    p.add_argument("--sequences", nargs="+", default=DEFAULT,
-                   help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing")
+    p.add_argument(
+        "--sequences",
+        nargs="+",
+        default=DEFAULT,
+        help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing",
+    )
     p.add_argument("--frontends", nargs="+", default=["network", "opencv"])
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--keyframe-step", type=int, default=BundleOptions().keyframe_step)
@@ -93,22 +109,30 @@ def main() -> None:
     torch.set_num_threads(2)
     options = BundleOptions(keyframe_step=args.keyframe_step)
     results = {}
-    header = (f"{'sequence':16} {'front end':9} {'head rot/dir/t':>22} {'+ BA rot/dir/t':>22} {'BA s':>6} "
-              f"{'share':>6} {'MB':>6}")
+    header = (
+        f"{'sequence':16} {'front end':9} {'head rot/dir/t':>22} {'+ BA rot/dir/t':>22} {'BA s':>6} "
+        f"{'share':>6} {'MB':>6}"
+    )
     print(header)
     for name in args.sequences:
         path = ensure(Path(args.root), name, args.frames)
         for frontend in args.frontends:
             r = results.setdefault(path.name, {})[frontend] = run(path, frontend, args.frames, options, args.every)
-            cell = lambda e: (f"{e['rotation_deg']:6.2f} {e['direction_deg']:6.1f} "  # noqa: E731
-                              f"{np.nan if e['translation_rel_baseline'] is None else e['translation_rel_baseline']:6.2f}")
-            print(f"{path.name:16} {frontend:9} {cell(r['head']):>22} {cell(r['bundle']):>22} "
-                  f"{r['stage_seconds']:6.1f} {r['stage_share']:6.0%} {r['stage_peak_mb']:6.0f}"
-                  + ("" if r["trusted"] else "  (BA not trusted: head kept)"), flush=True)
+            cell = lambda e: (
+                f"{e['rotation_deg']:6.2f} {e['direction_deg']:6.1f} "  # noqa: E731
+                f"{np.nan if e['translation_rel_baseline'] is None else e['translation_rel_baseline']:6.2f}"
+            )
+            print(
+                f"{path.name:16} {frontend:9} {cell(r['head']):>22} {cell(r['bundle']):>22} "
+                f"{r['stage_seconds']:6.1f} {r['stage_share']:6.0%} {r['stage_peak_mb']:6.0f}"
+                + ("" if r["trusted"] else "  (BA not trusted: head kept)"),
+                flush=True,
+            )
             for x in r["stats"].get("stream", []):
                 print(f"    run at frame {x['frame']:4d}: {x['seconds']:6.1f} s")
-    write_json(args.out, {"frames": args.frames, "keyframe_step": args.keyframe_step, "every": args.every,
-                          "results": results})
+    write_json(
+        args.out, {"frames": args.frames, "keyframe_step": args.keyframe_step, "every": args.every, "results": results}
+    )
 
 
 if __name__ == "__main__":

@@ -67,10 +67,18 @@ class RigAdjustment:
     warnings: list[str] = field(default_factory=list)
 
 
-def adjust_rig(sequence: Sequence, initial: np.ndarray, frames: int | None = None, front_end: np.ndarray | None = None,
-               metric: np.ndarray | None = None, options: BundleOptions = BundleOptions(),
-               workdir: str | Path | None = None, every: int | None = None, progress: bool | None = None,
-               check_rotation: np.ndarray | None = None) -> RigAdjustment:
+def adjust_rig(
+    sequence: Sequence,
+    initial: np.ndarray,
+    frames: int | None = None,
+    front_end: np.ndarray | None = None,
+    metric: np.ndarray | None = None,
+    options: BundleOptions = BundleOptions(),
+    workdir: str | Path | None = None,
+    every: int | None = None,
+    progress: bool | None = None,
+    check_rotation: np.ndarray | None = None,
+) -> RigAdjustment:
     """Refine the extrinsics ``initial`` (C, 4, 4) of ``sequence``'s cameras by a joint rig bundle adjustment over its
     first ``frames`` frames (all by default).
 
@@ -95,16 +103,29 @@ def adjust_rig(sequence: Sequence, initial: np.ndarray, frames: int | None = Non
         for end in tqdm(ends, desc="bundle adjustment", unit="run", disable=None if progress is None else not progress):
             run_start = time.perf_counter()
             out = _solve(ws, index[index < end], initial, front_end, metric, options.mapper, check_rotation)
-            stream.append({"frame": end, "extrinsics": out.extrinsics[1:].tolist(), "trusted": out.trusted[1:].tolist(),
-                           "seconds": time.perf_counter() - run_start})
+            stream.append(
+                {
+                    "frame": end,
+                    "extrinsics": out.extrinsics[1:].tolist(),
+                    "trusted": out.trusted[1:].tolist(),
+                    "seconds": time.perf_counter() - run_start,
+                }
+            )
     out.stats.update(seconds=time.perf_counter() - start, **{f"{k}_seconds": v for k, v in ws.seconds.items()})
     if every:
         out.stats["stream"] = stream
     return out
 
 
-def _solve(ws: Workspace, index: np.ndarray, initial: np.ndarray, front_end: np.ndarray | None,
-           metric: np.ndarray | None, options: MapperOptions, check_rotation: np.ndarray | None) -> RigAdjustment:
+def _solve(
+    ws: Workspace,
+    index: np.ndarray,
+    initial: np.ndarray,
+    front_end: np.ndarray | None,
+    metric: np.ndarray | None,
+    options: MapperOptions,
+    check_rotation: np.ndarray | None,
+) -> RigAdjustment:
     """Add the frames ``index`` to ``ws``, map them and read the result, checked."""
     ws.add_frames(index.tolist())
     start = time.perf_counter()
@@ -112,32 +133,49 @@ def _solve(ws: Workspace, index: np.ndarray, initial: np.ndarray, front_end: np.
     mapping = time.perf_counter() - start
     keypoints = _median_keypoints(ws.database)
     if not models:
-        out = _failed(ws.sequence, initial, index, [
-            f"bundle adjustment: no reconstruction from the images ({keypoints:.0f} keypoints an image, median; "
-            "textureless images, too little motion, or wrong intrinsics?); the on-line estimate is kept"])
+        out = _failed(
+            ws.sequence,
+            initial,
+            index,
+            [
+                f"bundle adjustment: no reconstruction from the images ({keypoints:.0f} keypoints an image, median; "
+                "textureless images, too little motion, or wrong intrinsics?); the on-line estimate is kept"
+            ],
+        )
     else:
         out = _read(models[0], ws, index, front_end, metric)
         check = np.ones(len(initial), bool) if check_rotation is None else np.asarray(check_rotation, bool)
-        out.warnings = _checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models,
-                               keypoints) + out.warnings
-    out.stats.update(models=len(models), keypoints_median=keypoints, mapping_seconds=mapping,
-                     registered_frames_other_models=[m.num_reg_frames() for m in models[1:]])
+        out.warnings = (
+            _checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models, keypoints) + out.warnings
+        )
+    out.stats.update(
+        models=len(models),
+        keypoints_median=keypoints,
+        mapping_seconds=mapping,
+        registered_frames_other_models=[m.num_reg_frames() for m in models[1:]],
+    )
     return out
 
 
-def _read(rec: pycolmap.Reconstruction, ws: Workspace, index: np.ndarray, front_end: np.ndarray | None,
-          metric: np.ndarray | None) -> RigAdjustment:
+def _read(
+    rec: pycolmap.Reconstruction,
+    ws: Workspace,
+    index: np.ndarray,
+    front_end: np.ndarray | None,
+    metric: np.ndarray | None,
+) -> RigAdjustment:
     """The extrinsics, trajectories and uncertainty of the reconstruction ``rec``, in metres or front-end units."""
     C = len(ws.sequence.cameras)
     camera_ids = ws.camera_ids
     rig = next(iter(rec.rigs.values()))
-    extrinsics = np.stack([np.eye(4)] + [np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(cid))))
-                                         for cid in camera_ids[1:]])
+    extrinsics = np.stack(
+        [np.eye(4)] + [np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(cid)))) for cid in camera_ids[1:]]
+    )
     poses = np.full((len(index), C, 4, 4), np.nan)
     row = {int(t): i for i, t in enumerate(index)}
     for image in rec.images.values():
         if image.has_pose:
-            k, t = int(image.name[1:image.name.index("/")]), int(Path(image.name).stem)
+            k, t = int(image.name[1 : image.name.index("/")]), int(Path(image.name).stem)
             poses[row[t], k] = camera_to_world(image)
     registered = ~np.isnan(poses[:, :, 0, 0])
     start = time.perf_counter()
@@ -154,20 +192,35 @@ def _read(rec: pycolmap.Reconstruction, ws: Workspace, index: np.ndarray, front_
             scale, R, t = umeyama(poses[ok, 0, :3, 3], reference[index[ok], :3, 3])
             units = "metres" if metric is not None else "camera 0's front-end units"
         except InputError as err:
-            warnings.append(f"bundle adjustment: cannot scale the translation ({err}); it is in the reconstruction's units")
+            warnings.append(
+                f"bundle adjustment: cannot scale the translation ({err}); it is in the reconstruction's units"
+            )
     extrinsics[:, :3, 3] *= scale
     poses[..., :3, 3] *= scale
     for u in uncertainty:
         if u is not None:
             u.covariance[3:, :] *= scale
             u.covariance[:, 3:] *= scale
-    out = RigAdjustment(extrinsics=extrinsics, trusted=np.ones(C, bool), uncertainty=[None] + uncertainty,
-                        scale=_camera_scales(poses, registered, front_end, index), frames=index,
-                        trajectory=poses[:, 0], registered=registered, units=units, warnings=warnings)
-    out.stats = {"registered_frames": int(rec.num_reg_frames()), "frames": len(index), "points": int(rec.num_points3D()),
-                 "observations": int(rec.compute_num_observations()),
-                 "reprojection_error_px": float(rec.compute_mean_reprojection_error()),
-                 "mean_track_length": float(rec.compute_mean_track_length()), "uncertainty_seconds": seconds}
+    out = RigAdjustment(
+        extrinsics=extrinsics,
+        trusted=np.ones(C, bool),
+        uncertainty=[None] + uncertainty,
+        scale=_camera_scales(poses, registered, front_end, index),
+        frames=index,
+        trajectory=poses[:, 0],
+        registered=registered,
+        units=units,
+        warnings=warnings,
+    )
+    out.stats = {
+        "registered_frames": int(rec.num_reg_frames()),
+        "frames": len(index),
+        "points": int(rec.num_points3D()),
+        "observations": int(rec.compute_num_observations()),
+        "reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+        "mean_track_length": float(rec.compute_mean_track_length()),
+        "uncertainty_seconds": seconds,
+    }
     if metric is not None and units == "metres":
         out.stats["drift"] = _drift(poses[ok, 0, :3, 3], metric[index[ok], :3, 3])
     return out
@@ -180,30 +233,40 @@ def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models:
     names = sequence.names
     N = len(out.frames)
     if keypoints < MIN_KEYPOINTS:
-        warnings.append(f"bundle adjustment: {keypoints:.0f} keypoints an image (median): the images are poor in "
-                        "texture, the result is weak")
+        warnings.append(
+            f"bundle adjustment: {keypoints:.0f} keypoints an image (median): the images are poor in "
+            "texture, the result is weak"
+        )
     if len(models) > 1:
-        warnings.append(f"bundle adjustment: the reconstruction fell apart into {len(models)} pieces; the largest, "
-                        f"{models[0].num_reg_frames()} of {N} frames, is used")
+        warnings.append(
+            f"bundle adjustment: the reconstruction fell apart into {len(models)} pieces; the largest, "
+            f"{models[0].num_reg_frames()} of {N} frames, is used"
+        )
     for k, name in enumerate(names):
         share = out.registered[:, k].mean()
         if share < WARN_REGISTERED:
             missing = np.flatnonzero(~out.registered[:, k])
-            warnings.append(f"bundle adjustment: {name}: {N - out.registered[:, k].sum()} of {N} frames did not "
-                            f"register (first: frame {out.frames[missing[0]]})")
+            warnings.append(
+                f"bundle adjustment: {name}: {N - out.registered[:, k].sum()} of {N} frames did not "
+                f"register (first: frame {out.frames[missing[0]]})"
+            )
         if share < MIN_REGISTERED:
             out.trusted[k] = False
     if not out.trusted[0]:
         out.trusted[:] = False
     if out.stats.get("drift", 0.0) > MAX_DRIFT:
-        warnings.append(f"bundle adjustment: the reconstruction drifts from the metric trajectory (RMS "
-                        f"{out.stats['drift']:.1%} of the path length)")
+        warnings.append(
+            f"bundle adjustment: the reconstruction drifts from the metric trajectory (RMS "
+            f"{out.stats['drift']:.1%} of the path length)"
+        )
         out.trusted[:] = False
     for k in range(1, len(names)):
         change = _angle_deg(out.extrinsics[k, :3, :3], initial[k, :3, :3])
         if change > MAX_ROTATION_CHANGE_DEG:  # False for NaN: not checked
-            warnings.append(f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
-                            "estimate; not trusted")
+            warnings.append(
+                f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
+                "estimate; not trusted"
+            )
             out.trusted[k] = False
     for k in np.flatnonzero(~out.trusted[1:]) + 1:
         warnings.append(f"bundle adjustment: {names[k]}: the on-line estimate is kept")
@@ -213,13 +276,22 @@ def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models:
 
 def _failed(sequence: Sequence, initial: np.ndarray, index: np.ndarray, warnings: list[str]) -> RigAdjustment:
     C = len(sequence.cameras)
-    return RigAdjustment(extrinsics=np.array(initial, dtype=np.float64), trusted=np.eye(1, C, dtype=bool)[0],
-                         uncertainty=[None] * C, scale=np.ones(C), frames=index,
-                         trajectory=np.full((len(index), 4, 4), np.nan), registered=np.zeros((len(index), C), bool),
-                         units="none", warnings=warnings)
+    return RigAdjustment(
+        extrinsics=np.array(initial, dtype=np.float64),
+        trusted=np.eye(1, C, dtype=bool)[0],
+        uncertainty=[None] * C,
+        scale=np.ones(C),
+        frames=index,
+        trajectory=np.full((len(index), 4, 4), np.nan),
+        registered=np.zeros((len(index), C), bool),
+        units="none",
+        warnings=warnings,
+    )
 
 
-def _camera_scales(poses: np.ndarray, registered: np.ndarray, front_end: np.ndarray | None, index: np.ndarray) -> np.ndarray:
+def _camera_scales(
+    poses: np.ndarray, registered: np.ndarray, front_end: np.ndarray | None, index: np.ndarray
+) -> np.ndarray:
     """(C,) the scale that multiplies camera k's front-end units into camera 0's, through the one rig trajectory."""
     C = poses.shape[1]
     if front_end is None:
@@ -269,15 +341,22 @@ def camera_json(adjustment: RigAdjustment, k: int, online: dict) -> dict:
     observability = dict(online["observability"])
     if u is not None:
         weakest = u.unobservable[0] if len(u.unobservable) else _weakest(u.covariance[3:, 3:])
-        observability.update(unobservable_translation_directions=u.unobservable.tolist(),
-                             weakest_translation_direction=weakest.tolist())
+        observability.update(
+            unobservable_translation_directions=u.unobservable.tolist(), weakest_translation_direction=weakest.tolist()
+        )
     return {
-        "camera": online["camera"], "rotation": E[:3, :3].tolist(), "quaternion_wxyz": (q if q[0] >= 0 else -q).tolist(),
-        "translation": E[:3, 3].tolist(), "scale": float(adjustment.scale[k]), "time_offset": online["time_offset"],
-        "frames_used": registered, "frames_rejected": len(adjustment.frames) - registered,
+        "camera": online["camera"],
+        "rotation": E[:3, :3].tolist(),
+        "quaternion_wxyz": (q if q[0] >= 0 else -q).tolist(),
+        "translation": E[:3, 3].tolist(),
+        "scale": float(adjustment.scale[k]),
+        "time_offset": online["time_offset"],
+        "frames_used": registered,
+        "frames_rejected": len(adjustment.frames) - registered,
         "rotation_std_deg": None if u is None else np.degrees(u.rotation_std).tolist(),
         "translation_std": None if u is None else finite_or_null(u.translation_std.tolist()),
-        "scale_std": None, "observability": observability,
+        "scale_std": None,
+        "observability": observability,
         "residuals": {"reprojection_px": adjustment.stats.get("reprojection_error_px")},
         "source": "bundle_adjustment",
     }
@@ -308,13 +387,19 @@ def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: 
         project = np.eye(3)
         if u is not None and len(u.unobservable):
             project = project - u.unobservable.T @ u.unobservable
-        e = {"camera": k, "rotation_error_deg": _angle_deg(E[:3, :3], rel[k, :3, :3]),
-             "translation_direction_error_deg": angle_deg(project @ t, project @ t_true),
-             "compared_in_plane": bool(u is not None and len(u.unobservable))}
+        e = {
+            "camera": k,
+            "rotation_error_deg": _angle_deg(E[:3, :3], rel[k, :3, :3]),
+            "translation_direction_error_deg": angle_deg(project @ t, project @ t_true),
+            "compared_in_plane": bool(u is not None and len(u.unobservable)),
+        }
         if truth is not None:
             error = float(np.linalg.norm(project @ (t - t_true)))
             baseline = float(np.linalg.norm(project @ t_true))
-            e.update(metric_scale=scale, translation_error=error,
-                     translation_error_rel_baseline=error / baseline if baseline > 0 else math.nan)
+            e.update(
+                metric_scale=scale,
+                translation_error=error,
+                translation_error_rel_baseline=error / baseline if baseline > 0 else math.nan,
+            )
         out.append(e)
     return out

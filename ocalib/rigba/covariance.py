@@ -28,7 +28,9 @@ from ocalib.rigba.colmap import to_matrix
 UNOBSERVABLE = 1e-6  # information below this share of the best-known translation direction's: unobservable
 UNOBSERVABLE_AXIS_SHARE = 0.1  # an axis with this share of an unobservable direction has no std (a car's y, not x)
 WEAK_SHARE = 0.1  # a translation direction whose 1-sigma exceeds this share of the lever arm's length: unobservable
-DAMPING = 1e-12  # relative damping of each point's 3x3 information, against exact singularity (1e-9 moved the result 3 %)
+DAMPING = (
+    1e-12  # relative damping of each point's 3x3 information, against exact singularity (1e-9 moved the result 3 %)
+)
 
 
 @dataclass
@@ -49,7 +51,11 @@ class ExtrinsicUncertainty:
         """(3,) along camera 0's axes; inf along an axis an unobservable direction has a share of (over
         ``UNOBSERVABLE_AXIS_SHARE``)."""
         std = np.sqrt(np.diag(self.covariance)[3:])
-        touched = (np.abs(self.unobservable) > UNOBSERVABLE_AXIS_SHARE).any(0) if len(self.unobservable) else np.zeros(3, bool)
+        touched = (
+            (np.abs(self.unobservable) > UNOBSERVABLE_AXIS_SHARE).any(0)
+            if len(self.unobservable)
+            else np.zeros(3, bool)
+        )
         return np.where(touched, np.inf, std)
 
 
@@ -83,15 +89,23 @@ def observations_uncertainty(obs: Observations) -> list[ExtrinsicUncertainty]:
     # Columns: extrinsics of cameras 1..C-1 (6 each), then frames (6 each); the gauge's 7 columns dropped.
     cols_e = 6 * (obs.camera - 1)[:, None] + np.arange(6)
     cols_f = 6 * (C - 1) + 6 * obs.frame[:, None] + np.arange(6)
-    J_c = sp.csr_matrix((np.concatenate([Je[obs.camera > 0].ravel(), Jf.ravel()]),
-                         (np.concatenate([np.repeat(rows[obs.camera > 0], 6, 1).ravel(), np.repeat(rows, 6, 1).ravel()]),
-                          np.concatenate([np.tile(cols_e[obs.camera > 0], (1, 2)).ravel(), np.tile(cols_f, (1, 2)).ravel()]))),
-                        shape=(2 * N, 6 * (C - 1 + F)))
+    J_c = sp.csr_matrix(
+        (
+            np.concatenate([Je[obs.camera > 0].ravel(), Jf.ravel()]),
+            (
+                np.concatenate([np.repeat(rows[obs.camera > 0], 6, 1).ravel(), np.repeat(rows, 6, 1).ravel()]),
+                np.concatenate([np.tile(cols_e[obs.camera > 0], (1, 2)).ravel(), np.tile(cols_f, (1, 2)).ravel()]),
+            ),
+        ),
+        shape=(2 * N, 6 * (C - 1 + F)),
+    )
     keep = np.setdiff1d(np.arange(6 * (C - 1 + F)), _gauge_columns(obs, C))
     J_c = J_c[:, keep]
     P = len(obs.xyz)
-    J_p = sp.csr_matrix((Jp.ravel(), (np.repeat(rows, 3, 1).ravel(), np.tile(3 * obs.point[:, None] + np.arange(3), (1, 2)).ravel())),
-                        shape=(2 * N, 3 * P))
+    J_p = sp.csr_matrix(
+        (Jp.ravel(), (np.repeat(rows, 3, 1).ravel(), np.tile(3 * obs.point[:, None] + np.arange(3), (1, 2)).ravel())),
+        shape=(2 * N, 3 * P),
+    )
     H_pp = _block_diagonal(J_p, P)
     H_cp = (J_c.T @ J_p).tocsr()
     S = (J_c.T @ J_c).toarray() - (H_cp @ H_pp @ H_cp.T).toarray()
@@ -101,7 +115,7 @@ def observations_uncertainty(obs: Observations) -> list[ExtrinsicUncertainty]:
     sigma2 = float(r @ r) / max(1, 2 * N - S.shape[0] - 3 * P)
     out = []
     for k in range(1, C):
-        block = info[6 * (k - 1):6 * k, 6 * (k - 1):6 * k] / sigma2
+        block = info[6 * (k - 1) : 6 * k, 6 * (k - 1) : 6 * k] / sigma2
         E = np.linalg.inv(obs.sensor_from_rig[k])
         out.append(_in_camera0(block, E[:3, :3], float(np.linalg.norm(E[:3, 3]))))
     return out
@@ -135,8 +149,13 @@ def _block_diagonal(J_p: sp.csr_matrix, P: int) -> sp.csr_matrix:
     scale = np.trace(blocks, axis1=1, axis2=2)[:, None, None] / 3
     inv = np.linalg.inv(blocks + DAMPING * scale * np.eye(3) + 1e-300 * np.eye(3))
     idx = 3 * np.arange(P)[:, None, None] + np.arange(3)
-    return sp.csr_matrix((inv.ravel(), (np.broadcast_to(idx.transpose(0, 2, 1), (P, 3, 3)).ravel(),
-                                        np.broadcast_to(idx, (P, 3, 3)).ravel())), shape=(3 * P, 3 * P))
+    return sp.csr_matrix(
+        (
+            inv.ravel(),
+            (np.broadcast_to(idx.transpose(0, 2, 1), (P, 3, 3)).ravel(), np.broadcast_to(idx, (P, 3, 3)).ravel()),
+        ),
+        shape=(3 * P, 3 * P),
+    )
 
 
 def _gauge_columns(obs: Observations, C: int) -> np.ndarray:
@@ -193,11 +212,16 @@ def _observations(rec: pycolmap.Reconstruction, camera_ids: list[int]) -> Observ
             point.append(point_index[p.point3D_id])
             xy.append(p.xy)
     rig = next(iter(rec.rigs.values()))
-    sensors = [np.eye(4)] + [to_matrix(rig.sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid)))
-                             for cid in camera_ids[1:]]
+    sensors = [np.eye(4)] + [
+        to_matrix(rig.sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid))) for cid in camera_ids[1:]
+    ]
     return Observations(
-        camera=np.asarray(camera), frame=np.asarray(frame), point=np.asarray(point), xy=np.asarray(xy, dtype=np.float64),
+        camera=np.asarray(camera),
+        frame=np.asarray(frame),
+        point=np.asarray(point),
+        xy=np.asarray(xy, dtype=np.float64),
         rig_from_world=np.stack([to_matrix(rec.frame(fid).rig_from_world) for fid in frame_ids]),
-        xyz=np.stack([rec.point3D(pid).xyz for pid in point_ids]), sensor_from_rig=np.stack(sensors),
+        xyz=np.stack([rec.point3D(pid).xyz for pid in point_ids]),
+        sensor_from_rig=np.stack(sensors),
         pinhole=np.stack([rec.camera(cid).params for cid in camera_ids]),
     )

@@ -43,8 +43,9 @@ def incremental_options(options: MapperOptions) -> pycolmap.IncrementalPipelineO
     return out
 
 
-def map_rig(ws: Workspace, options: MapperOptions = MapperOptions(),
-            previous: Path | None = None) -> list[pycolmap.Reconstruction]:
+def map_rig(
+    ws: Workspace, options: MapperOptions = MapperOptions(), previous: Path | None = None
+) -> list[pycolmap.Reconstruction]:
     """The reconstructions of ``ws``, the one with the most registered frames first; ``previous``: a reconstruction
     folder the incremental mapper continues from (its frames stay registered and new ones are added)."""
     out = ws.root / "sparse"
@@ -54,6 +55,7 @@ def map_rig(ws: Workspace, options: MapperOptions = MapperOptions(),
     if options.kind == "global" and previous is None:
         models = pycolmap.global_mapping(ws.database, ws.images, out, global_options(options))
     else:
-        models = pycolmap.incremental_mapping(ws.database, ws.images, out, options=incremental_options(options),
-                                              input_path=previous or "")
+        models = pycolmap.incremental_mapping(
+            ws.database, ws.images, out, options=incremental_options(options), input_path=previous or ""
+        )
     return sorted(models.values(), key=lambda r: r.num_reg_frames(), reverse=True)

@@ -22,9 +22,14 @@ from ocalib.rigba.options import BundleOptions
 INTERPOLATE_GAP = 1.25  # frame periods of the metric trajectory bridged by interpolation (as calibrate-poses)
 
 
-def refine_calibration(result: ImageCalibration, metric: np.ndarray | None = None,
-                       options: BundleOptions = BundleOptions(), every: int | None = None, workdir=None,
-                       progress: bool | None = None) -> ImageCalibration:
+def refine_calibration(
+    result: ImageCalibration,
+    metric: np.ndarray | None = None,
+    options: BundleOptions = BundleOptions(),
+    every: int | None = None,
+    workdir=None,
+    progress: bool | None = None,
+) -> ImageCalibration:
     """Run the rig bundle adjustment over the frames ``result`` calibrated; its result and (where the sequence has a
     truth) its errors go into ``result.bundle`` and ``result.bundle_errors``. Returns ``result``."""
     sequence, run = result.sequence, result.run
@@ -37,11 +42,20 @@ def refine_calibration(result: ImageCalibration, metric: np.ndarray | None = Non
     initial = np.tile(np.eye(4), (C, 1, 1))
     initial[1:, :3, :3] = run.final.rotation[0].double().numpy()
     initial[1:, :3, 3] = run.final.translation[0].double().numpy()
-    known = (run.final.rotation_observable | run.final.planar_motion)[0].numpy()  # the head's rotations to check against
-    result.bundle = adjust_rig(sequence, initial, frames, front_end=run.rig.poses,
-                               metric=None if metric is None else np.linalg.inv(metric[:1]) @ metric[:frames],
-                               options=options, workdir=workdir, every=every, progress=progress,
-                               check_rotation=np.concatenate([[True], known]))
+    # The head's rotations the result must stay near: those it observed (directly, or through the planar route).
+    known = (run.final.rotation_observable | run.final.planar_motion)[0].numpy()
+    result.bundle = adjust_rig(
+        sequence,
+        initial,
+        frames,
+        front_end=run.rig.poses,
+        metric=None if metric is None else np.linalg.inv(metric[:1]) @ metric[:frames],
+        options=options,
+        workdir=workdir,
+        every=every,
+        progress=progress,
+        check_rotation=np.concatenate([[True], known]),
+    )
     _trace(result)
     if result.truth is not None:
         truth = None
@@ -57,8 +71,9 @@ def _trace(result: ImageCalibration) -> None:
     """The bundle adjustment's extrinsics into the run's trace (``bundle_quaternion`` (F, K, 4), ``bundle_translation``
     (F, K, 3)) at the last frame each run saw, NaN elsewhere and where a camera's result is not trusted."""
     trace, adjustment = result.run.trace, result.bundle
-    runs = adjustment.stats.get("stream") or [{"frame": len(trace["frame"]), "extrinsics": adjustment.extrinsics[1:],
-                                               "trusted": adjustment.trusted[1:]}]
+    runs = adjustment.stats.get("stream") or [
+        {"frame": len(trace["frame"]), "extrinsics": adjustment.extrinsics[1:], "trusted": adjustment.trusted[1:]}
+    ]
     F, K = trace["quaternion"].shape[:2]
     quaternion, translation = np.full((F, K, 4), np.nan), np.full((F, K, 3), np.nan)
     for r in runs:
@@ -76,19 +91,28 @@ def read_metric_trajectory(path, sequence: Sequence, frames: int) -> np.ndarray:
     trajectory = read_poses(path)
     if trajectory.times is None:
         if len(trajectory) != len(sequence):
-            raise InputError(f"{path}: {len(trajectory)} poses for the {len(sequence)} frames of {sequence.path}; a "
-                             "file without timestamps (KITTI) must hold one pose per frame")
+            raise InputError(
+                f"{path}: {len(trajectory)} poses for the {len(sequence)} frames of {sequence.path}; a "
+                "file without timestamps (KITTI) must hold one pose per frame"
+            )
         poses, lines = trajectory.poses[:frames], trajectory.lines[:frames]
     else:
         if sequence.times is None:
             raise InputError(f"{path}: timestamped poses, but {sequence.path} has no timestamps to meet them at")
         period = float(np.median(np.diff(trajectory.times))) if len(trajectory) > 1 else 0.0
-        keep, poses, idx = interpolate(sequence.times[:frames], trajectory.times, trajectory.poses,
-                                       INTERPOLATE_GAP * period, names=(str(sequence.path), str(path)))
+        keep, poses, idx = interpolate(
+            sequence.times[:frames],
+            trajectory.times,
+            trajectory.poses,
+            INTERPOLATE_GAP * period,
+            names=(str(sequence.path), str(path)),
+        )
         if len(keep) < frames:
             missing = np.setdiff1d(np.arange(frames), keep)
-            raise InputError(f"{path}: no pose at {len(missing)} of the {frames} frames' timestamps (first: frame "
-                             f"{missing[0]}, t = {sequence.times[missing[0]]:.6f} s)")
+            raise InputError(
+                f"{path}: no pose at {len(missing)} of the {frames} frames' timestamps (first: frame "
+                f"{missing[0]}, t = {sequence.times[missing[0]]:.6f} s)"
+            )
         lines = trajectory.lines[idx]
     problem = describe_invalid(path, pose_validity(poses), lines)
     if problem:

@@ -57,22 +57,33 @@ class Workspace:
         extraction.sift.max_num_features = self.options.max_features
         extraction.sift.peak_threshold = self.options.peak_threshold
         for k, cam in enumerate(self.sequence.cameras):
-            reader = pycolmap.ImageReaderOptions(camera_model="PINHOLE",
-                                                 camera_params=",".join(f"{v:.10g}" for v in pinhole_params(cam.K)))
+            reader = pycolmap.ImageReaderOptions(
+                camera_model="PINHOLE", camera_params=",".join(f"{v:.10g}" for v in pinhole_params(cam.K))
+            )
             if self.camera_ids:
                 reader.existing_camera_id = self.camera_ids[k]
-            pycolmap.extract_features(self.database, self.images, image_names=names[k],
-                                      camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                                      extraction_options=extraction, device=pycolmap.Device.cpu)
+            pycolmap.extract_features(
+                self.database,
+                self.images,
+                image_names=names[k],
+                camera_mode=pycolmap.CameraMode.SINGLE,
+                reader_options=reader,
+                extraction_options=extraction,
+                device=pycolmap.Device.cpu,
+            )
         self.frames += frames
         self._configure_rig()
         self.seconds["features"] += time.perf_counter() - start
         start = time.perf_counter()
-        pairing = pycolmap.SequentialPairingOptions(overlap=self.options.overlap,
-                                                    expand_rig_images=self.options.cross_camera,
-                                                    num_threads=self.options.threads)
-        pycolmap.match_sequential(self.database, matching_options=pycolmap.FeatureMatchingOptions(
-            num_threads=self.options.threads), pairing_options=pairing, device=pycolmap.Device.cpu)
+        pairing = pycolmap.SequentialPairingOptions(
+            overlap=self.options.overlap, expand_rig_images=self.options.cross_camera, num_threads=self.options.threads
+        )
+        pycolmap.match_sequential(
+            self.database,
+            matching_options=pycolmap.FeatureMatchingOptions(num_threads=self.options.threads),
+            pairing_options=pairing,
+            device=pycolmap.Device.cpu,
+        )
         self.seconds["matching"] += time.perf_counter() - start
 
     def _link(self, frames: list[int]) -> list[list[str]]:
@@ -93,20 +104,24 @@ class Workspace:
         images of one frame index form one rig frame."""
         rig_cameras = [pycolmap.RigConfigCamera(ref_sensor=True, image_prefix="c0/")]
         for k in range(1, len(self.sequence.cameras)):
-            rig_cameras.append(pycolmap.RigConfigCamera(image_prefix=f"c{k}/",
-                                                        cam_from_rig=to_rigid(np.linalg.inv(self.extrinsics[k]))))
+            rig_cameras.append(
+                pycolmap.RigConfigCamera(
+                    image_prefix=f"c{k}/", cam_from_rig=to_rigid(np.linalg.inv(self.extrinsics[k]))
+                )
+            )
         database = pycolmap.Database.open(self.database)
         try:
             pycolmap.apply_rig_config([pycolmap.RigConfig(cameras=rig_cameras)], database)
             if not self.camera_ids:
-                ids = {int(im.name[1:im.name.index("/")]): im.camera_id for im in database.read_all_images()}
+                ids = {int(im.name[1 : im.name.index("/")]): im.camera_id for im in database.read_all_images()}
                 self.camera_ids = [ids[k] for k in range(len(self.sequence.cameras))]
         finally:
             database.close()
 
 
-def create_workspace(root: str | Path, sequence: Sequence, extrinsics: np.ndarray,
-                     options: FeatureOptions = FeatureOptions()) -> Workspace:
+def create_workspace(
+    root: str | Path, sequence: Sequence, extrinsics: np.ndarray, options: FeatureOptions = FeatureOptions()
+) -> Workspace:
     """An empty workspace under ``root`` (which must not hold one) for ``sequence``'s cameras, camera k's
     ``sensor_from_rig`` started from ``extrinsics[k]`` (C, 4, 4)."""
     ws = Workspace(Path(root), sequence, np.asarray(extrinsics, dtype=np.float64), options)

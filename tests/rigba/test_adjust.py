@@ -22,8 +22,12 @@ FRAMES = 60
 def rig(tmp_path_factory):
     """A hand-held two-camera rig (6-DoF motion, 0.13 m lever arm), 60 frames at 128x416, and its truth."""
     root = tmp_path_factory.mktemp("rigba")
-    path = render_sequence(preset("handheld").with_overrides(frames=FRAMES, height=128, width=416, seed=1011),
-                           root / "seq", progress=False, workers=2)
+    path = render_sequence(
+        preset("handheld").with_overrides(frames=FRAMES, height=128, width=416, seed=1011),
+        root / "seq",
+        progress=False,
+        workers=2,
+    )
     seq = open_sequence(path)
     extrinsics = np.stack([c.T_cam0_cam for c in seq.cameras])
     truth = np.stack([c.poses for c in seq.cameras], 1)
@@ -48,8 +52,13 @@ def _metric(truth: np.ndarray) -> np.ndarray:
 
 def test_small_rig_recovered_in_metres(rig, tmp_path):
     seq, extrinsics, truth = rig
-    out = adjust_rig(seq, _head_like(extrinsics), metric=_metric(truth), options=BundleOptions(keyframe_step=1),
-                     workdir=tmp_path / "ws")
+    out = adjust_rig(
+        seq,
+        _head_like(extrinsics),
+        metric=_metric(truth),
+        options=BundleOptions(keyframe_step=1),
+        workdir=tmp_path / "ws",
+    )
     assert out.units == "metres" and out.trusted.all() and out.registered.all(), out.warnings
     [e] = adjustment_errors(out, extrinsics, truth)
     assert e["rotation_error_deg"] < 0.5  # the head's was 1 deg

@@ -21,8 +21,11 @@ def stereo(tmp_path_factory):
     """The renderer's stereo preset (0.54 m baseline, overlapping views), 40 frames at 128x416, rewritten as a KITTI
     odometry tree: image_2 / image_3, calib.txt with P0..P3, times.txt and poses/00.txt (the left camera's)."""
     root = tmp_path_factory.mktemp("stereo")
-    rendered = open_sequence(render_sequence(preset("stereo").with_overrides(frames=40, height=128, width=416,
-                                                                              seed=1013), root / "rig", progress=False))
+    rendered = open_sequence(
+        render_sequence(
+            preset("stereo").with_overrides(frames=40, height=128, width=416, seed=1013), root / "rig", progress=False
+        )
+    )
     folder = root / "dataset" / "sequences" / "00"
     for name, cam in zip(("image_2", "image_3"), rendered.cameras):
         (folder / name).mkdir(parents=True)
@@ -33,8 +36,9 @@ def stereo(tmp_path_factory):
     P = np.hstack([K, np.zeros((3, 1))])
     right = P.copy()
     right[0, 3] = -K[0, 0] * baseline
-    (folder / "calib.txt").write_text("".join(f"P{i}: {' '.join(f'{v:.12e}' for v in M.ravel())}\n"
-                                              for i, M in enumerate((P, P, P, right))))
+    (folder / "calib.txt").write_text(
+        "".join(f"P{i}: {' '.join(f'{v:.12e}' for v in M.ravel())}\n" for i, M in enumerate((P, P, P, right)))
+    )
     (folder / "times.txt").write_text("".join(f"{0.1 * t:.6e}\n" for t in range(len(rendered))))
     poses = rendered.cameras[0].poses
     write_kitti(root / "dataset" / "poses" / "00.txt", np.linalg.inv(poses[:1]) @ poses)
@@ -44,9 +48,24 @@ def stereo(tmp_path_factory):
 def test_stereo_kitti_tree_recovers_its_baseline(stereo, tmp_path):
     folder, poses, baseline = stereo
     out = tmp_path / "r.json"
-    args = ["calibrate", "--sequence", str(folder), "--frontend", "opencv", "--cross-camera", "--keyframe-step", "1",
-            "--metric-trajectory", str(poses), "--out", str(out), "--trace", str(tmp_path / "t.csv"),
-            "--plot", str(tmp_path / "p.png")]
+    args = [
+        "calibrate",
+        "--sequence",
+        str(folder),
+        "--frontend",
+        "opencv",
+        "--cross-camera",
+        "--keyframe-step",
+        "1",
+        "--metric-trajectory",
+        str(poses),
+        "--out",
+        str(out),
+        "--trace",
+        str(tmp_path / "t.csv"),
+        "--plot",
+        str(tmp_path / "p.png"),
+    ]
     assert main(args) == 0
     doc = json.loads(out.read_text())
     assert doc["units"] == "metres"
@@ -75,8 +94,10 @@ def test_clear_errors(stereo, tmp_path, capsys, extra, message):
     folder, poses, _ = stereo
     short = tmp_path / "short.txt"
     short.write_text("".join(poses.read_text().splitlines(keepends=True)[:10]))
-    extra = [{"short": str(short), "poses": str(poses), "missing.txt": str(tmp_path / "missing.txt")}.get(a, a)
-             for a in extra]
+    extra = [
+        {"short": str(short), "poses": str(poses), "missing.txt": str(tmp_path / "missing.txt")}.get(a, a)
+        for a in extra
+    ]
     assert main(["calibrate", "--sequence", str(folder), "--frontend", "opencv", *extra]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1

@@ -36,9 +36,16 @@ def _problem(planar: bool, frames: int = 6, points: int = 30, noise: float = 0.3
             xyz.append(np.linalg.inv(cam_from_world0)[:3] @ np.append(p_cam, 1))
             for f in range(frames):
                 camera.append(c), frame.append(f), point.append(len(xyz) - 1)
-    obs = Observations(camera=np.array(camera), frame=np.array(frame), point=np.array(point),
-                       xy=np.zeros((len(camera), 2)), rig_from_world=rig_from_world, xyz=np.array(xyz),
-                       sensor_from_rig=sensor, pinhole=np.tile(K, (2, 1)))
+    obs = Observations(
+        camera=np.array(camera),
+        frame=np.array(frame),
+        point=np.array(point),
+        xy=np.zeros((len(camera), 2)),
+        rig_from_world=rig_from_world,
+        xyz=np.array(xyz),
+        sensor_from_rig=sensor,
+        pinhole=np.tile(K, (2, 1)),
+    )
     r = _jacobians(obs)[3].reshape(-1, 2)
     obs.xy = r + rng.normal(scale=noise, size=r.shape)  # residual = projection - xy = -noise
     return obs
@@ -53,8 +60,8 @@ def _residuals(obs: Observations, x: np.ndarray) -> np.ndarray:
     F, P = len(obs.rig_from_world), len(obs.xyz)
     sensor = obs.sensor_from_rig.copy()
     sensor[1] = _exp(x[:6]) @ sensor[1]
-    frames = np.stack([_exp(x[6 + 6 * f:12 + 6 * f]) @ obs.rig_from_world[f] for f in range(F)])
-    xyz = obs.xyz + x[6 + 6 * F:].reshape(P, 3)
+    frames = np.stack([_exp(x[6 + 6 * f : 12 + 6 * f]) @ obs.rig_from_world[f] for f in range(F)])
+    xyz = obs.xyz + x[6 + 6 * F :].reshape(P, 3)
     moved = Observations(obs.camera, obs.frame, obs.point, obs.xy, frames, xyz, sensor, obs.pinhole)
     return _jacobians(moved)[3]
 
@@ -91,8 +98,8 @@ def test_jacobians_match_central_differences():
         if obs.camera[o] == 1:
             np.testing.assert_allclose(Je[o], numeric[o, :, :6], rtol=1e-5, atol=1e-6)
         f, p = obs.frame[o], obs.point[o]
-        np.testing.assert_allclose(Jf[o], numeric[o, :, 6 + 6 * f:12 + 6 * f], rtol=1e-5, atol=1e-6)
-        np.testing.assert_allclose(Jp[o], numeric[o, :, 6 + 6 * F + 3 * p:9 + 6 * F + 3 * p], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(Jf[o], numeric[o, :, 6 + 6 * f : 12 + 6 * f], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(Jp[o], numeric[o, :, 6 + 6 * F + 3 * p : 9 + 6 * F + 3 * p], rtol=1e-5, atol=1e-6)
 
 
 def test_covariance_equals_dense_inverse():
