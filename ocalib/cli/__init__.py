@@ -43,6 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 # options naming what a command writes: listed after a Ctrl-C when they were written to
 OUTPUT_OPTIONS = ("out", "trace", "plot", "plots", "tensorboard", "trajectories")
+# options naming a file a command writes when it has finished: checked before it starts, so that a mistake there
+# costs no work
+FILE_OUTPUTS = {
+    "calibrate": ("out", "trace", "plot"),
+    "calibrate-poses": ("out", "trace", "plot"),
+    "evaluate": ("out",),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if getattr(args, "device", None) is not None:
             check_device(args.device)
+        check_outputs(args)
         return int(args._run(args) or 0)
     except (InputError, OSError) as err:
         print(f"ocalib {args.command}: error: {error_message(err)}", file=sys.stderr)
@@ -86,6 +94,20 @@ def check_device(device: str) -> None:
     count = getattr(module, "device_count", None)
     if dev.index is not None and count is not None and dev.index >= count():
         raise InputError(f"--device {device}: this machine has {count()} {dev.type.upper()} device(s)")
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """An :class:`InputError` where an output file of :data:`FILE_OUTPUTS` names a folder, or a folder that is not
+    there (the commands that make their folders, ``--plot`` and ``evaluate --out``, excepted)."""
+    for option in FILE_OUTPUTS.get(args.command, ()):
+        value = getattr(args, option, None)
+        if not value:
+            continue
+        path = Path(value)
+        if path.is_dir():
+            raise InputError(f"{path}: a folder; --{option} names the file to write")
+        if option != "plot" and args.command != "evaluate" and not path.resolve().parent.is_dir():
+            raise InputError(f"{path}: no folder {path.parent} to write it in (--{option})")
 
 
 def written_since(args: argparse.Namespace, start: float) -> list[str]:

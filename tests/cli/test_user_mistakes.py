@@ -91,8 +91,8 @@ def test_a_bad_pose_file_is_one_line(files, name, message, capsys):
 
 
 @pytest.mark.parametrize("option, message", [
-    (["--plot", "folder"], "folder: a folder; give the image's file name"),
-    (["--out", "folder"], "folder: is a directory"),
+    (["--plot", "folder"], "folder: a folder; --plot names the file to write"),
+    (["--out", "folder"], "folder: a folder; --out names the file to write"),
     (["--times", "binary.bin", "binary.bin"], "binary.bin: not a"),
     (["--max-dt", "-1"], "--max-dt must be a positive number of seconds"),
 ])  # fmt: skip
@@ -100,6 +100,24 @@ def test_a_bad_option_of_calibrate_poses_is_one_line(files, option, message, cap
     monkeypatch.chdir(files)
     assert main(["calibrate-poses", "good.txt", "good.txt", "--format", "kitti", *option]) == 2
     assert message in error_line(capsys, "calibrate-poses")
+
+
+@pytest.mark.parametrize(
+    "command", [["calibrate", "--sequence", "S"], ["calibrate-poses", "A", "B"], ["evaluate", "--sequence", "S"]]
+)
+@pytest.mark.parametrize("option", ["--out", "--trace", "--plot"])
+def test_an_output_file_that_is_a_folder_is_refused_before_any_work(files, command, option, capsys, monkeypatch):
+    """The inputs S, A, B do not exist: the output is checked first, so a mistake there costs no calibration."""
+    if command[0] == "evaluate" and option != "--out":
+        pytest.skip("evaluate has no such option")
+    monkeypatch.chdir(files)
+    assert main([*command, option, "folder"] + (["--out", "r.json"] if option != "--out" else [])) == 2
+    assert f"folder: a folder; {option} names the file to write" in error_line(capsys, command[0])
+    assert main([*command, option, "nowhere/r.json"] + (["--out", "r.json"] if option != "--out" else [])) == 2
+    line = error_line(capsys, command[0])
+    assert line.endswith(f"nowhere/r.json: no folder nowhere to write it in ({option})") or (
+        option == "--plot" or command[0] == "evaluate"
+    ), line
 
 
 @pytest.mark.parametrize("option, message", [
