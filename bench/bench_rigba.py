@@ -30,7 +30,7 @@ from ocalib.calibnet.run import calibrate_sequence
 from ocalib.rigba.options import BundleOptions
 from ocalib.rigba.stage import refine_calibration
 
-DEFAULT = ["front-left-1002", "handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001"]
+DEFAULT = ["handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001", "front-left-1002"]
 
 
 def rss_mb() -> float:
@@ -130,9 +130,8 @@ def main() -> None:
             )
             for x in r["stats"].get("stream", []):
                 print(f"    run at frame {x['frame']:4d}: {x['seconds']:6.1f} s")
-    write_json(
-        args.out, {"frames": args.frames, "keyframe_step": args.keyframe_step, "every": args.every, "results": results}
-    )
+            doc = {"frames": args.frames, "keyframe_step": args.keyframe_step, "every": args.every, "results": results}
+            write_json(args.out, doc)  # after every row: an interrupted run keeps what it measured
 
 
 if __name__ == "__main__":

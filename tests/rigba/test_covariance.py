@@ -66,16 +66,22 @@ def _residuals(obs: Observations, x: np.ndarray) -> np.ndarray:
     return _jacobians(moved)[3]
 
 
-def _dense_covariance(obs: Observations) -> np.ndarray:
-    """Camera 1's 6x6 covariance (sensor_from_rig's left perturbation) from a central-difference Jacobian of every
-    parameter, the same gauge columns removed, inverted densely."""
-    F, P = len(obs.rig_from_world), len(obs.xyz)
-    n = 6 + 6 * F + 3 * P
+def _numeric_jacobian(obs: Observations) -> np.ndarray:
+    """(2N, n) central differences of the residuals over every parameter, in :func:`_residuals`' order."""
+    n = 6 + 6 * len(obs.rig_from_world) + 3 * len(obs.xyz)
     J = np.zeros((2 * len(obs.camera), n))
     for i in range(n):
         e = np.zeros(n)
         e[i] = 1e-6
         J[:, i] = (_residuals(obs, e) - _residuals(obs, -e)) / 2e-6
+    return J
+
+
+def _dense_covariance(obs: Observations) -> np.ndarray:
+    """Camera 1's 6x6 covariance (sensor_from_rig's left perturbation) from a central-difference Jacobian of every
+    parameter, the same gauge columns removed, inverted densely."""
+    J = _numeric_jacobian(obs)
+    n = J.shape[1]
     keep = np.setdiff1d(np.arange(n), _gauge_columns(obs, 2))
     J = J[:, keep]
     r = _residuals(obs, np.zeros(n))
@@ -86,14 +92,8 @@ def _dense_covariance(obs: Observations) -> np.ndarray:
 def test_jacobians_match_central_differences():
     obs = _problem(planar=False, frames=3, points=4)
     Je, Jf, Jp, _ = _jacobians(obs)
-    F, P = len(obs.rig_from_world), len(obs.xyz)
-    n = 6 + 6 * F + 3 * P
-    numeric = np.zeros((2 * len(obs.camera), n))
-    for i in range(n):
-        e = np.zeros(n)
-        e[i] = 1e-6
-        numeric[:, i] = (_residuals(obs, e) - _residuals(obs, -e)) / 2e-6
-    numeric = numeric.reshape(len(obs.camera), 2, n)
+    F = len(obs.rig_from_world)
+    numeric = _numeric_jacobian(obs).reshape(len(obs.camera), 2, -1)
     for o in range(len(obs.camera)):
         if obs.camera[o] == 1:
             np.testing.assert_allclose(Je[o], numeric[o, :, :6], rtol=1e-5, atol=1e-6)
