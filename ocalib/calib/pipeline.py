@@ -27,7 +27,6 @@ from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.planar import planar_axis
 from ocalib.calib.result import Calibration
-from ocalib.calib.sequence import calibrate_sequence
 from ocalib.calib.rotation import (
     ROTATION_OBSERVABLE_MIN_SV,
     ROTATION_OBSERVABLE_SIGNIFICANCE,
@@ -35,6 +34,7 @@ from ocalib.calib.rotation import (
     planar_motion,
     rotation_observable,
 )
+from ocalib.calib.sequence import calibrate_sequence
 from ocalib.errors import InputError
 from ocalib.io.poses import describe_invalid, pose_validity, read_poses
 from ocalib.io.timing import (
@@ -132,9 +132,7 @@ def load_rig(
 
     if not any(timed):
         if time_offset is not None:
-            raise InputError(
-                f"--time-offset needs timestamps: {files[0]} has none (KITTI); give TUM files or --times"
-            )
+            raise InputError(f"--time-offset needs timestamps: {files[0]} has none (KITTI); give TUM files or --times")
         for f, t in zip(files[1:], trajs[1:]):
             if len(t) != len(trajs[0]):
                 raise InputError(
@@ -203,7 +201,8 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
     if not len(frames):
         raise InputError(
             f"no frame of {files[0]} where every camera has a pose ({sync}, max_dt "
-            + ", ".join(f"{d:.6g} s" for d in tolerances) + "): "
+            + ", ".join(f"{d:.6g} s" for d in tolerances)
+            + "): "
             + ", ".join(f"{f}: {len(i0)} frames" for f, (i0, _, _) in zip(files[1:], pairs))
         )
     at = [np.searchsorted(i0, frames) for i0, _, _ in pairs]
@@ -243,8 +242,14 @@ class CalibrationRun:
             extrinsics.append({key: cam.pop(key) for key in CAMERA_KEYS} | cam)
         out = {"reference": self.rig.files[0], "extrinsics": extrinsics, "settings": self.settings}
         estimated = [
-            {"camera": f, "time_offset": o, "correlation": q.correlation, "runner_up": q.runner_up, "overlap_s": q.overlap,
-             "angular_speed_offset": q.angular_speed_offset}
+            {
+                "camera": f,
+                "time_offset": o,
+                "correlation": q.correlation,
+                "runner_up": q.runner_up,
+                "overlap_s": q.overlap,
+                "angular_speed_offset": q.angular_speed_offset,
+            }
             for f, o, q in zip(self.rig.files, self.rig.time_offsets, self.rig.offset_quality)
             if q is not None
         ]
@@ -264,11 +269,14 @@ class CalibrationRun:
             "translation_std": ["translation_std_x", "translation_std_y", "translation_std_z"],
             "bundle_quaternion": ["ba_qw", "ba_qx", "ba_qy", "ba_qz"], "bundle_translation": ["ba_tx", "ba_ty", "ba_tz"],
         }  # fmt: skip
-        header, columns = ["frame", "time", "camera"], [
-            np.repeat(tr["frame"], K),
-            np.repeat(tr["time"], K),
-            np.tile(np.arange(1, K + 1), F),
-        ]
+        header, columns = (
+            ["frame", "time", "camera"],
+            [
+                np.repeat(tr["frame"], K),
+                np.repeat(tr["time"], K),
+                np.tile(np.arange(1, K + 1), F),
+            ],
+        )
         for name, values in tr.items():
             if name in ("frame", "time"):
                 continue
@@ -308,14 +316,18 @@ def calibrate_rig(
         raise InputError(f"forgetting must be in (0, 1], got {forgetting}")
     poses = torch.from_numpy(rig.poses)
     if motion == "absolute" and solver != "exact":
-        raise InputError(f"motion 'absolute' has its own solver (on-line AX = YB); leave --solver at exact, not {solver!r}")
+        raise InputError(
+            f"motion 'absolute' has its own solver (on-line AX = YB); leave --solver at exact, not {solver!r}"
+        )
     if pose_error is not None and motion != "absolute":
         raise InputError(f"--pose-error describes absolute poses; it needs --motion absolute, not {motion!r}")
     if motion == "absolute":
         pose_error = pose_error or "camera"
         if pose_error not in POSE_ERRORS:
             raise InputError(f"unknown pose error {pose_error!r}: {', '.join(POSE_ERRORS)}")
-        head = AbsoluteCalibrator(rig.poses.shape[1], pose_error=pose_error, forgetting=forgetting, pose_tolerance=POSE_TOLERANCE)
+        head = AbsoluteCalibrator(
+            rig.poses.shape[1], pose_error=pose_error, forgetting=forgetting, pose_tolerance=POSE_TOLERANCE
+        )
         (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
     elif solver == "batch":
         final = _batch(poses, rig.valid.all(1), motion, refine is True)
@@ -328,8 +340,15 @@ def calibrate_rig(
         (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
     times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
     trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
-    settings = {"motion": motion, "solver": solver, "forgetting": forgetting, "refine": refine, "frames": len(poses),
-                "max_dt": rig.max_dt, "pose_error": pose_error}
+    settings = {
+        "motion": motion,
+        "solver": solver,
+        "forgetting": forgetting,
+        "refine": refine,
+        "frames": len(poses),
+        "max_dt": rig.max_dt,
+        "pose_error": pose_error,
+    }
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = run_warnings(run)
     return run
@@ -368,13 +387,16 @@ def _single_thread():
         torch.set_num_threads(threads)
 
 
-def _sequence(poses: torch.Tensor, motion: str, forgetting: float, refine: bool | str,
-              progress: bool | None) -> tuple[Calibration, dict]:
+def _sequence(
+    poses: torch.Tensor, motion: str, forgetting: float, refine: bool | str, progress: bool | None
+) -> tuple[Calibration, dict]:
     """Every frame (T, C, 4, 4) at once (:func:`~ocalib.calib.sequence.calibrate_sequence`) -> (the last
     estimate, the trace of every frame); the uncertainty is computed ``TRACE_CHUNK`` frames at a time."""
-    with torch.inference_mode(), _single_thread(), tqdm(
-        total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False
-    ) as bar:
+    with (
+        torch.inference_mode(),
+        _single_thread(),
+        tqdm(total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False) as bar,
+    ):
         out = calibrate_sequence(poses, motion=motion, forgetting=forgetting, refine=refine,
                                  pose_tolerance=POSE_TOLERANCE, progress=bar.update)  # fmt: skip
         names = [f.name for f in fields(Calibration)]
@@ -385,16 +407,20 @@ def _sequence(poses: torch.Tensor, motion: str, forgetting: float, refine: bool 
     return last, {k: torch.cat([c[k] for c in chunks]) for k in chunks[0]}
 
 
-def _stream(head: OnlineCalibrator | AbsoluteCalibrator, poses: torch.Tensor, progress: bool | None) -> tuple[Calibration, dict]:
+def _stream(
+    head: OnlineCalibrator | AbsoluteCalibrator, poses: torch.Tensor, progress: bool | None
+) -> tuple[Calibration, dict]:
     """Every frame (T, C, 4, 4) through the head -> (the last estimate, the trace of every frame).
 
     The head's outputs are gathered ``PROGRESS_EVERY`` frames at a time into one Calibration with the
     frames on its batch axis, whose uncertainty is then computed at once (it is lazy in the head).
     """
     chunks, pending = [], []
-    with torch.inference_mode(), _single_thread(), tqdm(
-        total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False
-    ) as bar:
+    with (
+        torch.inference_mode(),
+        _single_thread(),
+        tqdm(total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False) as bar,
+    ):
         for t, pose in enumerate(poses):
             pending.append(head(pose))
             if len(pending) == PROGRESS_EVERY or t == len(poses) - 1:
@@ -409,8 +435,12 @@ def stack_estimates(estimates: list[Calibration]) -> Calibration:
     """Per-frame estimates (each (B, K, ...)) -> one Calibration with the frames concatenated on the batch axis."""
     kind = type(estimates[0])  # Calibration or AbsoluteCalibration
     names = [f.name for f in fields(kind)]
-    return kind(**{n: None if getattr(estimates[0], n) is None else torch.cat([getattr(e, n) for e in estimates])
-                          for n in names})
+    return kind(
+        **{
+            n: None if getattr(estimates[0], n) is None else torch.cat([getattr(e, n) for e in estimates])
+            for n in names
+        }
+    )
 
 
 def trace_rows(e: Calibration) -> dict[str, torch.Tensor]:
@@ -510,7 +540,9 @@ def run_warnings(run: CalibrationRun) -> list[str]:
             )
         unobservable = e.translation_directions[0, k].mT[e.translation_unobservable[0, k]].tolist()
         if unobservable and not bool(e.planar_motion[0, k]):
-            out.append(f"{f}: translation unobservable along {', '.join(_fmt(d) for d in unobservable)} (camera 0's frame)")
+            out.append(
+                f"{f}: translation unobservable along {', '.join(_fmt(d) for d in unobservable)} (camera 0's frame)"
+            )
         residual = float(e.residuals["translation_relative"][0, k])
         if residual > TRANSLATION_RESIDUAL_WARNING:
             out.append(

@@ -151,8 +151,14 @@ def _bundle_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray |
     metric_truth = truth is not None and units == "metres"
     for i in range(3):
         label = f"t{AXES[i]}" + (f" = {t[ran][-1, i]:+.4f}" if ran.any() else "")
-        ax.plot(frames[ran], t[ran, i], marker="o", color=COLORS[i], lw=1,
-                label=label + (f", truth {truth[i, 3]:+.4f}" if metric_truth else ""))
+        ax.plot(
+            frames[ran],
+            t[ran, i],
+            marker="o",
+            color=COLORS[i],
+            lw=1,
+            label=label + (f", truth {truth[i, 3]:+.4f}" if metric_truth else ""),
+        )
         if metric_truth:
             ax.axhline(truth[i, 3], color=COLORS[i], lw=1, ls="--")
     if truth is not None and ran.any():
@@ -160,8 +166,16 @@ def _bundle_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray |
         error = np.linalg.norm(rotation_error_deg(q[ran][-1:], q_true)[-1])
         title += f"; rotation {error:.3f} deg off the truth" + (", truth dashed" if metric_truth else "")
     if not ran.any():
-        ax.text(0.5, 0.5, "not trusted: the on-line estimate is kept (see the warnings)", transform=ax.transAxes,
-                ha="center", va="center", color="red", fontsize=10)
+        ax.text(
+            0.5,
+            0.5,
+            "not trusted: the on-line estimate is kept (see the warnings)",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+            color="red",
+            fontsize=10,
+        )
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("frame")
     ax.legend(fontsize=8, loc="upper left")
