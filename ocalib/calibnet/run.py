@@ -40,8 +40,10 @@ FRONTENDS = ("network", "opencv")
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 # The rotation on planar (car-like) motion, six held-out cars (docs/results-calibrate.md): network front end with
 # the rig-held alignment 0.82-2.16 deg, OpenCV VO 0.52-2.49 (five within 2 deg each; OpenCV lower on five).
-PLANAR_ADVICE = ("planar motion with the network front end: on six held-out cars its rotation was 0.8-2.2 deg off, "
-                 "OpenCV VO's 0.5-2.5, lower on five of the six; --frontend opencv is worth a try")
+PLANAR_ADVICE = (
+    "planar motion with the network front end: on six held-out cars its rotation was 0.8-2.2 deg off, "
+    "OpenCV VO's 0.5-2.5, lower on five of the six; --frontend opencv is worth a try"
+)
 ALIGNED_WARNING = 0.5  # share of frames with an accepted alignment below which a camera is reported (demo: 99-100 %)
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 
@@ -56,7 +58,9 @@ class ImageCalibration:
     truth: np.ndarray | None = None  # (K, 4, 4) the true T_cam0_camk of cameras k >= 1, where the sequence has them
     sequence: Sequence | None = None  # the sequence calibrated (its first settings["frames"] frames)
     bundle: RigAdjustment | None = None  # the rig bundle adjustment's result
-    bundle_errors: list[dict] | None = None  # its ground-truth errors, see :func:`ocalib.rigba.adjust.adjustment_errors`
+    bundle_errors: list[dict] | None = (
+        None  # its ground-truth errors, see :func:`ocalib.rigba.adjust.adjustment_errors`
+    )
 
     def result_json(self) -> dict:
         """The JSON of ``calibrate-poses``; with a bundle adjustment, ``extrinsics`` hold its result (the head's where
@@ -125,8 +129,9 @@ def calibrate_sequence(
         raise InputError(f"forgetting must be in (0, 1], got {forgetting}")
     sequence = open_sequence(path, cameras, intrinsics)
     if len(sequence.cameras) < 2:
-        raise InputError(f"{path}: calibration needs at least two cameras, the sequence has "
-                         f"{', '.join(sequence.names)}")
+        raise InputError(
+            f"{path}: calibration needs at least two cameras, the sequence has {', '.join(sequence.names)}"
+        )
     frames = len(sequence) if max_frames is None else min(len(sequence), max_frames)
     if frames < MIN_FRAMES:
         raise InputError(f"{path}: {frames} frames is too short to calibrate (at least {MIN_FRAMES})")
@@ -137,32 +142,60 @@ def calibrate_sequence(
         model = load_model(checkpoint).to(device)
         views = [model_view(c, model.height, model.width) for c in sequence.cameras]
         frames_in = FrameImages(sequence, views)
-        net = OnlineCalibrationNet(model, len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting,
-                                   refine=refine, scale=scale, intrinsics=np.stack([v.K for v in views]),
-                                   align=align, rig_align=rig_align).to(device)
+        net = OnlineCalibrationNet(
+            model,
+            len(sequence.cameras),
+            motion=motion,
+            solver=solver,
+            forgetting=forgetting,
+            refine=refine,
+            scale=scale,
+            intrinsics=np.stack([v.K for v in views]),
+            align=align,
+            rig_align=rig_align,
+        ).to(device)
         step = _network_step(net, device)
     else:
         frames_in = RigStream(sequence, size=sequence.cameras[0].size)
-        head = OnlineCalibrator(len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting,
-                                refine=refine)
+        head = OnlineCalibrator(
+            len(sequence.cameras), motion=motion, solver=solver, forgetting=forgetting, refine=refine
+        )
         step = _opencv_step(head)
 
     final, trace, trajectory = _stream(frames_in, frames, step, progress, on_frame)
     C = len(sequence.cameras)
     times = sequence.times[:frames] if sequence.times is not None else np.arange(frames, dtype=np.float64)
     trace = {"frame": np.arange(frames), "time": times} | trace
-    rig = RigPoses(files=sequence.names, poses=trajectory, times=times,
-                   lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)), time_offsets=[None] * C)
-    settings = {"frontend": frontend, "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
-                "align": align, "rig_align": rig_align, "motion": motion, "solver": solver,
-                "forgetting": forgetting, "refine": refine, "scale": scale, "frames": frames, "max_dt": None, "sequence": str(path)}
+    rig = RigPoses(
+        files=sequence.names,
+        poses=trajectory,
+        times=times,
+        lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)),
+        time_offsets=[None] * C,
+    )
+    settings = {
+        "frontend": frontend,
+        "checkpoint": None if frontend != "network" else str(checkpoint or "default"),
+        "align": align,
+        "rig_align": rig_align,
+        "motion": motion,
+        "solver": solver,
+        "forgetting": forgetting,
+        "refine": refine,
+        "scale": scale,
+        "frames": frames,
+        "max_dt": None,
+        "sequence": str(path),
+    }
     if align:  # motions whose photometric correction was accepted, per camera (frame 0 has none)
         settings["aligned_frames"] = dict(zip(sequence.names, net.aligned[0].tolist()))
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = run_warnings(run) + [
         f"{name}: the photometric alignment kept the network's motion on {frames - 1 - n} of {frames - 1} frames "
         "(textureless images, wrong intrinsics or a poor depth network?)"
-        for name, n in settings.get("aligned_frames", {}).items() if n < ALIGNED_WARNING * (frames - 1)]
+        for name, n in settings.get("aligned_frames", {}).items()
+        if n < ALIGNED_WARNING * (frames - 1)
+    ]
     run.warnings += planar_advice(frontend, final, sequence.names)
     errors = None
     extrinsics = [cam.T_cam0_cam for cam in sequence.cameras]
@@ -209,11 +242,14 @@ def _opencv_step(head: OnlineCalibrator):
 
 def _stream(dataset, frames: int, step, progress, on_frame):
     """Run ``step`` on items 0..frames-1 of ``dataset`` -> (last estimate, trace columns, trajectories (T, C, 4, 4))."""
-    loader = DataLoader(torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1,
-                        prefetch_factor=4)
+    loader = DataLoader(
+        torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1, prefetch_factor=4
+    )
     chunks, pending, trajectory = [], [], []
-    with torch.inference_mode(), tqdm(total=frames, unit="frame", disable=None if progress is None else not progress,
-                                      desc="calibrating") as bar:
+    with (
+        torch.inference_mode(),
+        tqdm(total=frames, unit="frame", disable=None if progress is None else not progress, desc="calibrating") as bar,
+    ):
         for t, frame in enumerate(loader):
             out, poses = step(frame)
             pending.append(out)

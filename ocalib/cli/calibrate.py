@@ -28,55 +28,101 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     )
     p.add_argument("--sequence", required=True, metavar="DIR", help="the sequence folder")
     p.add_argument("--cameras", nargs="+", metavar="NAME", help="cameras to use, the reference first (default: all)")
-    p.add_argument("--checkpoint", metavar="CKPT",
-                   help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)")
-    p.add_argument("--frontend", choices=("network", "opencv"), default="network",
-                   help="ego-motion front end: the pose network (default) or OpenCV monocular VO (on planar motion "
-                   "often the better of the two: docs/results-calibrate.md)")
+    p.add_argument(
+        "--checkpoint",
+        metavar="CKPT",
+        help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)",
+    )
+    p.add_argument(
+        "--frontend",
+        choices=("network", "opencv"),
+        default="network",
+        help="ego-motion front end: the pose network (default) or OpenCV monocular VO (on planar motion "
+        "often the better of the two: docs/results-calibrate.md)",
+    )
     p.add_argument("--out", metavar="JSON", help="write the result JSON here")
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
     p.add_argument("--tensorboard", metavar="DIR", help="write per-frame TensorBoard scalars here")
     p.add_argument("--trajectories", metavar="DIR", help="write each camera's front-end trajectory (KITTI) here")
     p.add_argument("--device", default="cpu", help="torch device of the network and the head (cpu, cuda)")
-    p.add_argument("--motion", choices=("first", "consecutive", "multi"), default="multi",
-                   help="motion pairs of the head (default: gaps of 1, 2, 4, 8 and 16 frames, weighted by their noise)")
+    p.add_argument(
+        "--motion",
+        choices=("first", "consecutive", "multi"),
+        default="multi",
+        help="motion pairs of the head (default: gaps of 1, 2, 4, 8 and 16 frames, weighted by their noise)",
+    )
     p.add_argument("--solver", choices=("exact", "rls"), default="exact", help="the head's translation solver")
     p.add_argument("--forgetting", type=float, default=1.0, metavar="L", help="forgetting factor in (0, 1]")
-    p.add_argument("--refine", choices=REFINE_CHOICES, default="unobservable",
-                   help="joint refinement of the closed form by the translation rows: only where the rotation rows "
-                   "leave the rotation unobservable (default: a monocular front end's translation directions are "
-                   "biased and would pull an observable rotation off), always, or never")
-    p.add_argument("--scale", choices=("head", "normalise"), default="normalise",
-                   help="network scale: normalise each camera's steps by their running mean length over ~100 "
-                   "frames (default: measured better on the held-out rigs, docs/calibnet.md), or trust it per camera "
-                   "and let the head solve the ratio (head)")
-    p.add_argument("--align", action=argparse.BooleanOptionalAction, default=None,
-                   help="refine each network motion by direct photometric alignment on the network's depth (default "
-                   "with the network front end: more accurate on every held-out rig, docs/results-calibrate.md; "
-                   "most of the time a frame takes)")
-    p.add_argument("--rig-align", action=argparse.BooleanOptionalAction, default=None,
-                   help="with --align, re-align each camera k's translation with its rotation held to the rig's "
-                   "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it "
-                   "(default with --align: measured better on the held-out cars, docs/results-calibrate.md)")
+    p.add_argument(
+        "--refine",
+        choices=REFINE_CHOICES,
+        default="unobservable",
+        help="joint refinement of the closed form by the translation rows: only where the rotation rows "
+        "leave the rotation unobservable (default: a monocular front end's translation directions are "
+        "biased and would pull an observable rotation off), always, or never",
+    )
+    p.add_argument(
+        "--scale",
+        choices=("head", "normalise"),
+        default="normalise",
+        help="network scale: normalise each camera's steps by their running mean length over ~100 "
+        "frames (default: measured better on the held-out rigs, docs/calibnet.md), or trust it per camera "
+        "and let the head solve the ratio (head)",
+    )
+    p.add_argument(
+        "--align",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="refine each network motion by direct photometric alignment on the network's depth (default "
+        "with the network front end: more accurate on every held-out rig, docs/results-calibrate.md; "
+        "most of the time a frame takes)",
+    )
+    p.add_argument(
+        "--rig-align",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="with --align, re-align each camera k's translation with its rotation held to the rig's "
+        "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it "
+        "(default with --align: measured better on the held-out cars, docs/results-calibrate.md)",
+    )
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
     ba = p.add_argument_group("rig bundle adjustment (after the on-line pass: the translation from the images)")
-    ba.add_argument("--bundle-adjust", action=argparse.BooleanOptionalAction, default=True,
-                    help="refine the on-line estimate by a joint bundle adjustment of every camera's features on "
-                    "COLMAP, one rig trajectory for all cameras (default: on; --no-bundle-adjust skips it)")
-    ba.add_argument("--bundle-adjust-every", type=int, metavar="N",
-                    help="streaming: run the bundle adjustment after every N frames on the frames so far (features "
-                    "and matches kept between runs); the JSON holds each run")
-    ba.add_argument("--keyframe-step", type=int, default=2, metavar="K",
-                    help="the bundle adjustment uses every K-th frame (default 2)")
-    ba.add_argument("--cross-camera", action="store_true",
-                    help="also match features between cameras (for cameras that share a view, e.g. a stereo pair)")
+    ba.add_argument(
+        "--bundle-adjust",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="refine the on-line estimate by a joint bundle adjustment of every camera's features on "
+        "COLMAP, one rig trajectory for all cameras (default: on; --no-bundle-adjust skips it)",
+    )
+    ba.add_argument(
+        "--bundle-adjust-every",
+        type=int,
+        metavar="N",
+        help="streaming: run the bundle adjustment after every N frames on the frames so far (features "
+        "and matches kept between runs); the JSON holds each run",
+    )
+    ba.add_argument(
+        "--keyframe-step",
+        type=int,
+        default=2,
+        metavar="K",
+        help="the bundle adjustment uses every K-th frame (default 2)",
+    )
+    ba.add_argument(
+        "--cross-camera",
+        action="store_true",
+        help="also match features between cameras (for cameras that share a view, e.g. a stereo pair)",
+    )
     ba.add_argument("--mapper", choices=MAPPERS, default="global", help="COLMAP mapper (default global)")
-    ba.add_argument("--metric-trajectory", metavar="FILE",
-                    help="camera 0's trajectory in metres (KITTI: one pose a frame; TUM or EuRoC: met at the "
-                    "sequence's timestamps), e.g. wheel odometry, GNSS or the rig layout's poses.txt: the "
-                    "translation is then in metres")
+    ba.add_argument(
+        "--metric-trajectory",
+        metavar="FILE",
+        help="camera 0's trajectory in metres (KITTI: one pose a frame; TUM or EuRoC: met at the "
+        "sequence's timestamps), e.g. wheel odometry, GNSS or the rig layout's poses.txt: the "
+        "translation is then in metres",
+    )
     ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
     return p
 
@@ -104,8 +150,9 @@ def run(args) -> int:
         from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
         from ocalib.rigba.stage import refine_calibration
 
-        options = BundleOptions(FeatureOptions(cross_camera=args.cross_camera), MapperOptions(kind=args.mapper),
-                                args.keyframe_step)
+        options = BundleOptions(
+            FeatureOptions(cross_camera=args.cross_camera), MapperOptions(kind=args.mapper), args.keyframe_step
+        )
         refine_calibration(result, metric, options, args.bundle_adjust_every, args.colmap_workspace)
     doc = result.result_json()
     if args.out:
@@ -166,20 +213,29 @@ def errors_table(errors: list[dict], cameras: list[str], what: str | None = None
 
     lines = ["errors against the ground truth" + (f", {what}:" if what else ":")]
     for e in errors:
-        text = (f"  {cameras[e['camera']]}: rotation {e['rotation_error_deg']:.3f} deg, translation direction "
-                f"{e['translation_direction_error_deg']:.2f} deg" + (" (in the plane)" if e["compared_in_plane"] else ""))
+        text = (
+            f"  {cameras[e['camera']]}: rotation {e['rotation_error_deg']:.3f} deg, translation direction "
+            f"{e['translation_direction_error_deg']:.2f} deg" + (" (in the plane)" if e["compared_in_plane"] else "")
+        )
         if "translation_error_rel_baseline" in e:
-            text += (f", translation {e['translation_error']:.3f} m = {e['translation_error_rel_baseline']:.1%} of the "
-                     f"baseline" + ("" if e["metric_scale"] == 1 else f" (camera 0 scaled to metres x{e['metric_scale']:.3g})"))
+            text += (
+                f", translation {e['translation_error']:.3f} m = {e['translation_error_rel_baseline']:.1%} of the "
+                f"baseline"
+                + ("" if e["metric_scale"] == 1 else f" (camera 0 scaled to metres x{e['metric_scale']:.3g})")
+            )
         if "scale_true" in e:  # the on-line head's: what the front end's motions held
             text += f", scale {e['scale']:.3f} (true {e['scale_true']:.3f})"
             gains = lambda g: "/".join(f"{x:.2f}" for x in g)  # noqa: E731
-            text += (f"\n    front-end rotation gain x/y/z (1: unbiased): {cameras[0]} {gains(e['rotation_gain_reference'])}, "
-                     f"{cameras[e['camera']]} {gains(e['rotation_gain'])}")
+            text += (
+                f"\n    front-end rotation gain x/y/z (1: unbiased): {cameras[0]} {gains(e['rotation_gain_reference'])}, "
+                f"{cameras[e['camera']]} {gains(e['rotation_gain'])}"
+            )
             if math.isfinite(e["scale_wander"]):
-                text += (f"\n    front-end scale wander against {cameras[0]} {e['scale_wander']:.3f}, lever-arm signal "
-                         f"{e['lever_arm_signal']:.3f} ({WANDER_WINDOW}-frame windows; the translation needs the first "
-                         "well under the second)")
+                text += (
+                    f"\n    front-end scale wander against {cameras[0]} {e['scale_wander']:.3f}, lever-arm signal "
+                    f"{e['lever_arm_signal']:.3f} ({WANDER_WINDOW}-frame windows; the translation needs the first "
+                    "well under the second)"
+                )
         lines.append(text)
     return "\n".join(lines)
 

@@ -26,9 +26,13 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", metavar="CKPT", help="ego-motion model (default: the shipped one)")
     p.add_argument("--frontend", choices=("network", "opencv"), default="network", help="ego-motion front end")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
-    p.add_argument("--bundle-adjust", action=argparse.BooleanOptionalAction, default=True,
-                   help="refine by the rig bundle adjustment, in metres through camera 0's rendered poses (as wheel "
-                   "odometry would give them); default on")
+    p.add_argument(
+        "--bundle-adjust",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="refine by the rig bundle adjustment, in metres through camera 0's rendered poses (as wheel "
+        "odometry would give them); default on",
+    )
     return p
 
 
@@ -51,8 +55,9 @@ def run(args) -> int:
     cfg = preset(args.preset).with_overrides(frames=args.frames, seed=args.seed, height=size[0], width=size[1])
     sequence = out / "sequence"
     render_sequence(cfg, sequence, overwrite=True, workers=2)
-    result = calibrate_sequence(sequence, frontend=args.frontend, checkpoint=args.checkpoint, device=args.device,
-                                progress=None)
+    result = calibrate_sequence(
+        sequence, frontend=args.frontend, checkpoint=args.checkpoint, device=args.device, progress=None
+    )
     if args.bundle_adjust:
         from ocalib.rigba.stage import refine_calibration
 

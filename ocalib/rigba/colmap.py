@@ -11,6 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pycolmap
 
+QUIET = 2  # COLMAP's log level while ocalib runs it: errors only (its INFO log is thousands of lines a run)
+pycolmap.logging.minloglevel = QUIET
+
 
 def pinhole_params(K: np.ndarray) -> list[float]:
     """COLMAP PINHOLE parameters ``fx, fy, cx, cy`` of ocalib's K (3, 3) (pixel centres shifted by +0.5)."""
