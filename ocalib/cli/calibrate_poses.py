@@ -184,7 +184,9 @@ def summary(doc: dict) -> str:
             + ", ".join("?" if v is None else f"{v:.2g}" for v in rstd),
             "  translation: "
             + ", ".join(pm(v, sd) for v, sd in zip(e["translation"], e["translation_std"] or [None] * 3)),
-            f"  scale: {pm(e['scale'], e['scale_std'])}",
+            f"  scale: {e['scale']:+.4f} (camera k's front-end units into camera 0's, through the one rig trajectory)"
+            if e.get("source") == "bundle_adjustment"
+            else f"  scale: {pm(e['scale'], e['scale_std'])}",
             "  residuals (RMS): " + residual_text(e["residuals"]),
             f"  flags: {', '.join(flags) if flags else 'none'}",
         ]

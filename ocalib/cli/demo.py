@@ -46,11 +46,11 @@ def run(args) -> int:
     from ocalib.viz.calibration import plot_trace
 
     out = Path(args.out)
-    size = (None, None)
-    if args.frontend == "network":
+    size = (None, None)  # the preset's 128x416: the bundle adjustment needs the detail (at 64x208, 124 keypoints an
+    if args.frontend == "network" and not args.bundle_adjust:  # image and a drifting reconstruction, measured)
         from ocalib.models import load_model
 
-        model = load_model(args.checkpoint)
+        model = load_model(args.checkpoint)  # without it, rendering at the network's size saves time
         size = (model.height, model.width)
     cfg = preset(args.preset).with_overrides(frames=args.frames, seed=args.seed, height=size[0], width=size[1])
     sequence = out / "sequence"
