@@ -12,7 +12,7 @@ import math
 import sys
 
 from ocalib.errors import InputError
-from ocalib.rigba.options import MAPPERS
+from ocalib.rigba.options import MAPPERS, BundleOptions
 
 REFINE_CHOICES = {"unobservable": "unobservable", "always": True, "never": False}  # --refine -> the head's refine
 
@@ -106,9 +106,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     ba.add_argument(
         "--keyframe-step",
         type=int,
-        default=2,
+        default=BundleOptions.keyframe_step,
         metavar="K",
-        help="the bundle adjustment uses every K-th frame (default 2)",
+        help=f"the bundle adjustment uses every K-th frame (default {BundleOptions.keyframe_step})",
     )
     ba.add_argument(
         "--cross-camera",
@@ -147,7 +147,7 @@ def run(args) -> int:
         if writer:
             writer.close()
     if args.bundle_adjust:
-        from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
+        from ocalib.rigba.options import FeatureOptions, MapperOptions
         from ocalib.rigba.stage import refine_calibration
 
         options = BundleOptions(
