@@ -8,11 +8,19 @@ sensor's ``sensor_from_rig``; with camera 0 as the rig frame, ``T_cam0_camk = in
 
 from __future__ import annotations
 
+import signal
+
 import numpy as np
 import pycolmap
 
 QUIET = 2  # COLMAP's log level while ocalib runs it: errors only (its INFO log is thousands of lines a run)
 pycolmap.logging.minloglevel = QUIET
+# Importing pycolmap installs glog's crash handler on SIGTERM too, so every worker process a pool or a DataLoader
+# ends with SIGTERM printed a stack trace; SIGTERM gets Python's handler back (the crash signals keep glog's).
+try:
+    signal.signal(signal.SIGTERM, signal.getsignal(signal.SIGTERM) or signal.SIG_DFL)
+except ValueError:  # imported outside the main thread, where signals cannot be set
+    pass
 
 
 def pinhole_params(K: np.ndarray) -> list[float]:
