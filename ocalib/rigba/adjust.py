@@ -370,7 +370,8 @@ def _weakest(cov: np.ndarray) -> np.ndarray:
 def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: np.ndarray | None) -> list[dict]:
     """Per camera k >= 1: the bundle-adjusted extrinsic's errors against the true ``extrinsics`` (C, 4, 4), as
     :func:`ocalib.calibnet.truth.extrinsic_errors` gives the head's: ``rotation_error_deg``,
-    ``translation_direction_error_deg`` (with the unobservable directions projected out: ``compared_in_plane``), and
+    ``translation_direction_error_deg`` (with the unobservable directions projected out: ``compared_in_plane``; NaN
+    where fewer than two directions are observable), and
     with ``truth`` (T, C, 4, 4) ground-truth poses: ``metric_scale`` (the result's units -> metres, a Sim(3) fit of
     camera 0's reconstructed trajectory to its truth; 1 in metres), ``translation_error`` (metres) and
     ``translation_error_rel_baseline``."""
@@ -390,7 +391,10 @@ def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: 
         e = {
             "camera": k,
             "rotation_error_deg": _angle_deg(E[:3, :3], rel[k, :3, :3]),
-            "translation_direction_error_deg": angle_deg(project @ t, project @ t_true),
+            # A direction needs two observable dimensions to be compared (one left: NaN).
+            "translation_direction_error_deg": angle_deg(project @ t, project @ t_true)
+            if np.linalg.matrix_rank(project) >= 2
+            else math.nan,
             "compared_in_plane": bool(u is not None and len(u.unobservable)),
         }
         if truth is not None:
