@@ -42,6 +42,7 @@ MIN_REGISTERED = 0.5  # share of a camera's frames below which its extrinsic is 
 WARN_REGISTERED = 0.9  # share below which the missing frames are reported
 MIN_KEYPOINTS = 100  # median keypoints an image below which the images are reported as too poor in features
 MAX_DRIFT = 0.05  # RMS position error over the path length, after the Sim(3) fit to a metric trajectory
+MAX_ROTATION_STD_DEG = 1.0  # a rotation 1-sigma above this (deg, any axis): the images do not determine the camera
 
 
 @dataclass
@@ -266,6 +267,16 @@ def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models:
             warnings.append(
                 f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
                 "estimate; not trusted"
+            )
+            out.trusted[k] = False
+    for k in range(1, len(names)):
+        u = out.uncertainty[k]
+        std = math.inf if u is None else float(np.degrees(u.rotation_std).max())
+        if std > MAX_ROTATION_STD_DEG or (u is not None and len(u.unobservable) == 3):
+            warnings.append(
+                f"bundle adjustment: {names[k]}: the reconstruction does not determine its extrinsic (rotation "
+                f"1-sigma {std:.2g} deg, {3 if u is None else len(u.unobservable)} of 3 translation directions "
+                "unobservable)"
             )
             out.trusted[k] = False
     for k in np.flatnonzero(~out.trusted[1:]) + 1:

@@ -100,3 +100,28 @@ def test_a_camera_that_does_not_register_keeps_the_heads_estimate(rig, tmp_path)
     out = adjust_rig(noisy, _head_like(extrinsics), frames=30, metric=_metric(truth))
     assert not out.trusted[1]
     assert any("cam1" in w and ("did not register" in w or "kept" in w) for w in out.warnings), out.warnings
+
+
+def test_an_undetermined_extrinsic_is_not_trusted(rig):
+    """A reconstruction that leaves camera 1's rotation loose (1-sigma of degrees) or all its translation directions
+    unobservable keeps the head's estimate, with a warning saying so."""
+    from ocalib.rigba.adjust import RigAdjustment, _checks
+    from ocalib.rigba.covariance import ExtrinsicUncertainty
+
+    seq, extrinsics, _ = rig
+    for covariance, unobservable in (
+        (np.eye(6) * np.radians(3.0) ** 2, np.zeros((0, 3))),
+        (np.eye(6) * 1e-8, np.eye(3)),
+    ):
+        out = RigAdjustment(
+            extrinsics.copy(),
+            np.ones(2, bool),
+            [None, ExtrinsicUncertainty(covariance, unobservable)],
+            np.ones(2),
+            np.arange(10),
+            np.tile(np.eye(4), (10, 1, 1)),
+            np.ones((10, 2), bool),
+            "metres",
+        )
+        warnings = _checks(out, seq, extrinsics, [None], keypoints=500.0)
+        assert not out.trusted[1] and any("does not determine its extrinsic" in w for w in warnings)
