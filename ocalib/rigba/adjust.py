@@ -29,6 +29,7 @@ from ocalib.calibnet.truth import angle_deg, trajectory_scale
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
 from ocalib.eval.alignment import umeyama
+from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.io.jsonable import finite_or_null
 from ocalib.rigba.colmap import camera_to_world, to_matrix
@@ -262,7 +263,7 @@ def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models:
         )
         out.trusted[:] = False
     for k in range(1, len(names)):
-        change = _angle_deg(out.extrinsics[k, :3, :3], initial[k, :3, :3])
+        change = float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ initial[k, :3, :3]))
         if change > MAX_ROTATION_CHANGE_DEG:  # False for NaN: not checked
             warnings.append(
                 f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
@@ -336,10 +337,6 @@ def _sensor(camera_id: int) -> pycolmap.sensor_t:
     return pycolmap.sensor_t(pycolmap.SensorType.CAMERA, camera_id)
 
 
-def _angle_deg(R1: np.ndarray, R2: np.ndarray) -> float:
-    return math.degrees(math.acos(np.clip((np.trace(R1.T @ R2) - 1) / 2, -1.0, 1.0)))
-
-
 def camera_json(adjustment: RigAdjustment, k: int, online: dict) -> dict:
     """Camera k's (>= 1) JSON object in the format of ``calibrate-poses`` (``online``: the head's, whose
     rotation-system observability it keeps), with ``source`` ``"bundle_adjustment"``; the head's where not trusted."""
@@ -401,7 +398,7 @@ def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: 
             project = project - u.unobservable.T @ u.unobservable
         e = {
             "camera": k,
-            "rotation_error_deg": _angle_deg(E[:3, :3], rel[k, :3, :3]),
+            "rotation_error_deg": float(rotation_angle_deg(E[:3, :3].T @ rel[k, :3, :3])),
             # A direction needs two observable dimensions to be compared (one left: NaN).
             "translation_direction_error_deg": angle_deg(project @ t, project @ t_true)
             if np.linalg.matrix_rank(project) >= 2
