@@ -15,12 +15,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)  # fmt: skip
+from ocalib.geometry.pose import cross_matrix
 
 
 def _project(R, c, frame, anchor, b, rho, K):
@@ -64,8 +59,8 @@ def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, r
         P[:, 1, 1], P[:, 1, 2] = K[1, 1] / z, -K[1, 1] * Y[:, 1] / z**2
         PRkT = P @ np.swapaxes(R[frame], 1, 2)
         J_rho = PRkT @ (cen[a] - cen[frame])[..., None]  # (M, 2, 1)
-        J_k = np.concatenate([P @ _skew(Y), -rho[landmark, None, None] * PRkT], 2)  # observing frame
-        J_a = np.concatenate([-(PRkT @ R[a] @ _skew(b)), rho[landmark, None, None] * PRkT], 2)  # anchor
+        J_k = np.concatenate([P @ cross_matrix(Y), -rho[landmark, None, None] * PRkT], 2)  # observing frame
+        J_a = np.concatenate([-(PRkT @ R[a] @ cross_matrix(b)), rho[landmark, None, None] * PRkT], 2)  # anchor
         w = 1.0 / (1.0 + (r * r).sum(1) / (c * c))  # Cauchy IRLS weight per observation
         # Normal equations, accumulated per observation in 6x6 blocks (einsum and add.at: no BLAS threads,
         # which spin badly on a busy machine), then the Schur complement on the inverse depths.

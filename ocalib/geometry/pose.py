@@ -6,6 +6,7 @@ pose of b in a's frame, ``T_a^-1 T_b``.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -40,3 +41,11 @@ def orthonormality_error(R: Tensor) -> Tensor:
     gram = (R.mT @ R - eye).abs().flatten(-2).amax(-1)
     det = (torch.linalg.cross(R[..., 0, :], R[..., 1, :], dim=-1) * R[..., 2, :]).sum(-1)  # no LU for a 3x3
     return torch.maximum(gram, (det - 1).abs())
+
+
+def cross_matrix(v: np.ndarray) -> np.ndarray:
+    """Cross-product (skew-symmetric) matrices of vectors (..., 3) -> (..., 3, 3), numpy: ``cross_matrix(a) @ b =
+    a x b``."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return out - out.swapaxes(-1, -2)

@@ -23,6 +23,7 @@ import numpy as np
 import pycolmap
 import scipy.sparse as sp
 
+from ocalib.geometry.pose import cross_matrix
 from ocalib.rigba.colmap import to_matrix
 
 UNOBSERVABLE = 1e-6  # information below this share of the best-known translation direction's: unobservable
@@ -183,17 +184,11 @@ def _jacobians(obs: Observations):
     Jpi = np.zeros((len(z), 2, 3))
     Jpi[:, 0, 0], Jpi[:, 0, 2] = fx / z, -fx * Pc[:, 0] / z**2
     Jpi[:, 1, 1], Jpi[:, 1, 2] = fy / z, -fy * Pc[:, 1] / z**2
-    Je = np.concatenate([Jpi @ -_skew(Pc), Jpi], 2)
+    Je = np.concatenate([Jpi @ -cross_matrix(Pc), Jpi], 2)
     JR = Jpi @ T_s[:, :3, :3]
-    Jf = np.concatenate([JR @ -_skew(Y), JR], 2)
+    Jf = np.concatenate([JR @ -cross_matrix(Y), JR], 2)
     Jp = JR @ T_f[:, :3, :3]
     return Je, Jf, Jp, r
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    return out - out.swapaxes(-1, -2)
 
 
 def _observations(rec: pycolmap.Reconstruction, camera_ids: list[int]) -> Observations:
