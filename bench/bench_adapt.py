@@ -32,10 +32,11 @@ from common import write_json
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from ocalib.train.module import EgoMotionModule
 
-from ocalib.calibnet.run import calibrate_sequence
+from ocalib.calibnet.run import calibrate_images
 from ocalib.data.layout import open_sequence
 from ocalib.data.snippets import SnippetDataset, collate_snippets
 from ocalib.eval.pose_metrics import rotation_gain
+from ocalib.frontend import FrontEndOptions
 from ocalib.models import EgoMotionModel, load_model, save_model
 
 LR, EXTRINSIC_LR, BATCH = 1e-4, 1e-3, 2  # network and extrinsic learning rates; synchronised frames a step
@@ -82,7 +83,9 @@ def adapt(model: EgoMotionModel, path: Path, steps: int, rig: dict | None, seed:
 def calibrate(model: EgoMotionModel, path: Path, frames: int, tmp: Path) -> dict:
     """Calibrate with ``model`` -> errors, the extrinsic and the rotation gains of both cameras."""
     checkpoint = save_model(model, tmp / "model.pt")
-    out = calibrate_sequence(path, checkpoint=checkpoint, max_frames=frames, progress=False)
+    out = calibrate_images(
+        path, frontend=FrontEndOptions(checkpoint=str(checkpoint)), max_frames=frames, progress=False
+    )
     e, cam = out.errors[0], out.run.result_json()["extrinsics"][0]
     seq = open_sequence(path)
     trajectory = out.run.rig.poses

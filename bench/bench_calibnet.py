@@ -21,6 +21,7 @@ from common import write_json
 
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
+from ocalib.frontend.network import NetworkFrontEnd
 from ocalib.models import EgoMotionModel, load_model
 from ocalib.synth import preset, render_rig
 
@@ -46,9 +47,11 @@ def bench(model: EgoMotionModel, device: torch.device, cameras: int, frames: int
     pick = [c % seq.images.shape[0] for c in range(cameras)]  # the rig's cameras, repeated for C > 2
     images = seq.images[pick].transpose(0, 1).to(device)  # (T, C, 3, H, W)
     K = torch.from_numpy(np.stack([seq.rig.cameras[c].K for c in pick])).float()
-    net = OnlineCalibrationNet(model, cameras).to(device)
-    aligned = OnlineCalibrationNet(model, cameras, intrinsics=K, align=True).to(device)
-    camera_only = OnlineCalibrationNet(model, cameras, intrinsics=K, align=True, rig_align=False).to(device)
+    graph = lambda **options: OnlineCalibrationNet(  # noqa: E731
+        NetworkFrontEnd(model, cameras, **options), OnlineCalibrator(cameras)
+    ).to(device)
+    net, aligned = graph(), graph(intrinsics=K, align=True)
+    camera_only = graph(intrinsics=K, align=True, rig_align=False)
     head = OnlineCalibrator(cameras, device=device)
     poses = torch.eye(4, dtype=torch.float64, device=device).repeat(frames + warmup, cameras, 1, 1)
     poses[:, :, :3, 3] = torch.randn(frames + warmup, cameras, 3, dtype=torch.float64, device=device).cumsum(0)

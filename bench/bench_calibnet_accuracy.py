@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,9 +23,10 @@ import torch
 from common import write_json
 
 from ocalib.calib.pipeline import RigPoses, calibrate_rig
-from ocalib.calibnet.run import calibrate_sequence
+from ocalib.calibnet.run import calibrate_images
 from ocalib.calibnet.truth import extrinsic_errors
 from ocalib.data.layout import open_sequence
+from ocalib.frontend import FrontEndOptions
 from ocalib.sim.trajectory import add_noise
 from ocalib.synth import preset, render_sequence
 
@@ -96,22 +98,23 @@ def main() -> None:
         path = ensure(Path(args.root), name, args.frames)
         res = results[path.name] = {}
         runs = [
-            (f"network ({scale})", dict(frontend="network", scale=scale, align=False))
+            (f"network ({scale})", FrontEndOptions("network", scale=scale, align=False))
             for scale in ("head", "normalise")
         ]
         if not args.skip_align:
-            runs.append(("network (normalise), aligned", dict(frontend="network", scale="normalise", align=True)))
+            runs.append(("network (normalise), aligned", FrontEndOptions("network", scale="normalise", align=True)))
             runs.append(
                 (
                     "network (normalise), aligned, no rig",
-                    dict(frontend="network", scale="normalise", align=True, rig_align=False),
+                    FrontEndOptions("network", scale="normalise", align=True, rig_align=False),
                 )
             )
         if not args.skip_opencv:
-            runs.append(("opencv", dict(frontend="opencv")))
+            runs.append(("opencv", FrontEndOptions("opencv")))
         for label, kw in runs:
             start = time.perf_counter()
-            out = calibrate_sequence(path, checkpoint=args.checkpoint, max_frames=args.frames, progress=False, **kw)
+            kw = replace(kw, checkpoint=args.checkpoint if kw.name == "network" else None)
+            out = calibrate_images(path, frontend=kw, max_frames=args.frames, progress=False)
             res[label] = row(out.errors, time.perf_counter() - start, args.frames)
             flags = out.run.final
             res[label]["planar_flag"] = bool(flags.planar_motion[0, 0])

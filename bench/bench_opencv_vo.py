@@ -31,8 +31,8 @@ from common import write_json
 
 from ocalib.calib.pipeline import calibrate_files
 from ocalib.data import RigStream, open_sequence
+from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
 from ocalib.frontend import OpenCVOdometry
-from ocalib.frontend.evaluate import motion_errors, relative_motions, rotation_angle_deg
 from ocalib.io.poses import write_kitti
 from ocalib.synth import preset, render_sequence
 
@@ -61,14 +61,14 @@ def run_vo(camera) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def vo_row(name: str, camera, poses, degenerate, fps) -> dict:
-    e = motion_errors(poses, camera.poses, ~degenerate)
-    ratio = e["ratio"]
+    e = step_errors(poses, camera.poses, ~degenerate)
+    ratio = e["scale_ratio"]
     fifth = max(len(ratio) // 5, 1)
     return {
         "preset": name, "camera": camera.name, "frames": len(poses),
         "rotation_err_deg_median": float(np.median(e["rotation_deg"])),
         "rotation_err_deg_p90": float(np.percentile(e["rotation_deg"], 90)),
-        "gt_rotation_deg_median": float(np.median(rotation_angle_deg(relative_motions(camera.poses)[:, :3, :3]))),
+        "gt_rotation_deg_median": float(np.median(rotation_angle_deg(frame_motions(camera.poses)[:, :3, :3]))),
         "direction_err_deg_median": float(np.median(e["direction_deg"])),
         "direction_err_deg_p90": float(np.percentile(e["direction_deg"], 90)),
         "scale_cv": e["scale_cv"],
@@ -95,7 +95,7 @@ def calibration_row(name: str, seq, trajectories: list[np.ndarray], source: str)
     R, t = np.array(est["rotation"]), np.array(est["translation"])
     units = []  # metres per trajectory unit, per camera (least squares over the frame-to-frame motions)
     for cam, poses in zip(seq.cameras, trajectories):
-        a, b = relative_motions(poses)[:, :3, 3], relative_motions(cam.poses)[:, :3, 3]
+        a, b = frame_motions(poses)[:, :3, 3], frame_motions(cam.poses)[:, :3, 3]
         units.append(float((a * b).sum() / (a * a).sum()))
     t_m, t_gt = t * units[0], truth[:3, 3]
     row = {

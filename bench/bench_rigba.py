@@ -26,7 +26,8 @@ import torch
 from bench_calibnet_accuracy import ensure
 from common import write_json
 
-from ocalib.calibnet.run import calibrate_sequence
+from ocalib.calibnet.run import calibrate_images
+from ocalib.frontend import FRONTENDS, FrontEndOptions
 from ocalib.rigba.options import BundleOptions
 from ocalib.rigba.stage import refine_calibration
 
@@ -69,7 +70,7 @@ def errors_row(e: dict) -> dict:
 
 def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: int | None) -> dict:
     start = time.perf_counter()
-    result = calibrate_sequence(path, frontend=frontend, max_frames=frames, progress=False)
+    result = calibrate_images(path, frontend=FrontEndOptions(frontend), max_frames=frames, progress=False)
     online = time.perf_counter() - start
     metric = result.sequence.cameras[0].poses
     with PeakMemory() as memory:
@@ -100,7 +101,7 @@ def main() -> None:
         default=DEFAULT,
         help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing",
     )
-    p.add_argument("--frontends", nargs="+", default=["network", "opencv"])
+    p.add_argument("--frontends", nargs="+", choices=FRONTENDS, default=list(FRONTENDS))
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--keyframe-step", type=int, default=BundleOptions().keyframe_step)
     p.add_argument("--every", type=int, help="the streaming variant: a run after every N frames")

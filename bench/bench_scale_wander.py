@@ -25,15 +25,15 @@ import numpy as np
 from bench_calibnet_accuracy import DEFAULT, ensure
 from common import write_json
 
-from ocalib.calibnet.run import calibrate_sequence
+from ocalib.calibnet.run import calibrate_images
 from ocalib.calibnet.truth import WANDER_WINDOW, scale_wander, step_length_errors
 from ocalib.data.layout import open_sequence
+from ocalib.frontend import FRONTENDS, FrontEndOptions
 
 
 def measure(path: Path, frames: int, frontend: str, checkpoint: str | None) -> dict:
-    out = calibrate_sequence(
-        path, frontend=frontend, checkpoint=checkpoint, scale="head", max_frames=frames, progress=False
-    )
+    options = FrontEndOptions(frontend, checkpoint if frontend == "network" else None, scale="head")
+    out = calibrate_images(path, frontend=options, max_frames=frames, progress=False)
     sequence = open_sequence(path)
     truth = np.stack([c.poses[:frames] for c in sequence.cameras], 1)
     truth = np.linalg.inv(truth[:1]) @ truth
@@ -47,7 +47,7 @@ def main() -> None:
     p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
     p.add_argument("--sequences", nargs="+", default=DEFAULT)
     p.add_argument("--frames", type=int, default=300)
-    p.add_argument("--frontend", default="network", choices=("network", "opencv"))
+    p.add_argument("--frontend", default="network", choices=FRONTENDS)
     p.add_argument("--checkpoint")
     p.add_argument("--out", default="bench/results/scale_wander.json")
     args = p.parse_args()

@@ -22,25 +22,15 @@ from torch import Tensor
 
 from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors
-from ocalib.eval.pose_metrics import rotation_angle_deg, rotation_gain
+from ocalib.eval.pose_metrics import motion_errors, rotation_gain
 from ocalib.frontend.align import align_motion
-from ocalib.geometry.pose import invert_pose
+from ocalib.geometry.pose import chain_motions, invert_pose
 from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.losses.motion import motion_distance
 from ocalib.losses.selfsup import identity_errors, self_supervised_loss
 from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth
 
-
-def pair_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3) -> tuple[np.ndarray, ...]:
-    """Per pair (N, 4, 4) float64: rotation error deg, translation direction error deg and norm ratio |t_pred|/|t_gt|
-    (NaN where the true translation is below ``min_translation``)."""
-    rot = rotation_angle_deg(np.swapaxes(gt[:, :3, :3], 1, 2) @ pred[:, :3, :3])
-    tp, tg = pred[:, :3, 3], gt[:, :3, 3]
-    np_, ng = np.linalg.norm(tp, axis=1), np.linalg.norm(tg, axis=1)
-    moving = ng > min_translation
-    cos = (tp * tg).sum(1) / np.maximum(np_ * ng, 1e-12)
-    direction = np.where(moving, np.degrees(np.arccos(np.clip(cos, -1, 1))), np.nan)
-    return rot, direction, np.where(moving, np_ / np.maximum(ng, 1e-12), np.nan)
+MIN_TRANSLATION = 1e-3  # true motions shorter than this have no translation direction or scale ratio
 
 
 class EgoMotionModule(pl.LightningModule):
@@ -207,7 +197,9 @@ class EgoMotionModule(pl.LightningModule):
         if "poses" in batch:
             pred = T.detach().cpu().double().numpy()
             gt = batch["poses"][:, 1:].cpu().double().numpy()
-            rot, direction, ratio = pair_errors(pred.reshape(-1, 4, 4), gt.reshape(-1, 4, 4))
+            motions, truth = pred.reshape(-1, 4, 4), gt.reshape(-1, 4, 4)
+            e = motion_errors(motions, truth, np.linalg.norm(truth[:, :3, 3], axis=1) > MIN_TRANSLATION)
+            rot, direction, ratio = e["rotation_deg"], e["direction_deg"], e["scale_ratio"]
             self._val["rotation"] += rot.tolist()
             self._val["pred_motions"] += list(pred.reshape(-1, 4, 4))
             self._val["true_motions"] += list(gt.reshape(-1, 4, 4))
@@ -244,7 +236,9 @@ class EgoMotionModule(pl.LightningModule):
             self.log_dict(metrics, prog_bar=False, sync_dist=True)  # DDP: each process's metrics, averaged
         if len(v["trajectory_pred"]) > 1:
             key = v["trajectory_key"]
-            fig = trajectory_figure(_chain(v["trajectory_pred"]), _chain(v["trajectory_gt"]), f"{key[0]} / {key[1]}")
+            fig = trajectory_figure(
+                chain_motions(v["trajectory_pred"]), chain_motions(v["trajectory_gt"]), f"{key[0]} / {key[1]}"
+            )
             experiment = getattr(self.logger, "experiment", None)
             if hasattr(experiment, "add_figure"):
                 experiment.add_figure("val/trajectory", fig, self.global_step)
@@ -291,11 +285,3 @@ def lr_factor(step: int, total_steps: int, warmup_steps: int, min_lr_ratio: floa
     steps = (step - warmup_steps) / max(1, total_steps - warmup_steps)
     progress = min(1.0, max(steps, time_spent))
     return min_lr_ratio + (1 - min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress))
-
-
-def _chain(motions: list[np.ndarray]) -> np.ndarray:
-    """Frame-to-frame motions ``T_{t,t+1}`` -> camera-to-first-frame poses (N + 1, 4, 4)."""
-    poses = [np.eye(4)]
-    for m in motions:
-        poses.append(poses[-1] @ m)
-    return np.stack(poses)

@@ -40,6 +40,7 @@ import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from torch import Tensor, nn
 
+from ocalib.calib.options import POSE_ERRORS  # where the poses' translation error lives
 from ocalib.calib.planar import skew
 from ocalib.geometry.constants import constant_cache
 from ocalib.geometry.pose import invert_pose, orthonormality_error
@@ -49,7 +50,6 @@ from ocalib.io.jsonable import finite_or_null
 UNKNOWNS = 13  # rotation (3, about camera k's axes), world rotation (3), scale, translation (3), world translation (3)
 ROTATION_GAP_MIN = 1e-3  # rotation observable: top two singular values of K at least this far apart, per frame
 SWAP = [3, 4, 5, 0, 1, 2, 6, 10, 11, 12, 7, 8, 9]  # the order of UNKNOWNS with X and Y exchanged
-POSE_ERRORS = ("camera", "world")  # where the poses' translation error lives (see AbsoluteCalibrator)
 NEWTON_STEPS = 10
 CONVERGED = 1e-9  # Newton steps (radians, units) this small are taken without comparing costs
 

@@ -13,7 +13,6 @@ camera-k units into camera-0 units; a time offset is ADDED to camera k's timesta
 from __future__ import annotations
 
 import contextlib
-import math
 from dataclasses import dataclass, field, fields, replace
 from functools import reduce
 from pathlib import Path
@@ -22,46 +21,28 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ocalib.calib.absolute import POSE_ERRORS, ROTATION_GAP_MIN, AbsoluteCalibrator
+from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
+from ocalib.calib.clock import estimate_time_offset, refine_time_offset
 from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.options import HeadOptions
 from ocalib.calib.planar import planar_axis
+from ocalib.calib.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
 from ocalib.calib.result import Calibration
 from ocalib.calib.rotation import (
-    ROTATION_OBSERVABLE_MIN_SV,
-    ROTATION_OBSERVABLE_SIGNIFICANCE,
     batch_rotation,
     planar_motion,
     rotation_observable,
 )
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.errors import InputError
-from ocalib.io.poses import describe_invalid, pose_validity, read_poses
-from ocalib.io.timing import (
-    INTERPOLATION_MAX_DT_PERIODS,
-    associate,
-    estimate_time_offset,
-    interpolate,
-    refine_time_offset,
-)
+from ocalib.io.poses import POSE_TOLERANCE, pose_validity, read_poses
+from ocalib.io.timing import INTERPOLATION_MAX_DT_PERIODS, associate, interpolate
 
 MIN_FRAMES = 3  # synchronised frames with every pose valid, below which there is nothing to calibrate
 PROGRESS_EVERY = 100  # frames between progress-bar updates (and between copies of the per-frame estimates)
 TRACE_CHUNK = 4096  # frames whose uncertainty is computed at once
-POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
-SOLVERS = ("exact", "rls", "batch")
-# A translation residual above this share of camera 0's motion (RMS) is reported. Measured on the held-out rigs
-# (docs/calibnet.md): true poses with VO-like drift 0.002-0.005 leave 1-12 %, OpenCV VO 11-60 %, the aligned pose
-# network 26-49 % (81-98 % before alignment); the translations of the last two are 0.4-25 baselines off.
-TRANSLATION_RESIDUAL_WARNING = 0.15
-UNPAIRED_WARNING = 0.1  # camera-0 stamps left without a camera-k pose inside its span, as a share of the frames kept
 SYNC_MODES = ("interpolate", "nearest")  # how timestamped cameras meet camera 0's stamps (see load_rig)
-
-# The per-camera keys of the result JSON, in their documented order (README).
-CAMERA_KEYS = (
-    "camera", "rotation", "quaternion_wxyz", "translation", "scale", "time_offset", "frames_used",
-    "frames_rejected", "rotation_std_deg", "translation_std", "scale_std", "observability",
-)  # fmt: skip
 
 
 @dataclass
@@ -218,88 +199,8 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
     )
 
 
-@dataclass
-class CalibrationRun:
-    """The outcome of :func:`calibrate_rig`.
-
-    final: the estimate after the last frame, fields (1, K). trace: per-frame estimates, name -> array
-    (F, K, n) for F estimates (every frame; the last only for the batch solver), with ``frame`` and
-    ``time`` (F,) (time NaN without timestamps); angles in degrees.
-    """
-
-    rig: RigPoses
-    final: Calibration
-    trace: dict[str, np.ndarray]
-    settings: dict
-    warnings: list[str]
-
-    def result_json(self) -> dict:
-        """The result JSON (README), plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
-        extrinsics = []
-        for k, f in enumerate(self.rig.files[1:]):
-            cam = self.final.camera_json(0, k)
-            cam.update(camera=f, time_offset=self.rig.time_offsets[k + 1])
-            extrinsics.append({key: cam.pop(key) for key in CAMERA_KEYS} | cam)
-        out = {"reference": self.rig.files[0], "extrinsics": extrinsics, "settings": self.settings}
-        estimated = [
-            {
-                "camera": f,
-                "time_offset": o,
-                "correlation": q.correlation,
-                "runner_up": q.runner_up,
-                "overlap_s": q.overlap,
-                "angular_speed_offset": q.angular_speed_offset,
-            }
-            for f, o, q in zip(self.rig.files, self.rig.time_offsets, self.rig.offset_quality)
-            if q is not None
-        ]
-        if estimated:
-            out["time_offset_estimates"] = estimated
-        out["warnings"] = self.warnings
-        return out
-
-    def trace_table(self) -> tuple[list[str], np.ndarray]:
-        """The trace as a long table, one row per (frame, camera k): header and rows (F * K, n)."""
-        tr = self.trace
-        F, K = tr["quaternion"].shape[:2]
-        names = {
-            "quaternion": ["qw", "qx", "qy", "qz"], "translation": ["tx", "ty", "tz"],
-            "rotation_singular_values": [f"rotation_sv{i}" for i in range(tr["rotation_singular_values"].shape[-1])],
-            "rotation_std_deg": ["rotation_std_x_deg", "rotation_std_y_deg", "rotation_std_z_deg"],
-            "translation_std": ["translation_std_x", "translation_std_y", "translation_std_z"],
-            "bundle_quaternion": ["ba_qw", "ba_qx", "ba_qy", "ba_qz"], "bundle_translation": ["ba_tx", "ba_ty", "ba_tz"],
-        }  # fmt: skip
-        header, columns = (
-            ["frame", "time", "camera"],
-            [
-                np.repeat(tr["frame"], K),
-                np.repeat(tr["time"], K),
-                np.tile(np.arange(1, K + 1), F),
-            ],
-        )
-        for name, values in tr.items():
-            if name in ("frame", "time"):
-                continue
-            header += names.get(name, [name])
-            columns += list(values.reshape(F * K, -1).T)
-        return header, np.stack(columns, 1)
-
-    def write_trace(self, path: str | Path) -> None:
-        """Write :meth:`trace_table` as CSV with a header line."""
-        header, rows = self.trace_table()
-        np.savetxt(path, rows, fmt="%.10g", delimiter=",", header=",".join(header), comments="")
-
-
-def calibrate_rig(
-    rig: RigPoses,
-    motion: str = "multi",
-    solver: str = "exact",
-    forgetting: float = 1.0,
-    refine: bool | str = True,
-    progress: bool | None = False,
-    pose_error: str | None = None,
-) -> CalibrationRun:
-    """Calibrate cameras 1..K of ``rig`` against camera 0.
+def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bool | None = False) -> CalibrationRun:
+    """Calibrate cameras 1..K of ``rig`` against camera 0 with the head's options ``head``.
 
     motion: the head's motion pairing, or ``absolute``: every pose on its own, for poses with independent errors
     (:class:`~ocalib.calib.absolute.AbsoluteCalibrator`; ``refine`` does not apply; ``pose_error``, only with it:
@@ -310,68 +211,37 @@ def calibrate_rig(
     :class:`OnlineCalibrator`; the batch solver refines only with True, and only where rotation is
     observable). progress: a tqdm bar (None: only on a terminal).
     """
-    if solver not in SOLVERS:
-        raise InputError(f"unknown solver {solver!r}: {', '.join(SOLVERS)}")
-    if not 0 < forgetting <= 1:
-        raise InputError(f"forgetting must be in (0, 1], got {forgetting}")
+    head = head.checked()
     poses = torch.from_numpy(rig.poses)
-    if motion == "absolute" and solver != "exact":
-        raise InputError(
-            f"motion 'absolute' has its own solver (on-line AX = YB); leave --solver at exact, not {solver!r}"
-        )
-    if pose_error is not None and motion != "absolute":
-        raise InputError(f"--pose-error describes absolute poses; it needs --motion absolute, not {motion!r}")
-    if motion == "absolute":
-        pose_error = pose_error or "camera"
-        if pose_error not in POSE_ERRORS:
-            raise InputError(f"unknown pose error {pose_error!r}: {', '.join(POSE_ERRORS)}")
-        head = AbsoluteCalibrator(
-            rig.poses.shape[1], pose_error=pose_error, forgetting=forgetting, pose_tolerance=POSE_TOLERANCE
-        )
-        (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
-    elif solver == "batch":
-        final = _batch(poses, rig.valid.all(1), motion, refine is True)
+    if head.motion == "absolute":
+        head = replace(head, pose_error=head.pose_error or "camera")
+        calibrator = AbsoluteCalibrator(rig.poses.shape[1], pose_error=head.pose_error, forgetting=head.forgetting,
+                                        pose_tolerance=POSE_TOLERANCE)  # fmt: skip
+        (final, trace), frames = _stream(calibrator, poses, progress), np.arange(len(poses))
+    elif head.solver == "batch":
+        final = _batch(poses, rig.valid.all(1), head.motion, head.refine is True)
         trace, frames = trace_rows(final), np.array([len(poses) - 1])
-    elif solver == "exact":
-        (final, trace), frames = _sequence(poses, motion, forgetting, refine, progress), np.arange(len(poses))
+    elif head.solver == "exact":
+        (final, trace), frames = _sequence(poses, head, progress), np.arange(len(poses))
     else:
-        head = OnlineCalibrator(rig.poses.shape[1], motion=motion, solver=solver, forgetting=forgetting,
-                                refine=refine, pose_tolerance=POSE_TOLERANCE)  # fmt: skip
-        (final, trace), frames = _stream(head, poses, progress), np.arange(len(poses))
+        calibrator = OnlineCalibrator(rig.poses.shape[1], **head.head_kwargs(), pose_tolerance=POSE_TOLERANCE)
+        (final, trace), frames = _stream(calibrator, poses, progress), np.arange(len(poses))
     times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
     trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
-    settings = {
-        "motion": motion,
-        "solver": solver,
-        "forgetting": forgetting,
-        "refine": refine,
-        "frames": len(poses),
-        "max_dt": rig.max_dt,
-        "pose_error": pose_error,
-    }
+    settings = head.settings() | {"frames": len(poses), "max_dt": rig.max_dt, "pose_error": head.pose_error}
     run = CalibrationRun(rig, final, trace, settings, [])
     run.warnings = run_warnings(run)
     return run
 
 
 def calibrate_files(
-    files: list[str | Path],
-    format: str = "auto",
-    times: list[str | Path] | None = None,
-    time_offset: list[float | str] | None = None,
-    max_dt: float | None = None,
-    motion: str = "multi",
-    solver: str = "exact",
-    forgetting: float = 1.0,
-    refine: bool | str = True,
-    progress: bool | None = False,
-    sync: str = "interpolate",
-    pose_error: str | None = None,
+    files: list[str | Path], head: HeadOptions = HeadOptions(), progress: bool | None = False, **load
 ) -> CalibrationRun:
-    """:func:`load_rig` then :func:`calibrate_rig`; see both for the arguments."""
-    rig = load_rig(files, format, times, time_offset, max_dt, sync)
-    run = calibrate_rig(rig, motion, solver, forgetting, refine, progress, pose_error)
-    run.settings.update(format=format, sync=sync if rig.times is not None else None)
+    """:func:`load_rig` (``load``: its keyword arguments) then :func:`calibrate_rig`."""
+    rig = load_rig(files, **load)
+    run = calibrate_rig(rig, head, progress)
+    sync = load.get("sync", "interpolate") if rig.times is not None else None
+    run.settings.update(format=load.get("format", "auto"), sync=sync)
     return run
 
 
@@ -387,9 +257,7 @@ def _single_thread():
         torch.set_num_threads(threads)
 
 
-def _sequence(
-    poses: torch.Tensor, motion: str, forgetting: float, refine: bool | str, progress: bool | None
-) -> tuple[Calibration, dict]:
+def _sequence(poses: torch.Tensor, head: HeadOptions, progress: bool | None) -> tuple[Calibration, dict]:
     """Every frame (T, C, 4, 4) at once (:func:`~ocalib.calib.sequence.calibrate_sequence`) -> (the last
     estimate, the trace of every frame); the uncertainty is computed ``TRACE_CHUNK`` frames at a time."""
     with (
@@ -397,7 +265,7 @@ def _sequence(
         _single_thread(),
         tqdm(total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False) as bar,
     ):
-        out = calibrate_sequence(poses, motion=motion, forgetting=forgetting, refine=refine,
+        out = calibrate_sequence(poses, motion=head.motion, forgetting=head.forgetting, refine=head.refine,
                                  pose_tolerance=POSE_TOLERANCE, progress=bar.update)  # fmt: skip
         names = [f.name for f in fields(Calibration)]
         part = lambda a, b: Calibration(**{n: getattr(out, n)[a:b] for n in names})  # noqa: E731
@@ -431,45 +299,6 @@ def _stream(
     return last, {k: torch.cat([c[k] for c in chunks]) for k in chunks[0]}
 
 
-def stack_estimates(estimates: list[Calibration]) -> Calibration:
-    """Per-frame estimates (each (B, K, ...)) -> one Calibration with the frames concatenated on the batch axis."""
-    kind = type(estimates[0])  # Calibration or AbsoluteCalibration
-    names = [f.name for f in fields(kind)]
-    return kind(
-        **{
-            n: None if getattr(estimates[0], n) is None else torch.cat([getattr(e, n) for e in estimates])
-            for n in names
-        }
-    )
-
-
-def trace_rows(e: Calibration) -> dict[str, torch.Tensor]:
-    """The trace columns of estimates ``e`` (frames on the batch axis): name -> (F, K, n), degrees."""
-    return {
-        "quaternion": e.quaternion,
-        "translation": e.translation,
-        "scale": e.scale[..., None],
-        "rotation_singular_values": e.rotation_singular_values,
-        "rotation_observable": e.rotation_observable[..., None],
-        "planar_motion": e.planar_motion[..., None],
-        "unobservable_translation_dims": e.translation_unobservable.sum(-1, keepdim=True),
-        "rotation_std_deg": torch.rad2deg(e.rotation_std),
-        "translation_std": e.translation_std,
-        "scale_std": e.scale_std[..., None],
-        "rotation_residual_deg": e.residuals["rotation_deg"][..., None],
-        "translation_residual": e.residuals["translation_relative"][..., None],
-        "frames_used": e.frames_used[..., None],
-        "frames_rejected": e.frames_rejected[..., None],
-    }
-
-
-def progress_text(out: Calibration) -> str:
-    """Camera 1's current estimate: rotation angle (deg), translation and scale."""
-    q, t, s = out.quaternion[0, 0].tolist(), out.translation[0, 0].tolist(), float(out.scale[0, 0])
-    angle = math.degrees(2 * math.atan2(math.hypot(*q[1:]), abs(q[0])))
-    return f"cam1 rot {angle:.2f}deg t=({t[0]:+.3f},{t[1]:+.3f},{t[2]:+.3f}) s={s:.3f}"
-
-
 def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str, refine: bool) -> Calibration:
     """The batch solution of the frames with every pose valid, as a one-frame Calibration (1, K).
 
@@ -498,80 +327,3 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str, refine: bool) ->
         translation_rows=rows[None],
         refined=out["refined"][None],
     )
-
-
-def run_warnings(run: CalibrationRun) -> list[str]:
-    """Readable warnings about the input and the final estimate."""
-    rig, e = run.rig, run.final
-    out = [
-        msg
-        for c, f in enumerate(rig.files)
-        if (msg := describe_invalid(f, pose_validity(rig.poses[:, c], POSE_TOLERANCE), rig.lines[:, c]))
-    ]
-    frames = len(rig.poses)
-    for f, missing in zip(rig.files[1:], rig.unpaired):
-        if missing > UNPAIRED_WARNING * frames:
-            out.append(
-                f"{f}: {missing} of {rig.files[0]}'s stamps inside {f}'s time span found no pose of it (gaps in it "
-                f"beyond max_dt = {rig.max_dt:.6g} s); those frames are left out. Check the time offset "
-                "(--time-offset auto) or raise --max-dt"
-            )
-    for k, f in enumerate(rig.files[1:]):
-        S = e.rotation_singular_values[0, k].tolist()
-        if not bool(e.rotation_observable[0, k]) and run.settings["motion"] == "absolute":
-            out.append(
-                f"{f}: rotation not observable: the top two singular values of the rotation sum {_fmt(S[:3])} are less "
-                f"than {ROTATION_GAP_MIN:g} per frame apart: the poses rotate about one axis or not at all; absolute "
-                "poses cannot calibrate that (no estimate). The motion pairs (--motion multi) recover a planar rotation"
-            )
-        elif not bool(e.rotation_observable[0, k]) and not bool(e.planar_motion[0, k]):
-            out.append(
-                f"{f}: rotation not observable: rotation singular values {_fmt(S)}, the third must exceed "
-                f"{ROTATION_OBSERVABLE_MIN_SV} and stand out of the fourth (the noise floor; significance "
-                f"{ROTATION_OBSERVABLE_SIGNIFICANCE:g}, see ocalib.calib.rotation). The motion rotates too "
-                "little or about too few axes (pure translation?); rotation, translation and scale are unreliable"
-            )
-        if bool(e.planar_motion[0, k]):
-            axis = e.planar_axis[0, k].tolist()
-            out.append(
-                f"{f}: planar motion: every rotation is about one axis {_fmt(axis)} (camera 0's frame); the rotation "
-                "is recovered through the translation constraint and the translation along that axis is unobservable "
-                "(its std null; the value there is not a measurement)"
-            )
-        unobservable = e.translation_directions[0, k].mT[e.translation_unobservable[0, k]].tolist()
-        if unobservable and not bool(e.planar_motion[0, k]):
-            out.append(
-                f"{f}: translation unobservable along {', '.join(_fmt(d) for d in unobservable)} (camera 0's frame)"
-            )
-        residual = float(e.residuals["translation_relative"][0, k])
-        if residual > TRANSLATION_RESIDUAL_WARNING:
-            out.append(
-                f"{f}: the translation equations leave {100 * residual:.0f} % of camera 0's motion unexplained (RMS): "
-                "the translations of the two cameras do not agree with any rigid rig (a front end whose scale drifts "
-                "or whose translation directions are off?); translation and scale are not supported by the data"
-            )
-        scale = float(e.scale[0, k])
-        if not scale > 0:
-            out.append(
-                f"{f}: scale {scale:.4g} is not positive: this camera's translations point against what camera 0's "
-                "imply (a front end with an inconsistent scale or a flipped translation sign?); translation and "
-                "scale are not meaningful"
-            )
-        rejected = int(e.frames_rejected[0, k])
-        if rejected:
-            out.append(
-                f"{f}: {rejected} of {frames} frames rejected (an invalid pose of camera 0 or this camera, "
-                "or motions failing the screw-congruence gate)"
-            )
-    if run.settings["motion"] == "first":
-        out.append(
-            "frame-0 pairing: every motion shares frame 0's pose error, which no residual shows; the standard "
-            "deviations are several times too small (6-11x in simulation: docs/simulation.md, bench/bench_uncertainty.py)"
-        )
-    if run.settings["solver"] == "batch" and bool(e.planar_motion.any()):
-        out.append("the batch solver does not recover rotation under planar motion; use --solver exact")
-    return out
-
-
-def _fmt(values) -> str:
-    return "[" + ", ".join(f"{v:.4g}" for v in values) + "]"

@@ -93,7 +93,7 @@ def extrinsic_errors(
     ``rotation_gain_reference`` / ``rotation_gain`` (3 each): the front end's rotation gain about each axis of
     camera 0 / camera k (:func:`~ocalib.eval.pose_metrics.rotation_gain`; unequal gains bend the rotation axes),
     ``scale_wander`` / ``lever_arm_signal``: see :func:`scale_wander` (the translation needs the first well under
-    the second).
+    the second), over windows of ``wander_window`` frames.
     """
     C = extrinsics.shape[0]
     ref = np.linalg.inv(extrinsics[0])
@@ -129,5 +129,6 @@ def extrinsic_errors(
             e["scale"] = float(estimate.scale[0, k - 1])
             e["rotation_gain_reference"], e["rotation_gain"] = gains[0], gains[k]
             e["scale_wander"], e["lever_arm_signal"] = scale_wander(trajectory[:, [0, k]], truth[:, [0, k]])
+            e["wander_window"] = WANDER_WINDOW
         out.append(e)
     return out

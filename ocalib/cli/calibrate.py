@@ -9,12 +9,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 
+from ocalib.cli.options import MOTIONS_HELP, add_frontend_arguments, add_head_arguments, frontend_options, head_options
 from ocalib.errors import InputError
 from ocalib.rigba.options import MAPPERS, BundleOptions
-
-REFINE_CHOICES = {"unobservable": "unobservable", "always": True, "never": False}  # --refine -> the head's refine
 
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
@@ -28,63 +26,18 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     )
     p.add_argument("--sequence", required=True, metavar="DIR", help="the sequence folder")
     p.add_argument("--cameras", nargs="+", metavar="NAME", help="cameras to use, the reference first (default: all)")
-    p.add_argument(
-        "--checkpoint",
-        metavar="CKPT",
-        help="ego-motion model (ocalib model file or training .ckpt; default: the shipped one)",
-    )
-    p.add_argument(
-        "--frontend",
-        choices=("network", "opencv"),
-        default="network",
-        help="ego-motion front end: the pose network (default) or OpenCV monocular VO (on planar motion "
-        "often the better of the two: docs/results-calibrate.md)",
-    )
+    add_frontend_arguments(p)
     p.add_argument("--out", metavar="JSON", help="write the result JSON here")
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
     p.add_argument("--tensorboard", metavar="DIR", help="write per-frame TensorBoard scalars here")
     p.add_argument("--trajectories", metavar="DIR", help="write each camera's front-end trajectory (KITTI) here")
     p.add_argument("--device", default="cpu", help="torch device of the network and the head (cpu, cuda)")
-    p.add_argument(
-        "--motion",
-        choices=("first", "consecutive", "multi"),
-        default="multi",
-        help="motion pairs of the head (default: gaps of 1, 2, 4, 8 and 16 frames, weighted by their noise)",
-    )
-    p.add_argument("--solver", choices=("exact", "rls"), default="exact", help="the head's translation solver")
-    p.add_argument("--forgetting", type=float, default=1.0, metavar="L", help="forgetting factor in (0, 1]")
-    p.add_argument(
-        "--refine",
-        choices=REFINE_CHOICES,
-        default="unobservable",
-        help="joint refinement of the closed form by the translation rows: only where the rotation rows "
-        "leave the rotation unobservable (default: a monocular front end's translation directions are "
-        "biased and would pull an observable rotation off), always, or never",
-    )
-    p.add_argument(
-        "--scale",
-        choices=("head", "normalise"),
-        default="normalise",
-        help="network scale: normalise each camera's steps by their running mean length over ~100 "
-        "frames (default: measured better on the held-out rigs, docs/calibnet.md), or trust it per camera "
-        "and let the head solve the ratio (head)",
-    )
-    p.add_argument(
-        "--align",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="refine each network motion by direct photometric alignment on the network's depth (default "
-        "with the network front end: more accurate on every held-out rig, docs/results-calibrate.md; "
-        "most of the time a frame takes)",
-    )
-    p.add_argument(
-        "--rig-align",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="with --align, re-align each camera k's translation with its rotation held to the rig's "
-        "(camera 0's rotation through the current extrinsic) and the depth's tilt solved with it "
-        "(default with --align: measured better on the held-out cars, docs/results-calibrate.md)",
+    add_head_arguments(
+        p,
+        refine="unobservable",
+        motions=MOTIONS_HELP,
+        solvers={"exact": "the exact on-line least squares (default)", "rls": "the paper's RLS"},
     )
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
@@ -128,9 +81,10 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ocalib.calibnet.run import calibrate_sequence
-    from ocalib.cli.calibrate_poses import summary
+    from ocalib.calib.report import errors_table, print_warnings, summary
+    from ocalib.calibnet.run import calibrate_images
 
+    frontend, head = frontend_options(args), head_options(args)
     metric = _metric_trajectory(args)
     writer = None
     if args.tensorboard:
@@ -138,9 +92,8 @@ def run(args) -> int:
 
         writer = SummaryWriter(args.tensorboard)
     try:
-        result = calibrate_sequence(
-            args.sequence, args.cameras, args.frontend, args.checkpoint, args.device, args.motion, args.solver,
-            args.forgetting, args.scale, REFINE_CHOICES[args.refine], args.max_frames, args.intrinsics, args.align, args.rig_align, progress=None,
+        result = calibrate_images(
+            args.sequence, args.cameras, frontend, head, args.device, args.max_frames, args.intrinsics, progress=None,
             on_frame=(lambda t, e: log_frame(writer, t, e)) if writer else None,
         )  # fmt: skip
     finally:
@@ -199,45 +152,6 @@ def _metric_trajectory(args):
     sequence = open_sequence(args.sequence, args.cameras, args.intrinsics)
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
     return read_metric_trajectory(args.metric_trajectory, sequence, frames)
-
-
-def print_warnings(doc: dict) -> None:
-    """The result's warnings (translation not supported, rejected frames, ...) on stderr, one line each."""
-    for w in doc["warnings"]:
-        print(f"warning: {w}", file=sys.stderr)
-
-
-def errors_table(errors: list[dict], cameras: list[str], what: str | None = None) -> str:
-    """The ground-truth errors, one line per camera (``what``: whose, e.g. the on-line head's)."""
-    from ocalib.calibnet.truth import WANDER_WINDOW
-
-    lines = ["errors against the ground truth" + (f", {what}:" if what else ":")]
-    for e in errors:
-        text = (
-            f"  {cameras[e['camera']]}: rotation {e['rotation_error_deg']:.3f} deg, translation direction "
-            f"{e['translation_direction_error_deg']:.2f} deg" + (" (in the plane)" if e["compared_in_plane"] else "")
-        )
-        if "translation_error_rel_baseline" in e:
-            text += (
-                f", translation {e['translation_error']:.3f} m = {e['translation_error_rel_baseline']:.1%} of the "
-                f"baseline"
-                + ("" if e["metric_scale"] == 1 else f" (camera 0 scaled to metres x{e['metric_scale']:.3g})")
-            )
-        if "scale_true" in e:  # the on-line head's: what the front end's motions held
-            text += f", scale {e['scale']:.3f} (true {e['scale_true']:.3f})"
-            gains = lambda g: "/".join(f"{x:.2f}" for x in g)  # noqa: E731
-            text += (
-                f"\n    front-end rotation gain x/y/z (1: unbiased): {cameras[0]} {gains(e['rotation_gain_reference'])}, "
-                f"{cameras[e['camera']]} {gains(e['rotation_gain'])}"
-            )
-            if math.isfinite(e["scale_wander"]):
-                text += (
-                    f"\n    front-end scale wander against {cameras[0]} {e['scale_wander']:.3f}, lever-arm signal "
-                    f"{e['lever_arm_signal']:.3f} ({WANDER_WINDOW}-frame windows; the translation needs the first "
-                    "well under the second)"
-                )
-        lines.append(text)
-    return "\n".join(lines)
 
 
 def log_frame(writer, t: int, estimate) -> None:

@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
-from ocalib.cli.calibrate import REFINE_CHOICES
+from ocalib.cli.options import MOTIONS_HELP, add_head_arguments, head_options
+
+ABSOLUTE_HELP = (
+    "every pose on its own (AX = YB), for poses whose errors are independent from pose to pose (a calibration "
+    "target seen by each camera, motion capture; see --pose-error)"
+)
 
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
@@ -43,33 +47,21 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
     p.add_argument(
-        "--motion",
-        choices=("first", "consecutive", "multi", "absolute"),
-        default="multi",
-        help="motion pairs: against frame 0, consecutive frames, or gaps of 1, 2, 4, 8 and 16 frames weighted by "
-        "their noise (default, for VO / SLAM trajectories); absolute: every pose on its own (AX = YB), for poses "
-        "whose errors are independent from pose to pose (a calibration target seen by each camera, motion "
-        "capture; see --pose-error)",
-    )
-    p.add_argument(
         "--pose-error",
         choices=("camera", "world"),
         help="with --motion absolute: where the poses' translation error lives: camera (default: the "
         "target's position in the camera, as PnP gives it) or world (the camera's position, as motion "
         "capture gives it); the wrong one costs about 2x in translation",
     )
-    p.add_argument(
-        "--solver",
-        choices=("exact", "rls", "batch"),
-        default="exact",
-        help="exact on-line least squares (default), the paper's RLS, or one batch solve",
-    )
-    p.add_argument(
-        "--forgetting",
-        type=float,
-        default=1.0,
-        metavar="L",
-        help="forgetting factor in (0, 1]: old frames weigh L per frame (default 1)",
+    add_head_arguments(
+        p,
+        refine="always",
+        motions=MOTIONS_HELP | {"absolute": ABSOLUTE_HELP},
+        solvers={
+            "exact": "exact on-line least squares (default)",
+            "rls": "the paper's RLS",
+            "batch": "one batch solve of all frames",
+        },
     )
     p.add_argument(
         "--time-offset",
@@ -77,14 +69,6 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         metavar="SECONDS|auto",
         help="clock offset added to camera k's timestamps (t0 = tk + offset): one value for all cameras "
         "or one per camera; 'auto' estimates it from the angular speeds (needs timestamps)",
-    )
-    p.add_argument(
-        "--refine",
-        choices=REFINE_CHOICES,
-        default="always",
-        help="joint refinement of the closed form by the translation rows: always (default, for SLAM or "
-        "metric poses), only where the rotation rows leave the rotation unobservable (for monocular VO, "
-        "whose translation directions are biased), or never",
     )
     p.add_argument(
         "--sync",
@@ -106,6 +90,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from ocalib.calib.pipeline import calibrate_files
+    from ocalib.calib.report import print_warnings, summary
     from ocalib.errors import InputError
 
     if args.solver == "batch" and args.plot:
@@ -113,9 +98,8 @@ def run(args) -> int:
     if args.max_dt is not None and not args.max_dt > 0:
         raise InputError(f"--max-dt must be a positive number of seconds, got {args.max_dt}")
     result = calibrate_files(
-        args.files, args.format, args.times, args.time_offset, args.max_dt,
-        args.motion, args.solver, args.forgetting, REFINE_CHOICES[args.refine], progress=None, sync=args.sync,
-        pose_error=args.pose_error,
+        args.files, head_options(args), progress=None,
+        format=args.format, times=args.times, time_offset=args.time_offset, max_dt=args.max_dt, sync=args.sync,
     )  # fmt: skip
     doc = result.result_json()
     if args.out:
@@ -128,66 +112,5 @@ def run(args) -> int:
 
         plot_trace(result.trace, args.files[1:], args.plot)
     print(summary(doc))
-    for w in doc["warnings"]:
-        print(f"warning: {w}", file=sys.stderr)
+    print_warnings(doc)
     return 0
-
-
-def residual_text(residuals: dict) -> str:
-    """``rotation 0.12 deg, translation 3.4 % of camera 0's motion`` (``?`` where undefined), or a bundle
-    adjustment's ``reprojection 0.38 px``."""
-    if "reprojection_px" in residuals:
-        px = residuals["reprojection_px"]
-        return f"reprojection {'?' if px is None else f'{px:.3g} px'} (bundle adjustment, mean)"
-    rot, tr = residuals["rotation_deg"], residuals["translation_relative"]
-    return (
-        f"rotation {'?' if rot is None else f'{rot:.3g} deg'}, translation "
-        f"{'?' if tr is None else f'{100 * tr:.3g} %'} of camera 0's motion"
-    )
-
-
-def summary(doc: dict) -> str:
-    """Readable summary of a result JSON: per camera, rotation, translation, scale with 1-sigma and flags."""
-    import numpy as np
-
-    from ocalib.viz.calibration import rotation_vector, rpy_deg
-
-    pm = lambda v, s: f"{v:+.4f}" + (f" ± {s:.2g}" if s is not None else " ± ?(unobservable)")  # noqa: E731
-    s = doc["settings"]
-    lines = [f"reference: {doc['reference']}  ({s['frames']} frames, solver {s['solver']}, motion {s['motion']})"]
-    for e in doc["extrinsics"]:
-        obs = e["observability"]
-        if None in e["quaternion_wxyz"]:  # absolute poses, rotation unobservable: no estimate
-            lines += [
-                f"{e['camera']}: {e['frames_used']} frames used, {e['frames_rejected']} rejected",
-                "  no estimate: ROTATION UNOBSERVABLE (see the warnings)",
-            ]
-            continue
-        q = np.array(e["quaternion_wxyz"])
-        rv = np.rad2deg(rotation_vector(q))
-        angle = float(np.linalg.norm(rv))
-        axis = rv / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
-        rstd = e["rotation_std_deg"] or [None] * 3
-        flags = [name for name, on in (
-            ("ROTATION UNOBSERVABLE", not obs["rotation_observable"] and not obs["planar_motion"]),
-            ("PLANAR MOTION (rotation from the translation constraint)", obs["planar_motion"]),
-            (f"{len(obs['unobservable_translation_directions'])} translation direction(s) unobservable",
-             bool(obs["unobservable_translation_directions"])),
-        ) if on]  # fmt: skip
-        offset = "" if e["time_offset"] is None else f", time offset {e['time_offset']:+.6f} s"
-        lines += [
-            f"{e['camera']}: {e['frames_used']} frames used, {e['frames_rejected']} rejected{offset}",
-            "  rotation roll/pitch/yaw (deg, R = Rz Ry Rx): "
-            + ", ".join(f"{v:+.3f}" for v in rpy_deg(q))
-            + f"; axis-angle {angle:.3f} deg about [{', '.join(f'{v:+.4f}' for v in axis)}]"
-            + "; std about x/y/z (deg): "
-            + ", ".join("?" if v is None else f"{v:.2g}" for v in rstd),
-            "  translation: "
-            + ", ".join(pm(v, sd) for v, sd in zip(e["translation"], e["translation_std"] or [None] * 3)),
-            f"  scale: {e['scale']:+.4f} (camera k's front-end units into camera 0's, through the one rig trajectory)"
-            if e.get("source") == "bundle_adjustment"
-            else f"  scale: {pm(e['scale'], e['scale_std'])}",
-            "  residuals (RMS): " + residual_text(e["residuals"]),
-            f"  flags: {', '.join(flags) if flags else 'none'}",
-        ]
-    return "\n".join(lines)

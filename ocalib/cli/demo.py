@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from ocalib.cli.options import add_frontend_arguments, frontend_options
+
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -23,8 +25,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=300, help="frames to render (default 300)")
     p.add_argument("--seed", type=int, default=1001, help="world and trajectory seed (>= 1000: never used in training)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument("--checkpoint", metavar="CKPT", help="ego-motion model (default: the shipped one)")
-    p.add_argument("--frontend", choices=("network", "opencv"), default="network", help="ego-motion front end")
+    add_frontend_arguments(p, network_options=False)
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument(
         "--bundle-adjust",
@@ -39,13 +40,12 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 def run(args) -> int:
     from pathlib import Path
 
-    from ocalib.calibnet.run import calibrate_sequence
-    from ocalib.cli.calibrate import errors_table, print_warnings
-    from ocalib.cli.calibrate_poses import summary
+    from ocalib.calib.report import errors_table, print_warnings, summary
+    from ocalib.calibnet.run import calibrate_images
     from ocalib.synth import preset, render_sequence
     from ocalib.viz.calibration import plot_trace
 
-    out = Path(args.out)
+    out, frontend = Path(args.out), frontend_options(args)
     size = (None, None)  # the preset's 128x416: the bundle adjustment needs the detail (at 64x208, 124 keypoints an
     if args.frontend == "network" and not args.bundle_adjust:  # image and a drifting reconstruction, measured)
         from ocalib.models import load_model
@@ -55,9 +55,7 @@ def run(args) -> int:
     cfg = preset(args.preset).with_overrides(frames=args.frames, seed=args.seed, height=size[0], width=size[1])
     sequence = out / "sequence"
     render_sequence(cfg, sequence, overwrite=True, workers=2)
-    result = calibrate_sequence(
-        sequence, frontend=args.frontend, checkpoint=args.checkpoint, device=args.device, progress=None
-    )
+    result = calibrate_images(sequence, frontend=frontend, device=args.device)
     if args.bundle_adjust:
         from ocalib.rigba.stage import refine_calibration
 
@@ -84,8 +82,8 @@ def truth_table(sequence, doc: dict) -> str:
     import torch
 
     from ocalib.data.layout import open_sequence
+    from ocalib.geometry.angles import angles_text
     from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
-    from ocalib.viz.calibration import angles_text
 
     cams = open_sequence(sequence).cameras
     ref = np.linalg.inv(cams[0].T_cam0_cam)

@@ -3,7 +3,7 @@
 Convention: ``OUT/<camera>/poses.txt`` (KITTI) holds camera-to-first-frame poses chained from the
 frame-to-frame motions ``T_{t-1,t}`` (frame 0 the identity), in network units;
 ``OUT/<camera>/depth/000000.npy`` float32 (H, W) depth at the model's resolution, network units;
-``OUT/<camera>/K.txt`` the intrinsics of that view (see :mod:`ocalib.eval.export`).
+``OUT/<camera>/K.txt`` the intrinsics of that view (see :mod:`ocalib.inference.export`).
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def open_inputs(args):
 
 
 def run(args) -> int:
-    from ocalib.eval.export import save_predictions
+    from ocalib.inference.export import save_predictions
 
     model, sequence = open_inputs(args)
     poses = save_predictions(

@@ -1,6 +1,6 @@
 """Evaluating predictions against a sequence's ground truth: depth maps and poses, per camera.
 
-:func:`evaluate_stream` consumes :class:`~ocalib.eval.predict.FramePrediction` s from any source (the model
+:func:`evaluate_stream` consumes :class:`~ocalib.inference.predict.FramePrediction` s from any source (the model
 through :func:`evaluate_model`, or ground truth in the tests) and measures, per camera, the depth metrics of
 :mod:`ocalib.eval.depth_metrics` and the pose metrics of :mod:`ocalib.eval.pose_metrics`, on whatever ground
 truth the sequence has.
@@ -23,7 +23,9 @@ from ocalib.data.sequence import Camera, Sequence
 from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
 from ocalib.eval.pose_metrics import invert, pose_metrics
-from ocalib.eval.predict import FramePrediction, ModelView, chain, model_view, predict_frames
+from ocalib.geometry.pose import chain_motions
+from ocalib.inference.predict import FramePrediction, predict_frames
+from ocalib.inference.view import ModelView, model_view
 from ocalib.io.jsonable import finite_or_null
 
 
@@ -103,7 +105,7 @@ def evaluate_stream(
     motions = np.stack(motions, 1)
     results = []
     for k, cam in enumerate(cams):
-        result = CameraEvaluation(cam.name, chain(motions[k]), missing=list(missing[cam.name]))
+        result = CameraEvaluation(cam.name, chain_motions(motions[k][1:]), missing=list(missing[cam.name]))
         if per_image[k]:
             result.per_image = per_image[k]
             result.depth = mean_depth_errors(per_image[k]) | {"min_depth": min_depth, "max_depth": max_depth}

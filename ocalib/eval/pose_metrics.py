@@ -94,19 +94,17 @@ def rpe(pred: np.ndarray, gt: np.ndarray, delta: int = 1) -> tuple[np.ndarray, n
     return np.linalg.norm(E[:, :3, 3], axis=1), rotation_angle_deg(E[:, :3, :3])
 
 
-def frame_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3, min_fraction: float = 0.1) -> dict:
-    """Per-frame (N - 1) errors of the frame-to-frame motions.
+def motion_errors(pred: np.ndarray, gt: np.ndarray, moving: np.ndarray | None = None) -> dict:
+    """Errors of predicted motions (M, 4, 4) against the true ones (M, 4, 4), motion by motion.
 
-    ``rotation_deg``: angle of ``R_gt^T R_pred``. ``direction_deg``: angle between predicted and true
-    translation (90 where the prediction has none). ``scale_ratio``: ``|t_pred| / |t_gt|``.
-    ``moving``: frames whose true translation exceeds ``max(min_translation, min_fraction * median)``;
-    direction and ratio are NaN elsewhere (a direction or ratio of a tiny motion is noise).
+    ``rotation_deg``: angle of ``R_gt^T R_pred``. ``direction_deg``: angle between predicted and true translation
+    (90 where the prediction has none). ``scale_ratio``: ``|t_pred| / |t_gt|``. Direction and ratio are NaN where
+    ``moving`` (M,) is False (default: where the true translation is zero).
     """
-    mp, mg = frame_motions(pred), frame_motions(gt)
-    rot = rotation_angle_deg(np.swapaxes(mg[:, :3, :3], 1, 2) @ mp[:, :3, :3])
-    tp, tg = mp[:, :3, 3], mg[:, :3, 3]
+    rot = rotation_angle_deg(np.swapaxes(gt[:, :3, :3], 1, 2) @ pred[:, :3, :3])
+    tp, tg = pred[:, :3, 3], gt[:, :3, 3]
     np_, ng = np.linalg.norm(tp, axis=1), np.linalg.norm(tg, axis=1)
-    moving = ng > max(min_translation, min_fraction * float(np.median(ng)))
+    moving = ng > 0 if moving is None else np.asarray(moving, bool)
     cos = np.where(np_ > 0, (tp * tg).sum(1) / np.maximum(np_ * ng, 1e-300), 0.0)
     direction = np.degrees(np.arccos(np.clip(cos, -1, 1)))
     return {
@@ -115,6 +113,33 @@ def frame_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3
         "scale_ratio": np.where(moving, np_ / np.maximum(ng, 1e-300), np.nan),
         "moving": moving,
     }
+
+
+def frame_errors(pred: np.ndarray, gt: np.ndarray, min_translation: float = 1e-3, min_fraction: float = 0.1) -> dict:
+    """:func:`motion_errors` of the frame-to-frame motions (N - 1) of trajectories (N, 4, 4); ``moving``: frames
+    whose true translation exceeds ``max(min_translation, min_fraction * median)`` (a direction or ratio of a tiny
+    motion is noise)."""
+    mp, mg = frame_motions(pred), frame_motions(gt)
+    ng = np.linalg.norm(mg[:, :3, 3], axis=1)
+    return motion_errors(mp, mg, ng > max(min_translation, min_fraction * float(np.median(ng))))
+
+
+def step_errors(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray | None = None, gap: int = 1) -> dict:
+    """What the hand-eye calibration needs from a front end: :func:`motion_errors` of the motions over ``gap``
+    frames of trajectories (N, 4, 4), where ``valid`` (N,) marks frames whose motion from the previous frame has a
+    translation (a motion counts when every frame in it is valid; ``valid`` (N - gap,) in the output, and
+    ``direction_deg`` and ``scale_ratio`` over the valid motions only), plus ``scale_cv``: the coefficient of
+    variation of ``scale_ratio`` over the valid motions (std / mean, which no global scale changes; NaN with
+    fewer than two)."""
+    ok = np.ones(len(pred) - gap, bool)
+    if valid is not None:
+        v = np.asarray(valid, bool)
+        ok = np.stack([v[1 + i : len(v) - gap + 1 + i] for i in range(gap)]).all(0)
+    out = motion_errors(frame_motions(pred, gap), frame_motions(gt, gap), ok)
+    ratio = out["scale_ratio"] = out["scale_ratio"][ok]
+    out["direction_deg"], out["valid"] = out["direction_deg"][ok], out.pop("moving")
+    out["scale_cv"] = float(ratio.std() / ratio.mean()) if len(ratio) > 1 and ratio.mean() > 0 else float("nan")
+    return out
 
 
 def pose_metrics(

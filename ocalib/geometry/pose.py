@@ -49,3 +49,13 @@ def cross_matrix(v: np.ndarray) -> np.ndarray:
     out = np.zeros(v.shape[:-1] + (3, 3))
     out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
     return out - out.swapaxes(-1, -2)
+
+
+def chain_motions(motions: np.ndarray) -> np.ndarray:
+    """Frame-to-frame motions ``T_{t-1,t}`` (N, 4, 4) -> camera-to-first-frame poses (N + 1, 4, 4):
+    ``P_0 = I``, ``P_t = P_{t-1} T_{t-1,t}``."""
+    poses = np.empty((len(motions) + 1, 4, 4))
+    poses[0] = np.eye(4)
+    for t, motion in enumerate(motions, 1):
+        poses[t] = poses[t - 1] @ motion
+    return poses

@@ -27,6 +27,8 @@ import torch
 from ocalib.errors import InputError, read_text
 from ocalib.geometry import orthonormality_error, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
+POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
+
 KITTI_COLUMNS = 12
 TUM_COLUMNS = 8
 EUROC_COLUMNS = 8  # at least: timestamp, position, quaternion (w first)
@@ -267,7 +269,7 @@ def _first_line_columns(path: Path) -> int | None:
     return None
 
 
-def pose_validity(poses, tol: float = 1e-3) -> np.ndarray:
+def pose_validity(poses, tol: float = POSE_TOLERANCE) -> np.ndarray:
     """Which poses (N, 4, 4) are usable -> bool (N,): all finite, rotation orthonormal with det +1 within tol."""
     poses = _numpy(poses)
     finite = np.isfinite(poses).all(axis=(1, 2))

@@ -1,4 +1,5 @@
-"""Timestamps of cameras on one rig: association (nearest stamp, or interpolation), and clock offset.
+"""Timestamps of cameras on one rig: association (nearest stamp, or interpolation) under a known clock offset
+(:mod:`ocalib.calib.clock` estimates it).
 
 Convention: a time offset is ADDED to camera 1's timestamps to put them on camera 0's clock,
 ``t0 = t1 + offset``.
@@ -6,38 +7,18 @@ Convention: a time offset is ADDED to camera 1's timestamps to put them on camer
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 
 from ocalib.errors import InputError
-from ocalib.geometry import rotation_angle
-from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import (
-    canonical_quaternion,
-    left_product_matrix,
     quaternion_to_rotation_matrix,
-    right_product_matrix,
     rotation_matrix_to_quaternion,
 )
 from ocalib.io.poses import pose_validity
 
-# estimate_time_offset: lags overlapping less than MIN_OVERLAP of the shorter recording are not
-# considered (short overlaps give spurious peaks). The answer is an error rather than a guess when its
-# normalised correlation is below MIN_CORRELATION, or when another lag (outside the peak's lobe) comes
-# close: 1 - runner_up < max(MIN_DISTINCTNESS * (1 - correlation), MIN_SEPARATION). The floor matters for clean,
-# repetitive motion: two lags can both correlate to within 1e-5 of perfect, and the better of them by a hair need
-# not be the right one (measured: a smooth test motion whose rotation vector repeats with a sign flip every 31.4 s;
-# the wrong lag scored 0.9999995, the right one 0.999995).
-MIN_OVERLAP = 0.3
-MIN_CORRELATION = 0.5
-MIN_DISTINCTNESS = 2.0
-MIN_SEPARATION = 1e-3
-MIN_MOTIONS = 10
 # interpolate's default max_dt, in camera-k frame periods: a gap of one dropped frame (2 periods) is bridged, two are not
 INTERPOLATION_MAX_DT_PERIODS = 1.25
-REFINE_MOTION_SECONDS = 0.5  # refine_time_offset: the length of the motions compared (longer: a lag shows more)
 
 
 def associate(times0, times1, max_dt: float, offset: float = 0.0, names=("camera 0", "camera 1")):
@@ -49,8 +30,8 @@ def associate(times0, times1, max_dt: float, offset: float = 0.0, names=("camera
     names: how errors call the two inputs (e.g. their files).
     Convention: ``t0 = t1 + offset``.
     """
-    t0 = _increasing(times0, names[0])
-    t1 = _increasing(times1, names[1]) + offset
+    t0 = increasing(times0, names[0])
+    t1 = increasing(times1, names[1]) + offset
     if not max_dt >= 0:
         raise InputError(f"max_dt must be >= 0 seconds, got {max_dt}")
     right = np.searchsorted(t1, t0).clip(0, len(t1) - 1)
@@ -83,8 +64,8 @@ def interpolate(times0, times1, poses1, max_dt: float, offset: float = 0.0, name
     """
     from kornia.geometry.quaternion import Quaternion  # here: importing kornia takes 0.2 s, KITTI input never needs it
 
-    t0 = _increasing(times0, names[0])
-    t1 = _increasing(times1, names[1]) + offset
+    t0 = increasing(times0, names[0])
+    t1 = increasing(times1, names[1]) + offset
     if not max_dt >= 0:
         raise InputError(f"max_dt must be >= 0 seconds, got {max_dt}")
     if len(t1) < 2:
@@ -134,224 +115,10 @@ def _no_pairs_message(t0, t1, offset, max_dt, closest, names, rule: str | None =
     return f"{rule}: {spans}; the closest is {closest:.6f} s"
 
 
-def _increasing(times, name: str) -> np.ndarray:
+def increasing(times, name: str) -> np.ndarray:
     times = np.asarray(times, dtype=np.float64)
     if times.ndim != 1 or not len(times):
         raise InputError(f"{name}: expected a non-empty 1-D array of timestamps, got shape {times.shape}")
     if not (np.isfinite(times).all() and (np.diff(times) > 0).all()):
         raise InputError(f"{name}: timestamps must be finite and strictly increasing")
     return times
-
-
-def angular_speed(times, poses) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation speed of consecutive valid poses -> (mid times (M,), speed (M,) in rad/s).
-
-    times (N,) seconds, poses (N, 4, 4) camera-to-world; invalid poses (see ``pose_validity``) are
-    skipped. The speed is the same for every camera of a rigid rig, whatever its mounting.
-    """
-    times = np.asarray(times, dtype=np.float64)
-    poses = np.asarray(poses, dtype=np.float64)
-    ok = pose_validity(poses)
-    times, R = times[ok], torch.from_numpy(poses[ok, :3, :3])
-    angle = rotation_angle(R[:-1].mT @ R[1:]).numpy()
-    return (times[1:] + times[:-1]) / 2, angle / np.diff(times)
-
-
-@dataclass(frozen=True)
-class OffsetQuality:
-    """How trustworthy an estimated time offset is.
-
-    correlation: normalised cross-correlation of the two angular speeds at the offset, in [-1, 1].
-    runner_up: the best correlation at any other offset (outside the peak's lobe); periodic motion or
-    unrelated recordings bring it close to ``correlation``. overlap: seconds of motion the two cameras
-    share at the offset. step: seconds between samples of the coarse correlation grid.
-    angular_speed_offset: set where the offset was then refined (:func:`refine_time_offset`).
-    """
-
-    correlation: float
-    runner_up: float
-    overlap: float
-    step: float
-    angular_speed_offset: float | None = None  # the correlation's own answer, before a refinement (if any)
-
-
-def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "camera 1")):
-    """Clock offset between two cameras of one rig -> (offset seconds, OffsetQuality).
-
-    times0 (N0,), poses0 (N0, 4, 4), times1 (N1,), poses1 (N1, 4, 4): each camera on its own clock, any
-    rates; the offset may be arbitrarily large (Unix time against time since boot). Cross-correlates the
-    cameras' angular speeds: both are resampled on uniform grids of one step, every lag is scored by
-    FFT with the normalised correlation over the overlap, and the best is refined by a fine local search
-    with parabolic interpolation, to well below a frame period. InputError when the angular speed is
-    flat (no rotation), or the peak is weak or ambiguous (see MIN_CORRELATION, MIN_DISTINCTNESS).
-    Convention: ``t0 = t1 + offset`` (ADD the offset to times1).
-    """
-    m0, w0 = _speed_signal(times0, poses0, names[0])
-    m1, w1 = _speed_signal(times1, poses1, names[1])
-    step = min(np.median(np.diff(m0)), np.median(np.diff(m1))) / 2
-    step = max(step, max(m0[-1] - m0[0], m1[-1] - m1[0]) / 2**20)  # bounds the FFT size
-    g0 = m0[0] + step * np.arange(int((m0[-1] - m0[0]) / step) + 1)
-    g1 = m1[0] + step * np.arange(int((m1[-1] - m1[0]) / step) + 1)
-    x, y = np.interp(g0, m0, w0), np.interp(g1, m1, w1)
-    lags, ncc, counts = _normalised_xcorr(x, y)
-    ncc[counts < MIN_OVERLAP * min(len(x), len(y))] = -np.inf
-    best = int(np.argmax(ncc))
-    runner_up, second = _runner_up(ncc, best)
-    coarse = g0[0] - g1[0] + lags[best] * step
-
-    # Fine search: correlate the camera-0 grid with camera 1's speed interpolated at the shifted times.
-    fine = coarse + np.linspace(-step, step, 21)
-    scores = np.array([_ncc_at(g0, x, m1, w1, tau) for tau in fine])
-    k = int(np.argmax(scores))
-    offset, peak = fine[k], scores[k]
-    if 0 < k < len(fine) - 1:
-        a, b, c = scores[k - 1 : k + 2]
-        curvature = a - 2 * b + c
-        if curvature < 0:
-            delta = 0.5 * (a - c) / curvature
-            offset += delta * (fine[1] - fine[0])
-            peak = b - 0.25 * (a - c) * delta
-    peak = min(peak, 1.0)
-    overlap = min(m0[-1], m1[-1] + offset) - max(m0[0], m1[0] + offset)
-    found = f"{peak:.3f} at offset {offset:+.6f} s (over {overlap:.1f} s)"
-    if not peak >= MIN_CORRELATION:
-        raise InputError(
-            f"no clear time offset between {names[0]} and {names[1]}: the best normalised correlation of their "
-            f"angular speeds is {found}, below {MIN_CORRELATION}. The recordings may share too little time (at "
-            f"least {MIN_OVERLAP:.0%} of the shorter one is needed) or not show the same motion; "
-            "give --time-offset SECONDS"
-        )
-    if 1 - runner_up < max(MIN_DISTINCTNESS * (1 - peak), MIN_SEPARATION):
-        other = g0[0] - g1[0] + lags[second] * step
-        raise InputError(
-            f"ambiguous time offset between {names[0]} and {names[1]}: the normalised correlation of their angular "
-            f"speeds is {found}, but {runner_up:.3f} at offset {other:+.6f} s. The motion may be repetitive or the "
-            f"recordings may share too little time (at least {MIN_OVERLAP:.0%} of the shorter one is needed); "
-            "give --time-offset SECONDS"
-        )
-    return float(offset), OffsetQuality(float(peak), runner_up, float(overlap), float(step))
-
-
-def refine_time_offset(
-    times0,
-    poses0,
-    times1,
-    poses1,
-    offset: float,
-    radius: float,
-    steps: int = 21,
-    motion_seconds: float = REFINE_MOTION_SECONDS,
-) -> float:
-    """Refine a clock offset by the rig's own rotation constraint -> offset (s).
-
-    For each candidate in ``offset +- radius``, camera 1 is interpolated at camera 0's stamps (:func:`interpolate`)
-    and the motions of both cameras over ``motion_seconds`` give the hand-eye rotation blocks
-    ``A = L(q0) - R(q1)``; a rigid rig has a rotation ``dq`` with ``A dq = 0`` for all of them, so the smallest
-    eigenvalue of their mean Gram matrix (the residual of the best ``dq``) is least at the true offset. A lag
-    ``d`` leaves each pair of motions differing by about ``(w(t + T) - w(t)) d`` (angular velocity ``w``,
-    motion length ``T``): unlike the angular speed, this sees the axes too, and is not biased by the noise of
-    short motions. The best candidate is refined by a parabola through its neighbours; with too few motions at
-    every candidate the offset comes back as it was. Convention:
-    ``t0 = t1 + offset``; poses camera-to-world, times strictly increasing seconds.
-    """
-    poses0 = np.asarray(poses0, dtype=np.float64)
-    period = float(np.median(np.diff(times1)))
-    gap = max(1, int(round(motion_seconds / float(np.median(np.diff(times0))))))
-    candidates = offset + np.linspace(-radius, radius, steps)
-    scores = []
-    for candidate in candidates:
-        try:
-            i0, p1, _ = interpolate(times0, times1, poses1, INTERPOLATION_MAX_DT_PERIODS * period, candidate)
-        except InputError:
-            scores.append(np.inf)
-            continue
-        p0, p1 = torch.from_numpy(poses0[i0]), torch.from_numpy(p1)
-        same = torch.from_numpy(np.flatnonzero(i0[gap:] - i0[:-gap] == gap))  # over consecutive camera-0 frames
-        m0 = (invert_pose(p0[same]) @ p0[same + gap]).numpy()  # rigid inverse: garbage poses give garbage, not errors
-        m1 = (invert_pose(p1[same]) @ p1[same + gap]).numpy()
-        ok = pose_validity(m0) & pose_validity(m1)
-        if ok.sum() < MIN_MOTIONS:
-            scores.append(np.inf)
-            continue
-        q0 = canonical_quaternion(rotation_matrix_to_quaternion(torch.from_numpy(m0[ok, :3, :3])))
-        q1 = canonical_quaternion(rotation_matrix_to_quaternion(torch.from_numpy(m1[ok, :3, :3])))
-        A = left_product_matrix(q0) - right_product_matrix(q1)
-        scores.append(float(torch.linalg.eigvalsh((A.mT @ A).mean(0))[0]))
-    scores = np.asarray(scores)
-    if not np.isfinite(scores).any():  # too few motions at every candidate: nothing to refine with
-        return float(offset)
-    k = int(np.argmin(scores))
-    best = float(candidates[k])
-    if 0 < k < steps - 1 and np.isfinite(scores[k - 1 : k + 2]).all():
-        a, b, c = scores[k - 1 : k + 2]
-        curvature = a - 2 * b + c
-        if curvature > 0:
-            best += 0.5 * (a - c) / curvature * (candidates[1] - candidates[0])
-    return best
-
-
-def _speed_signal(times, poses, name: str):
-    times = _increasing(times, name)
-    if np.shape(poses) != (len(times), 4, 4):
-        raise InputError(f"{name}: {len(times)} timestamps but poses of shape {np.shape(poses)}")
-    m, w = angular_speed(times, poses)
-    if len(m) < MIN_MOTIONS:
-        raise InputError(
-            f"{name}: {len(m)} motions between valid poses, at least {MIN_MOTIONS} are needed to estimate a time offset"
-        )
-    if np.std(w) <= 1e-3 * max(np.mean(w), 1.0):
-        raise InputError(
-            f"{name}: angular speed too flat to estimate a time offset "
-            f"(mean {np.mean(w):.3g} rad/s, std {np.std(w):.2g} rad/s); give --time-offset SECONDS"
-        )
-    return m, w
-
-
-def _normalised_xcorr(x: np.ndarray, y: np.ndarray):
-    """Normalised correlation of x[i] with y[i - k] over their overlap, for every lag k.
-
-    -> lags (L,), ncc (L,), overlap counts (L,), with k from -(len(y) - 1) to len(x) - 1.
-    """
-    n0, n1 = len(x), len(y)
-    x, y = x - x.mean(), y - y.mean()
-    n = 1 << int(np.ceil(np.log2(n0 + n1 - 1)))
-    circular = np.fft.irfft(np.fft.rfft(x, n) * np.conj(np.fft.rfft(y, n)), n)
-    lags = np.arange(-(n1 - 1), n0)
-    sxy = circular[lags % n]
-    lo0, hi0 = np.maximum(0, lags), np.minimum(n0, n1 + lags)
-    lo1, hi1 = lo0 - lags, hi0 - lags
-    cx, cxx = np.r_[0, np.cumsum(x)], np.r_[0, np.cumsum(x * x)]
-    cy, cyy = np.r_[0, np.cumsum(y)], np.r_[0, np.cumsum(y * y)]
-    count = hi0 - lo0
-    sx, sxx = cx[hi0] - cx[lo0], cxx[hi0] - cxx[lo0]
-    sy, syy = cy[hi1] - cy[lo1], cyy[hi1] - cyy[lo1]
-    var = (sxx - sx * sx / count) * (syy - sy * sy / count)
-    tiny = var <= 1e-12 * (sxx * syy).clip(1e-300)
-    ncc = np.where(tiny, -np.inf, (sxy - sx * sy / count) / np.sqrt(np.where(tiny, 1.0, var)))
-    return lags, ncc, count
-
-
-def _runner_up(ncc: np.ndarray, best: int) -> tuple[float, int]:
-    """Highest score and its index outside the main lobe (from ``best`` downhill to the first valley each side)."""
-    d = np.diff(np.maximum(ncc, -2.0))
-    up_right = np.flatnonzero(d[best:] > 0)
-    down_left = np.flatnonzero(d[:best] < 0)
-    hi = best + up_right[0] if len(up_right) else len(ncc)
-    lo = down_left[-1] + 1 if len(down_left) else 0
-    outside = np.r_[ncc[:lo], ncc[hi + 1 :]]
-    if not len(outside):
-        return -np.inf, best
-    k = int(np.argmax(outside))
-    return float(outside[k]), k if k < lo else k - lo + hi + 1
-
-
-def _ncc_at(g0, x, m1, w1, offset) -> float:
-    """Normalised correlation of x on grid g0 with camera 1's speed (m1, w1) shifted by offset."""
-    inside = (g0 >= m1[0] + offset) & (g0 <= m1[-1] + offset)
-    if inside.sum() < 3:
-        return -np.inf
-    a = x[inside] - x[inside].mean()
-    b = np.interp(g0[inside] - offset, m1, w1)
-    b = b - b.mean()
-    denom = np.sqrt((a @ a) * (b @ b))
-    return float(a @ b / denom) if denom > 0 else -np.inf

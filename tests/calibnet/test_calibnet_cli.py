@@ -192,9 +192,14 @@ def test_planar_motion_with_the_network_advises_the_opencv_front_end(frontend):
     rotation was lower on five of six held-out cars), the OpenCV front end and non-planar
     motion do not."""
     from ocalib.calib.online import OnlineCalibrator
-    from ocalib.calibnet.run import PLANAR_ADVICE, planar_advice
+    from ocalib.frontend.network import PLANAR_ADVICE, NetworkFrontEnd
+    from ocalib.frontend.opencv import OpenCVFrontEnd
     from ocalib.sim.trajectory import car_trajectory, lds_trajectory, random_rig, rig_trajectories
 
+    if frontend == "network":
+        front_end = NetworkFrontEnd(EgoMotionModel("small", height=32, width=64))
+    else:
+        front_end = OpenCVFrontEnd(np.eye(3)[None].repeat(2, 0))
     g = torch.Generator().manual_seed(0)
     X = random_rig(g)[None]
     advice = {}
@@ -202,7 +207,7 @@ def test_planar_motion_with_the_network_advises_the_opencv_front_end(frontend):
         head = OnlineCalibrator(2)
         for poses in rig_trajectories(cam0, X):
             estimate = head(poses[None])
-        advice[name] = (bool(estimate.planar_motion[0, 0]), planar_advice(frontend, estimate, ["front", "left"]))
+        advice[name] = (bool(estimate.planar_motion[0, 0]), front_end.report(["front", "left"], 120, estimate)[1])
     assert advice["car"][0] and not advice["handheld"][0]
     assert advice["car"][1] == ([f"left: {PLANAR_ADVICE}"] if frontend == "network" else [])
     assert advice["handheld"][1] == []

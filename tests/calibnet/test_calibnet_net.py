@@ -1,4 +1,4 @@
-"""OnlineCalibrationNet: the pose network and the head on one graph.
+"""OnlineCalibrationNet: the network front end (NetworkFrontEnd) and the head on one graph.
 
 The reference is the head (:class:`OnlineCalibrator`) fed the true camera-to-first-frame poses: a net whose
 pose "network" returns the true relative motion must give the same estimate at every frame, which pins
@@ -15,6 +15,7 @@ from torch import nn
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.frontend.align import StreamAligner
+from ocalib.frontend.network import NetworkFrontEnd
 from ocalib.geometry.pose import invert_pose, make_pose
 from ocalib.geometry.quaternion import rotation_angle
 from ocalib.models import EgoMotionModel
@@ -38,6 +39,12 @@ class TruePoses(nn.Module):
         return (torch.linalg.inv(lookup(target)) @ lookup(source)).float()
 
 
+def calibration_net(model, num_cameras=2, batch_size=1, **options) -> OnlineCalibrationNet:
+    """``model``'s front end (``options``: :class:`NetworkFrontEnd`'s) and the default head on one graph."""
+    front_end = NetworkFrontEnd(model, num_cameras, batch_size, **options)
+    return OnlineCalibrationNet(front_end, OnlineCalibrator(num_cameras, batch_size))
+
+
 def frame_images(t: int, C: int, B: int = 1) -> torch.Tensor:
     """(B, C, 3, H, W) images carrying the frame index in channel 0 and the camera in channel 1."""
     img = torch.zeros(B, C, 3, H, W)
@@ -55,7 +62,7 @@ def rig_poses(frames=40, cameras=3, seed=0):
 def test_net_equals_head_on_true_motion():
     poses, _ = rig_poses()
     # float32 motions from the double poses: compare against the head fed the same rounded chain
-    net = OnlineCalibrationNet(TruePoses(poses), num_cameras=poses.shape[1])
+    net = calibration_net(TruePoses(poses), num_cameras=poses.shape[1])
     head = OnlineCalibrator(poses.shape[1])
     chain = torch.eye(4, dtype=torch.float64).expand(poses.shape[1], 4, 4)
     for t in range(len(poses)):
@@ -73,7 +80,7 @@ def test_net_equals_head_on_true_motion():
 
 def test_net_recovers_the_true_extrinsics():
     poses, rig = rig_poses(frames=60, cameras=2, seed=3)
-    net = OnlineCalibrationNet(TruePoses(poses), num_cameras=2)
+    net = calibration_net(TruePoses(poses), num_cameras=2)
     for t in range(len(poses)):
         out = net(frame_images(t, 2))
     truth = rig[0]
@@ -84,10 +91,10 @@ def test_net_recovers_the_true_extrinsics():
 
 def test_state_dict_resumes_mid_stream():
     poses, _ = rig_poses(frames=20, cameras=2, seed=1)
-    a = OnlineCalibrationNet(TruePoses(poses), num_cameras=2)
+    a = calibration_net(TruePoses(poses), num_cameras=2)
     for t in range(10):
         a(frame_images(t, 2))
-    b = OnlineCalibrationNet(TruePoses(poses), num_cameras=2)
+    b = calibration_net(TruePoses(poses), num_cameras=2)
     b.load_state_dict(a.state_dict())
     for t in range(10, 20):
         out_a, out_b = a(frame_images(t, 2)), b(frame_images(t, 2))
@@ -108,7 +115,7 @@ def test_scale_modes_under_constant_and_drifting_network_scale():
     poses, rig = rig_poses(frames=120, cameras=2, seed=0)
     scaled = poses.clone()
     scaled[:, 1, :3, 3] *= 3.0
-    net = OnlineCalibrationNet(TruePoses(scaled), num_cameras=2)
+    net = calibration_net(TruePoses(scaled), num_cameras=2)
     assert direction_error_deg(net, scaled, rig) < 1e-3
 
     steps = torch.linalg.inv(poses[:-1]) @ poses[1:]
@@ -119,9 +126,9 @@ def test_scale_modes_under_constant_and_drifting_network_scale():
     for step in steps:
         drifting.append(drifting[-1] @ step)
     drifting = torch.stack(drifting)
-    head = direction_error_deg(OnlineCalibrationNet(TruePoses(drifting), num_cameras=2), drifting, rig)
+    head = direction_error_deg(calibration_net(TruePoses(drifting), num_cameras=2), drifting, rig)
     normalised = direction_error_deg(
-        OnlineCalibrationNet(TruePoses(drifting), num_cameras=2, scale="normalise"), drifting, rig
+        calibration_net(TruePoses(drifting), num_cameras=2, scale="normalise"), drifting, rig
     )
     assert head > 15 and normalised < head / 3
 
@@ -138,7 +145,7 @@ def test_normalise_keeps_the_lever_arm_of_a_car_rig():
     poses = rig_trajectories(car_trajectory(300, g, speed=1.0, yaw_rate=0.05), left[None])
 
     def in_plane_error(**options) -> float:
-        net = OnlineCalibrationNet(TruePoses(poses), num_cameras=2, **options)
+        net = calibration_net(TruePoses(poses), num_cameras=2, **options)
         for t in range(len(poses)):
             out = net(frame_images(t, 2))
         assert bool(out.planar_motion[0, 0])
@@ -157,7 +164,7 @@ def test_real_network_one_graph(device):
     """The real (untrained) pose network: gradients reach its weights through the head, on any device."""
     torch.manual_seed(0)
     model = EgoMotionModel("small", height=32, width=64).to(device)
-    net = OnlineCalibrationNet(model, num_cameras=2, batch_size=2).to(device)
+    net = calibration_net(model, num_cameras=2, batch_size=2).to(device)
     images = torch.rand(6, 2, 2, 3, 32, 64, device=device)
     for t in range(6):
         out = net(images[t])
@@ -178,9 +185,7 @@ def test_rig_align_changes_only_the_other_cameras_translations(device):
     model = EgoMotionModel("small", height=32, width=64).to(device)
     K = torch.tensor([[40.0, 0, 31.5], [0, 40.0, 15.5], [0, 0, 1]]).expand(3, 3, 3)
     nets = {
-        rig: OnlineCalibrationNet(model, num_cameras=3, batch_size=2, intrinsics=K, align=True, rig_align=rig).to(
-            device
-        )
+        rig: calibration_net(model, num_cameras=3, batch_size=2, intrinsics=K, align=True, rig_align=rig).to(device)
         for rig in (False, True)
     }
     base = torch.rand(1, 1, 3, 3, 32, 64, device=device)
@@ -200,7 +205,7 @@ def test_rig_align_changes_only_the_other_cameras_translations(device):
 
 def test_wrong_image_shape_is_a_clear_error():
     model = EgoMotionModel("small", height=32, width=64)
-    net = OnlineCalibrationNet(model, num_cameras=2)
+    net = calibration_net(model, num_cameras=2)
     with pytest.raises(ValueError, match=r"\(1, 2, 3, 32, 64\)"):
         net(torch.rand(2, 3, 32, 48))
 
@@ -247,21 +252,21 @@ def test_align_brings_a_biased_network_back_to_the_true_motion():
     K = torch.from_numpy(np.stack([c.K for c in seq.rig.cameras])).float()
     errors = {}
     for align in (False, True):
-        net = OnlineCalibrationNet(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=align, rig_align=False)
+        net = calibration_net(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=align, rig_align=False)
         reference = StreamAligner(2)  # frame 0 is aligned on itself: its motion is frame 1's prior
         for t in range(3):
             net(seq.images[:, t])
             previous, current = seq.images[:, max(t - 1, 0)], seq.images[:, t]
-            step = net.model.pose(previous, current).double()
+            step = net.front_end.model.pose(previous, current).double()
             if align:
-                aligned, _ = reference(previous, current, net.model.depth(previous), K, invert_pose(step))
+                aligned, _ = reference(previous, current, net.front_end.model.depth(previous), K, invert_pose(step))
                 step = invert_pose(aligned)
             if t == 1:  # the trajectory is the first step
                 torch.testing.assert_close(net.trajectory[0], step, rtol=0, atol=1e-6)
         true = invert_pose(seq.poses[:, :1]) @ seq.poses[:, 2:3]  # camera-to-first-frame at frame 2, (C, 1, 4, 4)
         R = net.trajectory[0, :, :3, :3].mT @ true[:, 0, :3, :3]
         errors[align] = torch.rad2deg(rotation_angle(R))
-        assert net.aligned.tolist() == ([[2, 2]] if align else [[0, 0]])
+        assert net.front_end.aligned.tolist() == ([[2, 2]] if align else [[0, 0]])
     assert (errors[False] > 1.2).all() and (errors[True] < 0.3).all()
 
 
@@ -275,7 +280,7 @@ def test_rig_align_gives_camera_k_the_translation_under_the_rigs_rotation():
     K = torch.from_numpy(np.stack([c.K for c in seq.rig.cameras])).float()
     model = PerturbedTruth(seq)
     model.height, model.width = seq.images.shape[-2:]
-    net = OnlineCalibrationNet(model, num_cameras=2, intrinsics=K, align=True)
+    net = calibration_net(model, num_cameras=2, intrinsics=K, align=True)
     poses = seq.poses.double()  # (C, T, 4, 4)
     net.rig_rotation = (invert_pose(poses[0, 0]) @ poses[1, 0])[None, None, :3, :3]  # the true T_cam0_cam1
     true = invert_pose(poses[:, :1]) @ poses[:, 1:]  # T_prev_cur, (C, 1, 4, 4)
@@ -283,13 +288,14 @@ def test_rig_align_gives_camera_k_the_translation_under_the_rigs_rotation():
     step[0, 1] = model.error @ step[0, 1]
     step[0, 1, :3, 3] += torch.tensor([0.03, -0.01, 0.02], dtype=torch.float64)
     previous, images = seq.images[:, 0], seq.images[:, 1]
-    out = net._rig_align(previous, images, model.depth(previous), net.intrinsics.flatten(0, 1), step)
+    K = net.front_end.intrinsics.flatten(0, 1)
+    out = net.front_end._rig_align(previous, images, model.depth(previous), K, step, net.rig_rotation)
     torch.testing.assert_close(out[0, 0], step[0, 0], rtol=0, atol=0)
     torch.testing.assert_close(out[0, 1, :3, :3], step[0, 1, :3, :3], rtol=0, atol=0)
     error = lambda s: float((s[0, 1, :3, 3] - true[1, 0, :3, 3]).norm())
     assert error(out) < 0.3 * error(step)
     net.rig_rotation = torch.full_like(net.rig_rotation, math.nan)  # a non-finite extrinsic: the motions are kept
-    again = net._rig_align(previous, images, model.depth(previous), net.intrinsics.flatten(0, 1), step)
+    again = net.front_end._rig_align(previous, images, model.depth(previous), K, step, net.rig_rotation)
     assert torch.equal(again, step)
 
 
@@ -299,11 +305,11 @@ def test_state_dict_resumes_an_aligned_stream_mid_way():
     torch.set_num_threads(1)
     seq = render_rig(preset("handheld").with_overrides(frames=4, height=64, width=208))
     K = torch.from_numpy(np.stack([c.K for c in seq.rig.cameras])).float()
-    a = OnlineCalibrationNet(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=True)
+    a = calibration_net(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=True)
     for t in range(3):
         a(seq.images[:, t])
-    assert not torch.equal(a.aligner.previous, torch.eye(4).expand(2, 4, 4))
-    b = OnlineCalibrationNet(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=True)
+    assert not torch.equal(a.front_end.aligner.previous, torch.eye(4).expand(2, 4, 4))
+    b = calibration_net(PerturbedTruth(seq), num_cameras=2, intrinsics=K, align=True)
     b.load_state_dict(a.state_dict())
     out_a, out_b = a(seq.images[:, 3]), b(seq.images[:, 3])
     torch.testing.assert_close(a.trajectory, b.trajectory, rtol=0, atol=0)
@@ -313,6 +319,6 @@ def test_state_dict_resumes_an_aligned_stream_mid_way():
 def test_align_needs_intrinsics_of_the_right_shape():
     model = EgoMotionModel("small", height=32, width=64)
     with pytest.raises(ValueError, match="intrinsics"):
-        OnlineCalibrationNet(model, num_cameras=2, align=True)
+        calibration_net(model, num_cameras=2, align=True)
     with pytest.raises(ValueError, match=r"intrinsics must be \(2, 3, 3\)"):
-        OnlineCalibrationNet(model, num_cameras=2, intrinsics=torch.eye(3).repeat(3, 1, 1), align=True)
+        calibration_net(model, num_cameras=2, intrinsics=torch.eye(3).repeat(3, 1, 1), align=True)

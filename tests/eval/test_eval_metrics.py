@@ -18,6 +18,7 @@ from ocalib.eval.pose_metrics import (
     rpe,
     snippet_ate,
 )
+from ocalib.geometry.pose import chain_motions
 
 
 def rot(axis, angle):
@@ -188,7 +189,7 @@ def test_frame_errors_known_rotation_direction_and_scale():
     gt = trajectory(21)
     motions = np.linalg.inv(gt[:-1]) @ gt[1:]
     motions[5, :3, 3] = 0  # a stand-still frame: no direction, no ratio
-    gt = _chain(motions)
+    gt = chain_motions(motions)
     ratios = np.array([1.0, 3.0] * 10)
     pred = []
     for k, M in enumerate(motions):
@@ -196,19 +197,12 @@ def test_frame_errors_known_rotation_direction_and_scale():
         pred.append(
             pose(M[:3, :3] @ rot([0, 0, 1], np.radians(0.5)), ratios[k] * rot(axis, np.radians(4.0)) @ M[:3, 3])
         )
-    e = frame_errors(_chain(np.stack(pred)), gt)
+    e = frame_errors(chain_motions(np.stack(pred)), gt)
     np.testing.assert_allclose(e["rotation_deg"], 0.5, rtol=1e-9)
     assert not e["moving"][5] and e["moving"].sum() == 19
     np.testing.assert_allclose(e["direction_deg"][e["moving"]], 4.0, rtol=1e-9)
     np.testing.assert_allclose(e["scale_ratio"][e["moving"]], ratios[e["moving"]], rtol=1e-9)
     assert np.isnan(e["direction_deg"][5]) and np.isnan(e["scale_ratio"][5])
-
-
-def _chain(motions):
-    P = [np.eye(4)]
-    for M in motions:
-        P.append(P[-1] @ M)
-    return np.stack(P)
 
 
 def test_pose_metrics_perfect_predictor_is_zero():
@@ -256,7 +250,7 @@ def test_baselines_are_the_metrics_of_image_blind_predictors():
     truth = frame_motions(gt)
     units = truth[:, :3, 3] / np.linalg.norm(truth[:, :3, 3], axis=1, keepdims=True)
     direction = units.mean(0) / np.linalg.norm(units.mean(0))
-    blind = _chain(np.stack([pose(np.eye(3), 0.5 * direction) for _ in truth]))  # no rotation, fixed step
+    blind = chain_motions(np.stack([pose(np.eye(3), 0.5 * direction) for _ in truth]))  # no rotation, fixed step
     e = frame_errors(blind, gt)
     assert summary["baseline_zero_rotation_deg_median"] == pytest.approx(np.median(e["rotation_deg"]))
     assert summary["baseline_zero_rotation_deg_mean"] == pytest.approx(np.mean(e["rotation_deg"]))
@@ -281,7 +275,7 @@ def test_rotation_gain_recovers_per_axis_scaling():
     rv = rotation_matrix_to_axis_angle(truth[:, :3, :3])
     gains = np.array([0.5, 1.0, 0.25])
     pred = np.stack([pose(cv2.Rodrigues(gains * r)[0], m[:3, 3]) for r, m in zip(rv, truth)])
-    summary, _ = pose_metrics(_chain(pred), gt)
+    summary, _ = pose_metrics(chain_motions(pred), gt)
     np.testing.assert_allclose(summary["rotation_gain_xyz"], gains, atol=1e-9)
     flat = np.stack([pose(rot([0, 1, 0], 0.02 * (i % 3)), [0, 0, 1]) for i in range(30)])  # turns about y only
     g = rotation_gain(flat, flat)

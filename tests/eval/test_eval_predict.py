@@ -15,7 +15,9 @@ from ocalib.data.layout import open_sequence
 from ocalib.errors import InputError
 from ocalib.eval.evaluate import evaluate_stream
 from ocalib.eval.pose_metrics import invert
-from ocalib.eval.predict import FramePrediction, chain, model_view, predict_frames
+from ocalib.geometry.pose import chain_motions
+from ocalib.inference.predict import FramePrediction, predict_frames
+from ocalib.inference.view import model_view
 from ocalib.io.poses import read_kitti
 from ocalib.models import EgoMotionModel, load_model, save_model
 from ocalib.synth.presets import preset
@@ -206,7 +208,7 @@ def test_chain_composes_motions():
     motions = np.tile(np.eye(4), (3, 1, 1))
     motions[1:, :3, 3] = [1.0, 0, 0]
     motions[2, :3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
-    P = chain(motions)
+    P = chain_motions(motions[1:])
     np.testing.assert_allclose(P[2], motions[1] @ motions[2])
     np.testing.assert_allclose(P[0], np.eye(4))
 
@@ -355,9 +357,9 @@ def test_align_in_predict_is_the_stream_alignment(seq, depth):
     the previous aligned motion as a prior, whatever the batching (frame 3 pairs with the previous batch's last
     frame), with or without the depth output (which shares the maps). The shipped checkpoint: an untrained
     network's corrections exceed the accepted rotation."""
-    from ocalib.eval.predict import FrameImages
     from ocalib.frontend.align import StreamAligner
     from ocalib.geometry.pose import invert_pose
+    from ocalib.inference.view import FrameImages
 
     model, sequence = load_model(None), open_sequence(seq)
     predictions = list(predict_frames(model, sequence, batch_size=3, depth=depth, align=True))

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ocalib.frontend.evaluate import motion_errors
+from ocalib.eval.pose_metrics import step_errors
 from ocalib.frontend.refine import refine_motion
 from ocalib.frontend.twoview import bearings, parallax_px, rotation_from_bearings, scale_along, triangulate
 from ocalib.frontend.window import bundle_adjust, window_problem
@@ -104,15 +104,15 @@ def test_motion_errors_measure_known_perturbations(scene):
     _, gt = scene
     pred = gt.copy()
     pred[:, :3, 3] *= 3.0  # another unit: no error at all
-    e = motion_errors(pred, gt)
+    e = step_errors(pred, gt)
     assert e["rotation_deg"].max() < 1e-6 and e["direction_deg"].max() < 1e-5 and e["scale_cv"] < 1e-9
-    np.testing.assert_allclose(e["ratio"], 3.0)
+    np.testing.assert_allclose(e["scale_ratio"], 3.0)
     steps = np.linalg.inv(pred[:-1]) @ pred[1:]
     steps[3] = steps[3] @ _pose([0, np.radians(2.0), 0], [0, 0, 0])  # the motion into frame 4 turns 2 deg more
     bent = [pred[0]]
     for step in steps:
         bent.append(bent[-1] @ step)
     bent = np.stack(bent)
-    e = motion_errors(bent, gt, valid=np.arange(8) != 6)
+    e = step_errors(bent, gt, valid=np.arange(8) != 6)
     assert e["rotation_deg"][3] == pytest.approx(2.0) and np.delete(e["rotation_deg"], 3).max() < 1e-6
     assert e["valid"].tolist() == [True] * 5 + [False, True]

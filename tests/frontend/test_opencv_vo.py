@@ -8,8 +8,8 @@ import torch
 from frontend_scenes import render_poses
 
 from ocalib.errors import InputError
+from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
 from ocalib.frontend import OpenCVOdometry, run_opencv_vo
-from ocalib.frontend.evaluate import motion_errors, relative_motions, rotation_angle_deg
 from ocalib.synth import preset
 
 
@@ -28,8 +28,8 @@ def test_handheld_rotations_and_directions_match_ground_truth(handheld, cam):
     gt = handheld.poses[cam].numpy()
     assert poses.shape == gt.shape and np.isfinite(poses).all()
     assert not flags["degenerate"][1:].any()
-    err = motion_errors(poses, gt, ~flags["degenerate"])
-    motion = np.median(rotation_angle_deg(relative_motions(gt)[:, :3, :3]))  # ~1.7 deg a frame
+    err = step_errors(poses, gt, ~flags["degenerate"])
+    motion = np.median(rotation_angle_deg(frame_motions(gt)[:, :3, :3]))  # ~1.7 deg a frame
     assert np.median(err["rotation_deg"]) < 0.1 * motion and err["rotation_deg"].max() < 0.5 * motion
     assert np.median(err["direction_deg"]) < 8 and err["direction_deg"].max() < 30
     assert err["scale_cv"] < 0.2
@@ -67,9 +67,9 @@ def test_static_and_rotating_camera_are_flagged_rotation_only(street_pose, motio
     est, flags = run_opencv_vo(render_poses(poses, K), K)
     assert np.isfinite(est).all()
     assert flags["degenerate"].all() and set(flags["reason"][1:]) == {"low parallax"}
-    steps = relative_motions(est)
+    steps = frame_motions(est)
     np.testing.assert_array_equal(steps[:, :3, 3], 0.0)  # rotation only, no invented translation
-    assert motion_errors(est, poses)["rotation_deg"].max() < 0.1
+    assert step_errors(est, poses)["rotation_deg"].max() < 0.1
 
 
 def test_straight_segment_has_one_scale(street_pose):
@@ -77,11 +77,11 @@ def test_straight_segment_has_one_scale(street_pose):
     poses = np.stack([street_pose @ _turn(forward=0.5 * i) for i in range(14)])
     est, flags = run_opencv_vo(render_poses(poses, K), K)
     assert not flags["degenerate"][1:].any()
-    lengths = np.linalg.norm(relative_motions(est)[:, :3, 3], axis=1)
+    lengths = np.linalg.norm(frame_motions(est)[:, :3, 3], axis=1)
     assert lengths[0] == pytest.approx(1.0)  # the first moving pair sets the unit
     assert lengths.std() / lengths.mean() < 0.05  # true lengths are all equal
     assert abs(lengths[-3:].mean() / lengths[:3].mean() - 1) < 0.1  # no drift
-    directions = relative_motions(est)[:, :3, 3] / lengths[:, None]
+    directions = frame_motions(est)[:, :3, 3] / lengths[:, None]
     assert np.degrees(np.arccos(directions[:, 2])).max() < 5  # straight ahead (camera z)
 
 

@@ -4,9 +4,10 @@ import cv2
 import numpy as np
 import torch
 
+from ocalib.geometry.angles import rotation_error_deg
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.sim.trajectory import random_rig
-from ocalib.viz.calibration import plot_trace, rotation_error_deg
+from ocalib.viz.calibration import plot_trace
 
 
 def test_rotation_error_is_the_rotation_vector_of_truth_to_estimate():

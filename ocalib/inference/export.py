@@ -6,7 +6,7 @@ OUT/<camera>/poses.txt              # KITTI: camera-to-first-frame, chained fram
 OUT/<camera>/K.txt                  # the 3x3 intrinsics of the depth maps (the model's view of the camera)
 ```
 
-Convention: as :mod:`ocalib.eval.predict` (``P_t = P_{t-1} T_{t-1,t}``, frame 0 the identity).
+Convention: as :mod:`ocalib.inference.predict` (``P_t = P_{t-1} T_{t-1,t}``, frame 0 the identity).
 """
 
 from __future__ import annotations
@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ocalib.data.sequence import Sequence
-from ocalib.eval.predict import chain, model_view, predict_frames
+from ocalib.geometry.pose import chain_motions
+from ocalib.inference.predict import predict_frames
+from ocalib.inference.view import model_view
 from ocalib.io.poses import write_kitti
 
 
@@ -32,7 +34,7 @@ def save_predictions(
     align: bool = False,
     flip: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Predict every camera of ``sequence`` (``align``, ``flip``: see :func:`~ocalib.eval.predict.predict_frames`)
+    """Predict every camera of ``sequence`` (``align``, ``flip``: see :func:`~ocalib.inference.predict.predict_frames`)
     and write the folder ``out``; returns camera name -> poses (N, 4, 4)."""
     out = Path(out)
     names = sequence.names
@@ -50,7 +52,7 @@ def save_predictions(
             for name, d in zip(names, frame.depth):
                 np.save(out / name / "depth" / f"{frame.frame:06d}.npy", d)
     motions = np.stack(motions, 1)  # (C, N, 4, 4)
-    poses = {name: chain(m) for name, m in zip(names, motions)}
+    poses = {name: chain_motions(m[1:]) for name, m in zip(names, motions)}
     for name, P in poses.items():
         write_kitti(out / name / "poses.txt", P)
     return poses

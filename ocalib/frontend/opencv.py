@@ -1,0 +1,57 @@
+"""OpenCV monocular VO as a front end: one :class:`~ocalib.frontend.opencv_vo.OpenCVOdometry` per camera.
+
+Convention: as :mod:`ocalib.frontend.base`; each camera at its own image size and intrinsics, in units of its own
+(the first moving pair's length).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from ocalib.data.image_io import read_image
+from ocalib.data.sequence import Sequence
+from ocalib.frontend.base import FrontEnd
+from ocalib.frontend.opencv_vo import OpenCVOdometry
+
+
+class GreyFrames(Dataset):
+    """Frame t of every camera at its own size -> a list of C (H, W) uint8 grey images."""
+
+    def __init__(self, sequence: Sequence):
+        self.sequence = sequence
+
+    def __len__(self) -> int:
+        return len(self.sequence)
+
+    def __getitem__(self, t: int) -> list[Tensor]:
+        rgb = [(read_image(c.images[t], c.size) * 255).round().byte().permute(1, 2, 0) for c in self.sequence.cameras]
+        return [torch.from_numpy(cv2.cvtColor(image.numpy(), cv2.COLOR_RGB2GRAY)) for image in rgb]
+
+
+class OpenCVFrontEnd(FrontEnd):
+    """One rig of C cameras with intrinsics ``K`` (C, 3, 3) pixels at their images' sizes; ``options``: the VO's
+    (:class:`~ocalib.frontend.opencv_vo.OpenCVOdometry`)."""
+
+    def __init__(self, K: np.ndarray, **options):
+        super().__init__()
+        self.K, self.options = np.asarray(K, dtype=np.float64), options
+        self.reset()
+
+    @classmethod
+    def for_sequence(cls, sequence: Sequence, options=None, device: str = "cpu") -> OpenCVFrontEnd:
+        return cls(np.stack([c.K for c in sequence.cameras]))
+
+    def frames(self, sequence: Sequence) -> Dataset:
+        return GreyFrames(sequence)
+
+    def reset(self) -> None:
+        self.odometry = [OpenCVOdometry(K, **self.options) for K in self.K]
+
+    def forward(self, images: list[Tensor], rig_rotation: Tensor | None = None) -> Tensor:
+        """images: C grey images (H, W) uint8 (or anything :class:`OpenCVOdometry` reads) -> (1, C, 4, 4) float64."""
+        steps = [vo.step(np.asarray(image)) for vo, image in zip(self.odometry, images)]
+        return torch.from_numpy(np.stack(steps))[None]
