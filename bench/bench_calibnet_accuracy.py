@@ -13,6 +13,7 @@ relative to the baseline after scaling camera 0's trajectory to metres. Prints a
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import time
 from dataclasses import replace
@@ -37,20 +38,21 @@ NOISE = (0.002, 0.005)
 
 def ensure(root: Path, name: str, frames: int) -> Path:
     """The sequence folder ``name`` (a path, or a name under ``root``); a missing one named PRESET-SEED (a held-out
-    seed, >= 1000) is rendered there first, at 128x416."""
+    seed, >= 1000) is rendered there first, at 128x416, or PRESET-SEED-HxW at H x W (e.g. handheld-1003-256x832)."""
     path = Path(name) if Path(name).exists() or Path(name).parent != Path(".") else root / name
     if not (path / "rig.yaml").exists():
-        kind, _, seed = path.name.rpartition("-")
-        if not seed.isdigit() or int(seed) < 1000:
+        match = re.fullmatch(r"(.+)-(\d+)(?:-(\d+)x(\d+))?", path.name)
+        if not match or int(match[2]) < 1000:
             raise SystemExit(
-                f"{name}: no sequence there, and its name is not PRESET-SEED with a held-out seed "
-                "(>= 1000; lower seeds are training worlds), e.g. front-left-1008"
+                f"{name}: no sequence there, and its name is not PRESET-SEED[-HxW] with a held-out seed "
+                "(>= 1000; lower seeds are training worlds), e.g. front-left-1008 or handheld-1003-256x832"
             )
+        kind, seed = match[1], int(match[2])
+        height, width = (int(match[3]), int(match[4])) if match[3] else (128, 416)
         partial = path.with_name(path.name + ".partial")  # an interrupted render leaves no rig.yaml at path
         shutil.rmtree(partial, ignore_errors=True)
-        render_sequence(
-            preset(kind).with_overrides(frames=frames, seed=int(seed), height=128, width=416), partial, workers=2
-        )
+        config = preset(kind).with_overrides(frames=frames, seed=seed, height=height, width=width)
+        render_sequence(config, partial, workers=2)
         partial.rename(path)
     return path
 

@@ -1,4 +1,4 @@
-"""Benchmark of the classical front end (``ocalib.frontend.OpenCVOdometry``) on rendered sequences.
+"""Benchmark of the classical front end (``ocalib.frontend.opencv_vo.OpenCVOdometry``) on rendered sequences.
 
     python bench/bench_opencv_vo.py [--presets handheld,front-left] [--frames 120] [--calib-frames 300]
                                     [--seed 1000] [--data data/synth/bench_vo] [--out bench/results/opencv_vo.json]
@@ -32,7 +32,7 @@ from common import write_json
 from ocalib.calib.pipeline import calibrate_files
 from ocalib.data import RigStream, open_sequence
 from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
-from ocalib.frontend import OpenCVOdometry
+from ocalib.frontend.opencv_vo import OpenCVOdometry
 from ocalib.io.poses import write_kitti
 from ocalib.synth import preset, render_sequence
 

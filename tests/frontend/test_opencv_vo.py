@@ -9,7 +9,7 @@ from frontend_scenes import render_poses
 
 from ocalib.errors import InputError
 from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
-from ocalib.frontend import OpenCVOdometry, run_opencv_vo
+from ocalib.frontend.opencv_vo import OpenCVOdometry, run_opencv_vo
 from ocalib.synth import preset
 
 
