@@ -28,7 +28,7 @@ from common import write_json
 
 from ocalib.calibnet.run import calibrate_images
 from ocalib.frontend import FRONTENDS, FrontEndOptions
-from ocalib.rigba.options import BundleOptions
+from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
 from ocalib.rigba.stage import refine_calibration
 
 DEFAULT = ["handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001", "front-left-1002"]
@@ -104,11 +104,15 @@ def main() -> None:
     p.add_argument("--frontends", nargs="+", choices=FRONTENDS, default=list(FRONTENDS))
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--keyframe-step", type=int, default=BundleOptions().keyframe_step)
+    p.add_argument("--peak-threshold", type=float, default=FeatureOptions().peak_threshold, help="SIFT's")
+    p.add_argument("--overlap", type=int, default=FeatureOptions().overlap, help="frames each frame is matched to")
+    p.add_argument("--threads", type=int, default=-1, help="COLMAP's threads (-1: all)")
     p.add_argument("--every", type=int, help="the streaming variant: a run after every N frames")
     p.add_argument("--out", default="bench/results/rigba.json")
     args = p.parse_args()
     torch.set_num_threads(2)
-    options = BundleOptions(keyframe_step=args.keyframe_step)
+    features = FeatureOptions(peak_threshold=args.peak_threshold, overlap=args.overlap, threads=args.threads)
+    options = BundleOptions(features, MapperOptions(threads=args.threads), keyframe_step=args.keyframe_step)
     results = {}
     header = (
         f"{'sequence':16} {'front end':9} {'head rot/dir/t':>22} {'+ BA rot/dir/t':>22} {'BA s':>6} "
@@ -131,7 +135,8 @@ def main() -> None:
             )
             for x in r["stats"].get("stream", []):
                 print(f"    run at frame {x['frame']:4d}: {x['seconds']:6.1f} s")
-            doc = {"frames": args.frames, "keyframe_step": args.keyframe_step, "every": args.every, "results": results}
+            doc = {"frames": args.frames, "keyframe_step": args.keyframe_step, "every": args.every,
+                   "peak_threshold": args.peak_threshold, "overlap": args.overlap, "results": results}  # fmt: skip
             write_json(args.out, doc)  # after every row: an interrupted run keeps what it measured
 
 

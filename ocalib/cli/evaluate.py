@@ -46,7 +46,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ocalib.cli.predict import open_inputs
+    from ocalib.cli.predict import open_inputs, predict_options
     from ocalib.errors import InputError
     from ocalib.eval.evaluate import evaluate_model, evaluation_json
     from ocalib.io.poses import write_kitti
@@ -60,11 +60,8 @@ def run(args) -> int:
         model,
         sequence,
         args.device,
-        args.batch_size,
-        args.workers,
+        predict_options(args),
         progress=None,
-        align=args.align,
-        flip=args.flip,
         min_depth=args.min_depth,
         max_depth=args.max_depth,
         rpe_delta=args.rpe_delta,

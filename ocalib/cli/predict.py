@@ -68,22 +68,19 @@ def open_inputs(args):
     return load_model(args.checkpoint), sequence
 
 
+def predict_options(args, depth: bool = True):
+    """The :class:`~ocalib.inference.predict.PredictOptions` of the parsed model arguments."""
+    from ocalib.inference.predict import PredictOptions
+
+    return PredictOptions(args.batch_size, depth, args.workers, args.align, args.flip)
+
+
 def run(args) -> int:
     from ocalib.inference.export import save_predictions
 
     model, sequence = open_inputs(args)
-    poses = save_predictions(
-        model,
-        sequence,
-        args.out,
-        args.device,
-        args.batch_size,
-        not args.no_depth,
-        args.workers,
-        progress=None,
-        align=args.align,
-        flip=args.flip,
-    )
+    options = predict_options(args, depth=not args.no_depth)
+    poses = save_predictions(model, sequence, args.out, args.device, options, progress=None)
     for name, P in poses.items():
         length = sum(float(((b - a) ** 2).sum() ** 0.5) for a, b in zip(P[:-1, :3, 3], P[1:, :3, 3]))
         print(f"{name}: {len(P)} frames, path length {length:.4g} (network units) -> {args.out}/{name}/")

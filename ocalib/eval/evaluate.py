@@ -13,7 +13,7 @@ frame (every pose metric is invariant to that choice), so aligned predictions li
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -24,7 +24,7 @@ from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
 from ocalib.eval.pose_metrics import invert, pose_metrics
 from ocalib.geometry.pose import chain_motions
-from ocalib.inference.predict import FramePrediction, predict_frames
+from ocalib.inference.predict import FramePrediction, PredictOptions, predict_frames
 from ocalib.inference.view import ModelView, model_view
 from ocalib.io.jsonable import finite_or_null
 
@@ -124,22 +124,14 @@ def evaluate_stream(
 
 
 def evaluate_model(
-    model,
-    sequence: Sequence,
-    device="cpu",
-    batch_size: int = 8,
-    workers: int = 0,
-    progress: bool | None = False,
-    align: bool = False,
-    flip: bool = False,
-    **options,
+    model, sequence: Sequence, device="cpu", predict: PredictOptions = PredictOptions(), progress=False, **options
 ) -> list[CameraEvaluation]:
-    """Predict with ``model`` (``align``, ``flip``: see :func:`predict_frames`) and evaluate (``options``: those of
-    :func:`evaluate_stream`)."""
+    """Predict with ``model`` (:func:`predict_frames`; depth only where the sequence has ground truth of it) and
+    evaluate (``options``: those of :func:`evaluate_stream`)."""
     missing = ground_truth_available(sequence)
-    depth = any("depth" not in m for m in missing.values())
+    predict = replace(predict, depth=any("depth" not in m for m in missing.values()))
     views = [model_view(cam, model.height, model.width) for cam in sequence.cameras]
-    frames = predict_frames(model, sequence, device, batch_size, depth, workers, progress, align, flip)
+    frames = predict_frames(model, sequence, device, predict, progress)
     return evaluate_stream(sequence, frames, views, **options)
 
 

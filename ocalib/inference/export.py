@@ -17,30 +17,18 @@ import numpy as np
 
 from ocalib.data.sequence import Sequence
 from ocalib.geometry.pose import chain_motions
-from ocalib.inference.predict import predict_frames
+from ocalib.inference.predict import PredictOptions, predict_frames
 from ocalib.inference.view import model_view
 from ocalib.io.poses import write_kitti
 
 
 def save_predictions(
-    model,
-    sequence: Sequence,
-    out,
-    device="cpu",
-    batch_size: int = 8,
-    depth: bool = True,
-    workers: int = 0,
-    progress: bool | None = False,
-    align: bool = False,
-    flip: bool = False,
+    model, sequence: Sequence, out, device="cpu", options: PredictOptions = PredictOptions(), progress=False
 ) -> dict[str, np.ndarray]:
-    """Predict every camera of ``sequence`` (``align``, ``flip``: see :func:`~ocalib.inference.predict.predict_frames`)
-    and write the folder ``out``; returns camera name -> poses (N, 4, 4)."""
-    out = Path(out)
-    names = sequence.names
-    frames = predict_frames(
-        model, sequence, device, batch_size, depth, workers, progress, align, flip
-    )  # checks the input
+    """Predict every camera of ``sequence`` (:func:`~ocalib.inference.predict.predict_frames`) and write the folder
+    ``out``; returns camera name -> poses (N, 4, 4)."""
+    out, names, depth = Path(out), sequence.names, options.depth
+    frames = predict_frames(model, sequence, device, options, progress)  # checks the input
     for cam in sequence.cameras:
         folder = out / cam.name
         (folder / "depth" if depth else folder).mkdir(parents=True, exist_ok=True)

@@ -27,6 +27,20 @@ from ocalib.geometry.pose import invert_pose
 from ocalib.inference.view import FrameImages, model_view
 
 
+@dataclass(frozen=True)
+class PredictOptions:
+    """How :func:`predict_frames` runs: ``batch_size`` frames of all C cameras a forward pass; ``depth``: return the
+    depth maps; ``workers``: DataLoader processes reading images; ``align``: refine each motion by direct photometric
+    alignment on the network's depth of the previous frame; ``flip``: the depth maps (those returned and those the
+    alignment uses) averaged with the mirrored image's (:meth:`EgoMotionModel.depth`)."""
+
+    batch_size: int = 8
+    depth: bool = True
+    workers: int = 0
+    align: bool = False
+    flip: bool = False
+
+
 @dataclass
 class FramePrediction:
     """The model's output for frame ``frame`` of every camera (cameras in the sequence's order).
@@ -44,28 +58,24 @@ def predict_frames(
     model,
     sequence: Sequence,
     device: str | torch.device = "cpu",
-    batch_size: int = 8,
-    depth: bool = True,
-    workers: int = 0,
+    options: PredictOptions = PredictOptions(),
     progress: bool | None = False,
-    align: bool = False,
-    flip: bool = False,
 ) -> Iterator[FramePrediction]:
     """Run ``model`` (an :class:`ocalib.models.EgoMotionModel`) over every frame of every camera.
 
-    Each forward pass takes ``batch_size`` frames of all C cameras: C x batch_size pose pairs (t-1, t) and
-    depth maps, under ``torch.inference_mode`` on ``device``. ``workers``: DataLoader processes reading
-    images. ``progress``: a tqdm bar over frames (None: only on a terminal). Yields :class:`FramePrediction`
-    in frame order. Checks the sequence for motion first (:func:`check_motion`). ``flip``: the depth maps (those
-    written and those the alignment uses) averaged with the mirrored image's (:meth:`EgoMotionModel.depth`).
+    Each forward pass takes ``options.batch_size`` frames of all C cameras: C x batch_size pose pairs (t-1, t) and
+    depth maps, under ``torch.inference_mode`` on ``device``. ``progress``: a tqdm bar over frames (None: only on a
+    terminal). Yields :class:`FramePrediction` in frame order. Checks the sequence for motion first
+    (:func:`check_motion`).
     """
-    if batch_size < 1:
-        raise InputError(f"batch size must be >= 1, got {batch_size}")
+    if options.batch_size < 1:
+        raise InputError(f"batch size must be >= 1, got {options.batch_size}")
     views = [model_view(cam, model.height, model.width) for cam in sequence.cameras]
     check_motion(sequence)
-    loader = DataLoader(FrameImages(sequence, views), batch_size=batch_size, num_workers=workers)
-    K = torch.from_numpy(np.stack([v.K for v in views])).float().to(device) if align else None
-    return _generate(model.to(device).eval(), loader, len(sequence), device, depth, progress, K, flip)
+    loader = DataLoader(FrameImages(sequence, views), batch_size=options.batch_size, num_workers=options.workers)
+    K = torch.from_numpy(np.stack([v.K for v in views])).float().to(device) if options.align else None
+    model = model.to(device).eval()
+    return _generate(model, loader, len(sequence), device, options.depth, progress, K, options.flip)
 
 
 def _generate(model, loader, frames: int, device, depth: bool, progress, K, flip: bool) -> Iterator[FramePrediction]:

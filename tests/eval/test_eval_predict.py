@@ -16,7 +16,7 @@ from ocalib.errors import InputError
 from ocalib.eval.evaluate import evaluate_stream
 from ocalib.eval.pose_metrics import invert
 from ocalib.geometry.pose import chain_motions
-from ocalib.inference.predict import FramePrediction, predict_frames
+from ocalib.inference.predict import FramePrediction, PredictOptions, predict_frames
 from ocalib.inference.view import model_view
 from ocalib.io.poses import read_kitti
 from ocalib.models import EgoMotionModel, load_model, save_model
@@ -120,7 +120,10 @@ def test_predict_flip_writes_the_flip_averaged_depth(seq, ckpt, tmp_path):
 
 def test_batching_does_not_change_the_predictions(seq, ckpt):
     model, sequence = load_model(ckpt), open_sequence(seq)
-    runs = [list(predict_frames(model, sequence, batch_size=b, depth=b == 1)) for b in (1, 3, FRAMES)]
+    runs = [
+        list(predict_frames(model, sequence, options=PredictOptions(batch_size=b, depth=b == 1)))
+        for b in (1, 3, FRAMES)
+    ]
     for frames in runs:
         assert [f.frame for f in frames] == list(range(FRAMES))
         np.testing.assert_array_equal(frames[0].motion, np.tile(np.eye(4), (2, 1, 1)))
@@ -345,8 +348,8 @@ def test_an_image_of_another_size_is_named(seq, ckpt, tmp_path, capsys):
 
 def test_predict_frames_on_device(seq, ckpt, device):
     model, sequence = load_model(ckpt), open_sequence(seq)
-    ref = list(predict_frames(model, sequence, batch_size=4))
-    out = list(predict_frames(model, sequence, device=device, batch_size=4))
+    ref = list(predict_frames(model, sequence, options=PredictOptions(batch_size=4)))
+    out = list(predict_frames(model, sequence, device=device, options=PredictOptions(batch_size=4)))
     np.testing.assert_allclose(np.stack([f.motion for f in out]), np.stack([f.motion for f in ref]), atol=1e-4)
     np.testing.assert_allclose(np.stack([f.depth for f in out]), np.stack([f.depth for f in ref]), rtol=1e-3)
 
@@ -362,7 +365,7 @@ def test_align_in_predict_is_the_stream_alignment(seq, depth):
     from ocalib.inference.view import FrameImages
 
     model, sequence = load_model(None), open_sequence(seq)
-    predictions = list(predict_frames(model, sequence, batch_size=3, depth=depth, align=True))
+    predictions = list(predict_frames(model, sequence, options=PredictOptions(batch_size=3, depth=depth, align=True)))
     frames = [f.motion for f in predictions]
     views = [model_view(c, model.height, model.width) for c in sequence.cameras]
     images = FrameImages(sequence, views)
