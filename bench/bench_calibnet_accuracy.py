@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from common import write_json
+from common import add_sequence_arguments, write_json
 
 from ocalib.calib.pipeline import RigPoses, calibrate_rig
 from ocalib.calibnet.run import calibrate_images
@@ -82,13 +82,7 @@ def row(errors: list[dict], seconds: float, frames: int) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
-    p.add_argument(
-        "--sequences",
-        nargs="+",
-        default=DEFAULT,
-        help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing",
-    )
+    add_sequence_arguments(p, DEFAULT)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--checkpoint")
     p.add_argument("--skip-opencv", action="store_true")

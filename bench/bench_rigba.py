@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from bench_calibnet_accuracy import ensure
-from common import write_json
+from common import add_sequence_arguments, write_json
 
 from ocalib.calibnet.run import calibrate_images
 from ocalib.frontend import FRONTENDS, FrontEndOptions
@@ -94,13 +94,7 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
-    p.add_argument(
-        "--sequences",
-        nargs="+",
-        default=DEFAULT,
-        help="sequence folders, or held-out names PRESET-SEED rendered under --root when missing",
-    )
+    add_sequence_arguments(p, DEFAULT)
     p.add_argument("--frontends", nargs="+", choices=FRONTENDS, default=list(FRONTENDS))
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--keyframe-step", type=int, default=BundleOptions().keyframe_step)

@@ -35,3 +35,15 @@ def write_json(path: str | Path, doc: dict) -> Path:
     path.write_text(json.dumps(doc | {"machine": machine()}, indent=2) + "\n")
     print(f"wrote {path}")
     return path
+
+
+def add_sequence_arguments(p, default: list[str]) -> None:
+    """``--root`` and ``--sequences``: held-out rigs, rendered under the root when missing (``ensure`` of
+    bench_calibnet_accuracy)."""
+    p.add_argument("--root", default="data/eval", help="where held-out sequences live / are rendered")
+    p.add_argument(
+        "--sequences",
+        nargs="+",
+        default=default,
+        help="sequence folders, or held-out names PRESET-SEED[-HxW] rendered under --root when missing",
+    )
