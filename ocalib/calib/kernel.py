@@ -55,7 +55,7 @@ from ocalib.calib import (
     solve_kernel,
 )
 from ocalib.calib.handeye import TranslationMoment
-from ocalib.calib.linalg_kernel import jit
+from ocalib.calib.linalg_kernel import OPTIONS, jit, jit_inline
 from ocalib.calib.pairing import MotionPairs
 from ocalib.calib.rotation import RotationSystem
 
@@ -142,7 +142,7 @@ def _workspace(C, n_pairs):
                      pairing_kernel.workspace(n_pairs), solve_kernel.workspace(), refine_kernel.workspace())  # fmt: skip
 
 
-@jit
+@jit_inline
 def _rig_step(b, poses, state, settings, out, work):
     """One frame of rig ``b``: its ``poses`` (C, 4, 4); ``state`` updated, ``out[b]`` written."""
     gating_kernel.check_poses(poses, settings.pose_tolerance, work.poses, work.valid)
@@ -154,7 +154,7 @@ def _rig_step(b, poses, state, settings, out, work):
         _camera_step(b, k, state, settings, out, work)
 
 
-@jit
+@jit_inline
 def _camera_step(b, k, state, settings, out, work):
     """Camera k + 1 of rig ``b``, from the rig's gated motion pairs in ``work``."""
     pairs, ok, A, weight = work.pairs, work.ok[k], work.A, work.weight
@@ -190,45 +190,52 @@ def _camera_step(b, k, state, settings, out, work):
     out.rotation_rows[b, k], out.translation_rows[b, k] = rows, translation_rows
 
 
-@jit
+@jit_inline
 def _earlier(b, state, settings, work):
     """The start poses of rig ``b``'s motion pairs and their validity (``work.earlier``, ``work.earlier_valid``); its
     checked poses (``work.poses``) join the history (and, the first time all are valid, become the first frame)."""
-    history, n_gaps = state.history[b], settings.gaps.shape[0]
-    for cam in range(history.shape[0]):
+    C, H, n_gaps = work.poses.shape[0], state.history.shape[2], settings.gaps.shape[0]
+    for cam in range(C):
         for j in range(n_gaps):
-            slot = (settings.frame - settings.gaps[j]) % history.shape[1]
-            work.earlier[cam, j] = history[cam, slot]
+            slot = (settings.frame - settings.gaps[j]) % H
+            _copy_pose(state.history[b, cam, slot], work.earlier[cam, j])
             work.earlier_valid[cam, j] = state.history_valid[b, cam, slot]
         if settings.has_first:
-            work.earlier[cam, n_gaps] = state.first[b, cam]
+            _copy_pose(state.first[b, cam], work.earlier[cam, n_gaps])
             work.earlier_valid[cam, n_gaps] = state.first_valid[b]
     start = settings.has_first and not state.first_valid[b]
-    for cam in range(history.shape[0]):
+    for cam in range(C):
+        _copy_pose(work.poses[cam], state.history[b, cam, settings.frame % H])
+        state.history_valid[b, cam, settings.frame % H] = work.valid[cam]
         start = start and work.valid[cam]
-        history[cam, settings.frame % history.shape[1]] = work.poses[cam]
-        state.history_valid[b, cam, settings.frame % history.shape[1]] = work.valid[cam]
     if start:
-        state.first[b] = work.poses
+        for cam in range(C):
+            _copy_pose(work.poses[cam], state.first[b, cam])
         state.first_valid[b] = True
 
 
 @jit
-def _serial(poses, state, settings, out):
+def _copy_pose(src, dst):
+    """``dst[:, :] = src`` for 4x4 arrays, in loops (numba's slice assignment costs twice as much)."""
+    for i in range(4):
+        for j in range(4):
+            dst[i, j] = src[i, j]
+
+
+@jit
+def _rigs(poses, state, settings, out, start, stop):
+    """Frames of rigs ``start`` to ``stop`` (``state``, ``settings``, ``out``: the plain tuples ``step`` passes)."""
     state, settings, out = State(*state), Settings(*settings), Outputs(*out)
     work = _workspace(poses.shape[1], settings.gaps.shape[0] + settings.has_first)
-    for b in range(poses.shape[0]):
+    for b in range(start, stop):
         _rig_step(b, poses[b], state, settings, out, work)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"}, parallel=True)
+@njit(parallel=True, **OPTIONS)
 def _parallel(poses, state, settings, out, chunks):
-    state, settings, out = State(*state), Settings(*settings), Outputs(*out)
-    B = poses.shape[0]
-    for chunk in prange(chunks):  # one workspace per chunk of rigs
-        work = _workspace(poses.shape[1], settings.gaps.shape[0] + settings.has_first)
-        for b in range(chunk * B // chunks, (chunk + 1) * B // chunks):
-            _rig_step(b, poses[b], state, settings, out, work)
+    """:func:`_rigs` of all rigs, in ``chunks`` over numba's threads."""
+    for chunk in prange(chunks):
+        _rigs(poses, state, settings, out, chunk * len(poses) // chunks, (chunk + 1) * len(poses) // chunks)
 
 
 def step(head, poses: Tensor) -> dict[str, Tensor]:
@@ -247,7 +254,7 @@ def step(head, poses: Tensor) -> dict[str, Tensor]:
     if B >= PARALLEL_MIN_RIGS and threads > 1:
         _parallel(*args, min(B, 8 * threads))
     else:
-        _serial(*args)
+        _rigs(*args, 0, B)
     buffers["frame"] += 1
     return {name: torch.from_numpy(value) for name, value in zip(OUTPUTS, out)}
 

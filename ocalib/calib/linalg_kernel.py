@@ -24,16 +24,20 @@ JACOBI_TOLERANCE = 1e-16  # an off-diagonal entry below this times sqrt(a_pp a_q
 
 # Every compiled twin: cached on disk, no GIL (the rigs run on numba's threads), numpy's division semantics, and
 # floating-point contraction and reassociation allowed (an FMA or a reordered sum changes results by rounding only).
-jit = njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
+OPTIONS = dict(cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
+jit = njit(**OPTIONS)
+# The helpers called for every rig with named tuples of many arrays: compiled into their callers (numba inlines them),
+# since a call counts a reference to each array it is passed, about 5 ns each (atomics: more across threads).
+jit_inline = njit(inline="always", **OPTIONS)
 
 _CALIB = Path(__file__).resolve().parent
-_InTreeCacheLocator = getattr(caching, "InTreeCacheLocator", None) or caching._InTreeCacheLocator  # numba < 0.61
 
 
-class _KernelCacheLocator(_InTreeCacheLocator):
-    """numba's on-disk cache of the kernel modules (``*_kernel.py``, ``kernel.py``), valid while none of them nor their
-    PyTorch modules (whose constants they compile in) changed. numba's own check looks at a function's file alone, but
-    a compiled function holds the twins it calls, from other files: an edit there would otherwise run stale code."""
+class _KernelSources:
+    """numba's on-disk cache for the kernel modules (``*_kernel.py``, ``kernel.py``), valid while none of them nor
+    their PyTorch modules (whose constants they compile in) changed. numba's own check looks at a function's file
+    alone, but a compiled function holds the twins it calls, from other files: an edit there would run stale code.
+    Mixed into each of numba's locators of source files, in numba's order."""
 
     @classmethod
     def from_function(cls, py_func, py_file):
@@ -55,8 +59,14 @@ def _sources_digest(stamps: tuple[tuple[str, int], ...]) -> str:
     return hashlib.sha256(b"".join(Path(p).read_bytes() for p, _ in stamps)).hexdigest()
 
 
-if _KernelCacheLocator not in caching.CacheImpl._locator_classes:
-    caching.CacheImpl._locator_classes.insert(0, _KernelCacheLocator)
+def _locators() -> list[type]:
+    names = ("UserProvidedCacheLocator", "InTreeCacheLocator", "UserWideCacheLocator")  # numba < 0.61: "_" + name
+    bases = [getattr(caching, name, None) or getattr(caching, "_" + name) for name in names]
+    return [type(f"Kernel{base.__name__.lstrip('_')}", (_KernelSources, base), {}) for base in bases]
+
+
+if not any(issubclass(c, _KernelSources) for c in caching.CacheImpl._locator_classes):
+    caching.CacheImpl._locator_classes[:0] = _locators()
 
 
 @jit

@@ -35,13 +35,16 @@ HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU k
 class OnlineCalibrator(nn.Module):
     """On-line hand-eye calibration of B rigs of C cameras (camera 0 against cameras 1..C-1).
 
-    Each frame, the motions of every camera over a set of frame gaps (``motion``) give hand-eye rows;
-    each gap's rotation system is updated by incremental SVD (:mod:`ocalib.calib.rotation`) and its
-    translation moment by a sum; the gaps are combined with weights from their noise
-    (:mod:`ocalib.calib.pairing`); translation and scale come from
-    the exact moment solver or the paper's RLS (:mod:`ocalib.calib.translation`); the exact solver then
-    refines rotation, translation and scale jointly (:mod:`ocalib.calib.refine`). All state is kept in
-    buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
+    A frame runs the head's stages, each a pure function of its module: the pose checks
+    (:func:`~ocalib.calib.gating.check_poses`); the motions of every camera over a set of frame gaps (``motion``,
+    :func:`~ocalib.calib.pairing.motions_since`); the screw-congruence gate and the rotation rows' weights
+    (:mod:`ocalib.calib.gating`); each gap's rotation system by incremental SVD
+    (:func:`~ocalib.calib.rotation.update_rotation_system`) and its translation moment by a sum
+    (:func:`~ocalib.calib.handeye.update_translation_moment`); the gaps combined with weights from their noise
+    (:func:`~ocalib.calib.pairing.combine_statistics`); the closed form (:func:`~ocalib.calib.solve.closed_form`:
+    translation and scale by the exact moment solver) or the paper's RLS (:mod:`ocalib.calib.translation`); and the
+    joint refinement of rotation, translation and scale (:func:`~ocalib.calib.refine.refine_estimate`). All state is
+    kept in buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
 
     Args:
         num_cameras: C, cameras per rig, camera 0 the reference.
@@ -53,7 +56,7 @@ class OnlineCalibrator(nn.Module):
             least squares of :func:`~ocalib.calib.batch.batch_calibrate`); False: the closed form (rotation
             first, then translation and scale), which equals the batch closed form; ``"unobservable"``: refine
             only where the rotation rows alone leave the rotation unobservable (monocular front ends, whose
-            translation directions are biased: see :data:`~ocalib.calib.solve.REFINE_MODES`).
+            translation directions are biased: see :data:`~ocalib.calib.refine.REFINE_MODES`).
         symmetric: translation rows of every motion pair in both directions (see :mod:`ocalib.calib.handeye`).
         forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
         rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
@@ -63,9 +66,9 @@ class OnlineCalibrator(nn.Module):
         robust_deg: rotation rows whose residual exceeds this are down-weighted by ``robust_deg / residual``.
         pose_tolerance: poses with a non-finite entry or a rotation further than this from orthonormal are
             skipped (and counted in ``frames_rejected``).
-        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`, the same
-            equations, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64, ``solver="exact"``, no gradients -- and in
-            PyTorch elsewhere; ``"torch"`` always in PyTorch.
+        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`: the stages' compiled
+            twins, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64,
+            ``solver="exact"``, no gradients -- and in PyTorch elsewhere; ``"torch"`` always in PyTorch.
     """
 
     def __init__(
@@ -166,34 +169,35 @@ class OnlineCalibrator(nn.Module):
             pairs.angle, pairs.valid, st["screw_scale"], st["screw_count"], self.screw_gate, self.screw_gate_sigma
         )
         A = rotation_blocks(pairs.quaternion)  # (B, K, P, 4, 4)
-        w_rot = rotation_weights(ok, pairs.angle, A, self._get(RotationSystem), self.min_rotation, self.robust)
-        gaps = update_rotation_system(self._get(RotationSystem, "gap_"), A, w_rot, self.forgetting)
+        weight = rotation_weights(ok, pairs.angle, A, self._get("", RotationSystem), self.min_rotation, self.robust)
+        gaps = update_rotation_system(self._get("gap_", RotationSystem), A, weight, self.forgetting)
         gap_moments = update_translation_moment(
-            self._get(TranslationMoment, "gap_"), pairs.motion, ok, self.forgetting, self.symmetric
+            self._get("gap_", TranslationMoment), pairs.motion, ok, self.forgetting, self.symmetric
         )
-        rotation, moment, gap_w = combine_statistics(
+        rotation, moment, gap_weights = combine_statistics(
             rotation_gram(gaps.S2, gaps.V), gaps.S2, gaps.rotation_rows, gap_moments
         )
-        self._set(gaps, "gap_"), self._set(gap_moments, "gap_"), self._set(rotation)
         quadratic = translation_quadratic(moment.Z)
-        est = refine_estimate(
-            closed_form(rotation, quadratic), rotation, quadratic, moment.translation_rows, self.refine
-        )
+        est = closed_form(rotation, quadratic)
+        est = refine_estimate(est, rotation, quadratic, moment.translation_rows, self.refine)
+        self._set("gap_", gaps, gap_moments)
+        self._set("", rotation)
         if self.solver == "rls":
-            est.update(self._rls(pairs.motion, est, ok * gap_w))
+            est.update(self._rls(pairs.motion, est, ok * gap_weights))
         used = ok.any(-1)
         st["frames_used"] = st["frames_used"] + used
         st["frames_rejected"] = st["frames_rejected"] + (~used & (st["frame"] > 0))
         st["frame"] = st["frame"] + 1
         return Calibration.from_statistics(est, rotation, moment, st["frames_used"], st["frames_rejected"])
 
-    def _get(self, kind: type, prefix: str = ""):
+    def _get(self, prefix: str, kind: type):
         """The buffers ``prefix + field`` of the named tuple ``kind``, as one."""
         return kind(*(self._buffers[prefix + name] for name in kind._fields))
 
-    def _set(self, value, prefix: str = "") -> None:
-        """Replace the buffers ``prefix + field`` by the fields of the named tuple ``value``."""
-        self._buffers.update(zip((prefix + name for name in value._fields), value))
+    def _set(self, prefix: str, *groups) -> None:
+        """Replace the buffers ``prefix + field`` by the fields of the named tuples ``groups``."""
+        for group in groups:
+            self._buffers.update(zip((prefix + name for name in group._fields), group))
 
     def _earlier(self, poses: Tensor, valid: Tensor, differentiable: bool) -> tuple[Tensor, Tensor]:
         """The start poses (B, C, P, 4, 4) of this frame's motion pairs (gap g: frame t - g; gap 0: the first frame

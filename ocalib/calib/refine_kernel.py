@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ocalib.calib.handeye_kernel import apply_quadratic
-from ocalib.calib.linalg_kernel import jit, left_product_matrix, lu_solve, quaternion_to_rotation_matrix
+from ocalib.calib.linalg_kernel import jit, jit_inline, left_product_matrix, lu_solve, quaternion_to_rotation_matrix
 from ocalib.calib.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
 from ocalib.calib.rotation_kernel import excited, rotation_gram
 
@@ -118,7 +118,7 @@ def joint_refine(M, quadratic, quat, x, rotation_rows, translation_rows, steps, 
     return ok
 
 
-@jit
+@jit_inline
 def costs(M, quadratic, q, x, work):
     """:func:`~ocalib.calib.refine.costs`: ``(Er, Et)`` at ``(q, x)``."""
     P, p, c = quadratic
@@ -139,7 +139,7 @@ def costs(M, quadratic, q, x, work):
     return Er, Et
 
 
-@jit
+@jit_inline
 def _system(M, quadratic, q, x, wr, wt, work):
     """The Gauss-Newton system of :func:`~ocalib.calib.refine.joint_refine` at ``(q, x)``: ``work.H`` (7, 7) and
     ``work.g`` (7,), and the pieces the Newton terms and the update reuse: ``R = dR``, ``Jq``, ``r``, ``Mq``."""
@@ -208,7 +208,7 @@ def _system(M, quadratic, q, x, wr, wt, work):
         g[a] += Jq[0, a] * Mq[0] + Jq[1, a] * Mq[1] + Jq[2, a] * Mq[2] + Jq[3, a] * Mq[3]
 
 
-@jit
+@jit_inline
 def _newton_terms(q, s, work):
     """Add Newton's second-derivative terms to ``work.H``: those of ``m = vec(s dR)`` and of ``q``, contracted with the
     gradient (``_system``'s ``r`` and ``Mq``)."""
