@@ -1,14 +1,19 @@
-"""Robustness of the hand-eye rows: the screw-congruence gate and the down-weighting of large residuals.
+"""Robustness of the hand-eye rows: the pose checks, the screw-congruence gate and the weights of the rotation rows.
 
 Pure functions of the state, shared by the streaming head (:mod:`ocalib.calib.online`) and the
-whole-sequence path (:mod:`ocalib.calib.sequence`).
+whole-sequence path (:mod:`ocalib.calib.sequence`); their compiled twins are in :mod:`ocalib.calib.gating_kernel`.
 
+* Pose checks: a pose with a non-finite entry or a rotation further than a tolerance from orthonormal is skipped.
 * Screw congruence: the two motions of a rigid rig rotate by the same angle. A pair is rejected when its
   angles differ by more than ``max(gate, sigma * robust std)``, the robust std from a running mean absolute
   difference (each sample clipped at 5 robust std, so outliers barely count; capped at 1000 samples, so it
   follows slow changes). The gate opens after 10 samples.
-* VINS-Mono's down-weighting: a rotation row whose residual angle ``d`` under the current estimate exceeds
-  ``robust`` weighs ``robust / d``, once rotation is observable.
+* Rotation rows: a pair whose motions rotate less than a minimum angle gives none; VINS-Mono's down-weighting: a
+  row whose residual angle ``d`` under the current estimate exceeds ``robust`` weighs ``robust / d``, once rotation
+  is observable.
+
+Convention: every camera's motions lead with (..., C, P) (P motion pairs), the pairs of camera 0 against camera k
+with (..., K, P).
 """
 
 from __future__ import annotations
@@ -18,45 +23,69 @@ import math
 import torch
 from torch import Tensor
 
-from ocalib.calib.rotation import rotation_observable, rotation_solution, singular_values
+from ocalib.calib.rotation import RotationSystem, rotation_observable, rotation_solution, singular_values
+from ocalib.geometry.pose import orthonormality_error
 
 MAD_TO_STD = 1.25  # mean absolute deviation -> standard deviation, for Gaussian noise
 SCREW_MIN_SAMPLES = 10
 SCREW_MAX_SAMPLES = 1000.0
 
 
-def screw_threshold(scale: Tensor, count: Tensor, gate: float, sigma: float) -> Tensor:
-    """Largest accepted angle difference (radians) (...) from the running ``scale`` and ``count`` (...)."""
-    thr = torch.clamp_min(sigma * MAD_TO_STD * scale, gate)
-    return torch.where(count >= SCREW_MIN_SAMPLES, thr, math.inf)
+def check_poses(poses: Tensor, tolerance: float) -> tuple[Tensor, Tensor]:
+    """The poses (..., 4, 4) with the invalid ones (a non-finite entry, or a rotation further than ``tolerance`` from
+    orthonormal) replaced by the identity, and which are valid (...). Kernel twin:
+    :func:`ocalib.calib.gating_kernel.check_poses`."""
+    valid = poses.isfinite().flatten(-2).all(-1)
+    eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
+    poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
+    valid = valid & (orthonormality_error(poses[..., :3, :3]) < tolerance)
+    return torch.where(valid[..., None, None], poses, eye), valid
 
 
-def update_screw_scale(scale: Tensor, count: Tensor, screw: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
-    """Add one frame's angle differences ``screw`` (..., P) of the ``valid`` (..., P) pairs to the running
-    mean absolute difference ``scale`` and its sample ``count`` (...)."""
-    clip = torch.where(count >= SCREW_MIN_SAMPLES, 5 * MAD_TO_STD * scale, math.inf).unsqueeze(-1)
-    x = torch.minimum(screw.detach(), clip) * valid
+def screw_differences(angle: Tensor) -> Tensor:
+    """``|angle_0 - angle_k|`` (..., K, P) from every camera's motion angles (..., C, P)."""
+    return (angle[..., :1, :] - angle[..., 1:, :]).abs()
+
+
+def screw_gate(
+    angle: Tensor, valid: Tensor, scale: Tensor, count: Tensor, gate: float, sigma: float
+) -> tuple[Tensor, Tensor, Tensor]:
+    """One frame of the screw-congruence gate.
+
+    Args:
+        angle: (..., C, P) every camera's motion angles (radians). valid: (..., K, P) the pairs with both poses valid.
+        scale, count: (..., K) the running mean absolute angle difference and its sample count.
+        gate, sigma: the threshold ``max(gate, sigma * robust std)``.
+
+    Returns ``ok`` (..., K, P), the pairs that pass, and the updated ``scale, count``. Kernel twin:
+    :func:`ocalib.calib.gating_kernel.screw_gate`.
+    """
+    screw = screw_differences(angle).detach()
+    opened = (count >= SCREW_MIN_SAMPLES).unsqueeze(-1)
+    thr = torch.where(opened, torch.clamp_min(sigma * MAD_TO_STD * scale, gate).unsqueeze(-1), math.inf)
+    clip = torch.where(opened, 5 * MAD_TO_STD * scale.unsqueeze(-1), math.inf)
+    x = torch.minimum(screw, clip) * valid
     n = valid.sum(-1).to(screw.dtype)
     count = (count + n).clamp_max(SCREW_MAX_SAMPLES)
-    return scale + (x.sum(-1) - n * scale) / count.clamp_min(1), count
+    return valid & (screw <= thr), scale + (x.sum(-1) - n * scale) / count.clamp_min(1), count
 
 
 def screw_gate_sequence(
-    screw: Tensor, valid: Tensor, scale: Tensor, count: Tensor, gate: float, sigma: float
+    angle: Tensor, valid: Tensor, scale: Tensor, count: Tensor, gate: float, sigma: float
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """:func:`screw_threshold` and :func:`update_screw_scale` over L frames at once.
+    """:func:`screw_gate` over L frames at once.
 
     Args:
-        screw: (L, ..., P) angle differences, valid: (L, ..., P) pairs, scale, count: (...) the running state
+        angle: (L, ..., C, P) motion angles, valid: (L, ..., K, P) pairs, scale, count: (..., K) the running state
             before the first frame.
 
-    Returns ``ok`` (L, ..., P), the gate's verdicts, and the state after the last frame. The sample count is
+    Returns ``ok`` (L, ..., K, P), the gate's verdicts, and the state after the last frame. The sample count is
     a clamped cumulative sum; the scale is an affine recurrence ``s_t = a_t s_{t-1} + b_t`` once it is known
     which samples are clipped (a clipped sample adds a multiple of ``s_{t-1}``): take the clipping and the
     verdicts from the previous pass's scales until they stop changing (pass k is exact for the first k frames).
     """
-    screw = screw.detach()
-    n = valid.sum(-1).to(screw.dtype)  # (L, ...)
+    screw = screw_differences(angle).detach()
+    n = valid.sum(-1).to(screw.dtype)  # (L, ..., K)
     counts = (count + n.cumsum(0)).clamp_max(SCREW_MAX_SAMPLES)
     before_count = torch.cat([count.unsqueeze(0), counts[:-1]])
     open_ = (before_count >= SCREW_MIN_SAMPLES).unsqueeze(-1)
@@ -88,11 +117,17 @@ def affine_scan(a: Tensor, b: Tensor, s0: Tensor) -> Tensor:
     return a * s0 + b
 
 
-def robust_weight(S2: Tensor, V: Tensor, rows: Tensor, A: Tensor, robust: float) -> Tensor:
-    """Weights (..., P) of rotation blocks ``A`` (..., P, 4, 4) under the estimate of ``(S2, V, rows)`` (..., 4),
-    (..., 4, 4), (...): ``robust / d`` where the residual angle ``d`` exceeds ``robust`` and rotation is observable."""
-    q = rotation_solution(V).detach()
+def rotation_weights(
+    ok: Tensor, angle: Tensor, A: Tensor, estimate: RotationSystem, min_rotation: float, robust: float
+) -> Tensor:
+    """Weights (..., K, P) of the rotation blocks ``A`` (..., K, P, 4, 4) of the pairs ``ok`` (..., K, P): none where
+    the two motions (every camera's angles (..., C, P)) rotate less than ``min_rotation`` on average; ``robust / d``
+    where the residual angle ``d`` under ``estimate`` (..., K) exceeds ``robust`` and rotation is observable, else 1.
+    Kernel twin: :func:`ocalib.calib.gating_kernel.rotation_weights`."""
+    moving = (angle[..., :1, :] + angle[..., 1:, :]) / 2 >= min_rotation
+    q = rotation_solution(estimate.V).detach()
     r = (A.detach() @ q[..., None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)
     d = 4 * torch.asin((r / 2).clamp(max=1.0))
-    established = rotation_observable(singular_values(S2.detach()), rows.detach()).unsqueeze(-1)
-    return torch.where(established & (d > robust), robust / d.clamp_min(1e-12), 1.0)
+    established = rotation_observable(singular_values(estimate.S2.detach()), estimate.rotation_rows.detach())
+    robust_weight = torch.where(established.unsqueeze(-1) & (d > robust), robust / d.clamp_min(1e-12), 1.0)
+    return (ok & moving) * robust_weight

@@ -24,12 +24,22 @@ frame a's pose times the motion's length, the reverse rows frame b's.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, right_product_matrix
 
 FEATURES = 15  # len(z): 9 entries of I - R0 (row-major), t1 (3), t0 (3)
+
+
+class TranslationMoment(NamedTuple):
+    """The weighted translation rows, kept as the second moment of their features (the field names are the head's
+    buffers')."""
+
+    Z: Tensor  # (..., 15, 15)
+    translation_rows: Tensor  # (...) weighted number of motion pairs
 
 
 def rotation_block(q0: Tensor, q1: Tensor) -> Tensor:
@@ -40,6 +50,29 @@ def rotation_block(q0: Tensor, q1: Tensor) -> Tensor:
     rotation 180 degrees away.
     """
     return left_product_matrix(canonical_quaternion(q0)) - right_product_matrix(canonical_quaternion(q1))
+
+
+def rotation_blocks(quaternion: Tensor) -> Tensor:
+    """:func:`rotation_block` (..., K, P, 4, 4) of camera 0's motions against camera k's, from every camera's motion
+    quaternions (..., C, P, 4). Kernel twin: :func:`ocalib.calib.handeye_kernel.rotation_blocks`."""
+    return rotation_block(quaternion[..., :1, :, :].expand_as(quaternion[..., 1:, :, :]), quaternion[..., 1:, :, :])
+
+
+def translation_moment(motion: Tensor, ok: Tensor, symmetric: bool) -> Tensor:
+    """The moment ``sum z^T z`` (..., K, P, 15, 15) of the translation rows (:func:`pair_features`) of camera 0's
+    motions against camera k's, from every camera's motions (..., C, P, 4, 4), for the pairs ``ok`` (..., K, P)."""
+    z = pair_features(motion[..., :1, :, :, :].expand_as(motion[..., 1:, :, :, :]), motion[..., 1:, :, :, :], symmetric)
+    return (z * ok[..., None, None]).mT @ z
+
+
+def update_translation_moment(
+    moment: TranslationMoment, motion: Tensor, ok: Tensor, forgetting: float, symmetric: bool
+) -> TranslationMoment:
+    """Add the translation rows of the pairs ``ok`` (..., K, P) of every camera's motions (..., C, P, 4, 4) to
+    ``moment`` (..., K, P), old rows weighing ``forgetting``. Kernel twin:
+    :func:`ocalib.calib.handeye_kernel.update_translation_moment`."""
+    Z = (moment.Z if forgetting == 1 else forgetting * moment.Z) + translation_moment(motion, ok, symmetric)
+    return TranslationMoment(Z, forgetting * moment.translation_rows + ok)
 
 
 def translation_features(R0: Tensor, t0: Tensor, t1: Tensor) -> Tensor:

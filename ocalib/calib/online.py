@@ -13,15 +13,21 @@ import math
 import torch
 from torch import Tensor, nn
 
-from ocalib.calib.gating import robust_weight, screw_threshold, update_screw_scale
-from ocalib.calib.handeye import FEATURES, pair_features, rotation_block, translation_rows
-from ocalib.calib.pairing import MOTIONS, combine_statistics
+from ocalib.calib.gating import check_poses, rotation_weights, screw_gate
+from ocalib.calib.handeye import (
+    FEATURES,
+    TranslationMoment,
+    rotation_blocks,
+    translation_quadratic,
+    translation_rows,
+    update_translation_moment,
+)
+from ocalib.calib.pairing import MOTIONS, combine_statistics, motions_since
+from ocalib.calib.refine import REFINE_MODES, refine_estimate
 from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import incremental_svd_update
-from ocalib.calib.solve import REFINE_MODES, estimate
+from ocalib.calib.rotation import RotationSystem, rotation_gram, update_rotation_system
+from ocalib.calib.solve import closed_form
 from ocalib.calib.translation import rls_update
-from ocalib.geometry.pose import invert_pose, orthonormality_error
-from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
 
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU kernel's compiler
 
@@ -29,13 +35,16 @@ HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU k
 class OnlineCalibrator(nn.Module):
     """On-line hand-eye calibration of B rigs of C cameras (camera 0 against cameras 1..C-1).
 
-    Each frame, the motions of every camera over a set of frame gaps (``motion``) give hand-eye rows;
-    each gap's rotation system is updated by incremental SVD (:mod:`ocalib.calib.rotation`) and its
-    translation moment by a sum; the gaps are combined with weights from their noise
-    (:mod:`ocalib.calib.pairing`); translation and scale come from
-    the exact moment solver or the paper's RLS (:mod:`ocalib.calib.translation`); the exact solver then
-    refines rotation, translation and scale jointly (:mod:`ocalib.calib.refine`). All state is kept in
-    buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
+    A frame runs the head's stages, each a pure function of its module: the pose checks
+    (:func:`~ocalib.calib.gating.check_poses`); the motions of every camera over a set of frame gaps (``motion``,
+    :func:`~ocalib.calib.pairing.motions_since`); the screw-congruence gate and the rotation rows' weights
+    (:mod:`ocalib.calib.gating`); each gap's rotation system by incremental SVD
+    (:func:`~ocalib.calib.rotation.update_rotation_system`) and its translation moment by a sum
+    (:func:`~ocalib.calib.handeye.update_translation_moment`); the gaps combined with weights from their noise
+    (:func:`~ocalib.calib.pairing.combine_statistics`); the closed form (:func:`~ocalib.calib.solve.closed_form`:
+    translation and scale by the exact moment solver) or the paper's RLS (:mod:`ocalib.calib.translation`); and the
+    joint refinement of rotation, translation and scale (:func:`~ocalib.calib.refine.refine_estimate`). All state is
+    kept in buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
 
     Args:
         num_cameras: C, cameras per rig, camera 0 the reference.
@@ -47,7 +56,7 @@ class OnlineCalibrator(nn.Module):
             least squares of :func:`~ocalib.calib.batch.batch_calibrate`); False: the closed form (rotation
             first, then translation and scale), which equals the batch closed form; ``"unobservable"``: refine
             only where the rotation rows alone leave the rotation unobservable (monocular front ends, whose
-            translation directions are biased: see :data:`~ocalib.calib.solve.REFINE_MODES`).
+            translation directions are biased: see :data:`~ocalib.calib.refine.REFINE_MODES`).
         symmetric: translation rows of every motion pair in both directions (see :mod:`ocalib.calib.handeye`).
         forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
         rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
@@ -57,9 +66,9 @@ class OnlineCalibrator(nn.Module):
         robust_deg: rotation rows whose residual exceeds this are down-weighted by ``robust_deg / residual``.
         pose_tolerance: poses with a non-finite entry or a rotation further than this from orthonormal are
             skipped (and counted in ``frames_rejected``).
-        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`, the same
-            equations, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64, ``solver="exact"``, no gradients -- and in
-            PyTorch elsewhere; ``"torch"`` always in PyTorch.
+        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`: the stages' compiled
+            twins, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64,
+            ``solver="exact"``, no gradients -- and in PyTorch elsewhere; ``"torch"`` always in PyTorch.
     """
 
     def __init__(
@@ -154,110 +163,79 @@ class OnlineCalibrator(nn.Module):
             from ocalib.calib import kernel  # numba loads on first use (~0.3 s): not for every import of ocalib
 
             return Calibration(**kernel.step(self, poses))
-        poses = poses.to(st["S2"].dtype)
-        valid = poses.isfinite().flatten(-2).all(-1)
-        eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
-        poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
-        valid = valid & (orthonormality_error(poses[..., :3, :3]) < self.pose_tolerance)
-        poses = torch.where(valid[..., None, None], poses, eye)
-        frame = st["frame"]
+        poses, valid = check_poses(poses.to(st["S2"].dtype), self.pose_tolerance)
+        pairs = motions_since(*self._earlier(poses, valid, differentiable), poses, valid)
+        ok, st["screw_scale"], st["screw_count"] = screw_gate(
+            pairs.angle, pairs.valid, st["screw_scale"], st["screw_count"], self.screw_gate, self.screw_gate_sigma
+        )
+        A = rotation_blocks(pairs.quaternion)  # (B, K, P, 4, 4)
+        weight = rotation_weights(ok, pairs.angle, A, self._get("", RotationSystem), self.min_rotation, self.robust)
+        gaps = update_rotation_system(self._get("gap_", RotationSystem), A, weight, self.forgetting)
+        gap_moments = update_translation_moment(
+            self._get("gap_", TranslationMoment), pairs.motion, ok, self.forgetting, self.symmetric
+        )
+        rotation, moment, gap_weights = combine_statistics(
+            rotation_gram(gaps.S2, gaps.V), gaps.S2, gaps.rotation_rows, gap_moments
+        )
+        quadratic = translation_quadratic(moment.Z)
+        est = closed_form(rotation, quadratic)
+        est = refine_estimate(est, rotation, quadratic, moment.translation_rows, self.refine)
+        self._set("gap_", gaps, gap_moments)
+        self._set("", rotation)
+        if self.solver == "rls":
+            est.update(self._rls(pairs.motion, est, ok * gap_weights))
+        used = ok.any(-1)
+        st["frames_used"] = st["frames_used"] + used
+        st["frames_rejected"] = st["frames_rejected"] + (~used & (st["frame"] > 0))
+        st["frame"] = st["frame"] + 1
+        return Calibration.from_statistics(est, rotation, moment, st["frames_used"], st["frames_rejected"])
 
-        # Motion pairs (gap g: frame t-g to t; gap 0: frame 0 to t): (B, C, P, 4, 4).
-        slots = (frame - st["gap_tensor"]) % self.history_size
-        prev = [st["history"].index_select(2, slots)]
-        prev_valid = [st["history_valid"].index_select(2, slots)]
-        if 0 in self.gaps:  # the pair with the first valid frame, from the frame after it
-            prev.append(st["first"].unsqueeze(2))
-            prev_valid.append(st["first_valid"][:, None, None].expand(-1, self.num_cameras, 1))
+    def _get(self, prefix: str, kind: type):
+        """The buffers ``prefix + field`` of the named tuple ``kind``, as one."""
+        return kind(*(self._buffers[prefix + name] for name in kind._fields))
+
+    def _set(self, prefix: str, *groups) -> None:
+        """Replace the buffers ``prefix + field`` by the fields of the named tuples ``groups``."""
+        for group in groups:
+            self._buffers.update(zip((prefix + name for name in group._fields), group))
+
+    def _earlier(self, poses: Tensor, valid: Tensor, differentiable: bool) -> tuple[Tensor, Tensor]:
+        """The start poses (B, C, P, 4, 4) of this frame's motion pairs (gap g: frame t - g; gap 0: the first frame
+        with every pose valid, from the frame after it) and which are valid (B, C, P); this frame joins the history."""
+        st = self._buffers
+        slots = (st["frame"] - st["gap_tensor"]) % self.history_size
+        earlier, earlier_valid = [st["history"].index_select(2, slots)], [st["history_valid"].index_select(2, slots)]
+        if 0 in self.gaps:
+            earlier.append(st["first"].unsqueeze(2))
+            earlier_valid.append(st["first_valid"][:, None, None].expand(-1, self.num_cameras, 1))
             start = valid.all(-1) & ~st["first_valid"]
             st["first"] = torch.where(start[:, None, None, None], poses, st["first"])
             st["first_valid"] = st["first_valid"] | start
-        prev, prev_valid = torch.cat(prev, 2), torch.cat(prev_valid, 2)
-        motion = invert_pose(prev) @ poses.unsqueeze(2)
-        pair_valid = prev_valid & valid.unsqueeze(-1)
-        pair_valid = pair_valid[:, :1] & pair_valid[:, 1:]  # (B, K, P): camera 0 and camera k
-        q = rotation_matrix_to_quaternion(motion[..., :3, :3])
-        angle = quaternion_angle(q)
-
-        # Screw congruence: a rigid rig's cameras rotate by the same angle.
-        screw = (angle[:, :1] - angle[:, 1:]).abs()
-        thr = screw_threshold(st["screw_scale"], st["screw_count"], self.screw_gate, self.screw_gate_sigma)
-        ok = pair_valid & (screw <= thr.unsqueeze(-1))
-        st["screw_scale"], st["screw_count"] = update_screw_scale(
-            st["screw_scale"], st["screw_count"], screw, pair_valid
-        )
-
-        # Rotation: incremental SVD of each gap's weighted blocks. Translation: each gap's moment.
-        A = rotation_block(q[:, :1].expand_as(q[:, 1:]), q[:, 1:])  # (B, K, P, 4, 4)
-        moving = (angle[:, :1] + angle[:, 1:]) / 2 >= self.min_rotation
-        w_rot = (ok & moving).to(poses.dtype) * robust_weight(st["S2"], st["V"], st["rotation_rows"], A, self.robust)
-        lam = self.forgetting
-        st["gap_S2"], st["gap_V"] = incremental_svd_update(
-            st["gap_S2"], st["gap_V"], w_rot.sqrt()[..., None, None] * A, lam
-        )
-        st["gap_rotation_rows"] = lam * st["gap_rotation_rows"] + w_rot
-        w_tr = ok.to(poses.dtype)
-        z = pair_features(motion[:, :1].expand_as(motion[:, 1:]), motion[:, 1:], self.symmetric)  # (B, K, P, D, 15)
-        moment = (z * w_tr[..., None, None]).mT @ z
-        if differentiable:
-            st["gap_Z"] = st["gap_Z"] + moment if lam == 1 else lam * st["gap_Z"] + moment
-        else:  # in place: the largest state (B x K x gaps x 15 x 15); a new one a frame costs its page faults
-            st["gap_Z"] = (st["gap_Z"] if lam == 1 else st["gap_Z"].mul_(lam)).add_(moment)
-        st["gap_translation_rows"] = lam * st["gap_translation_rows"] + w_tr
-
-        # The gaps, weighted by their noise.
-        if len(self.gaps) == 1:  # one gap: its statistics as they are
-            S2, V, rotation_rows = st["gap_S2"][:, :, 0], st["gap_V"][:, :, 0], st["gap_rotation_rows"][:, :, 0]
-            Z, trans_rows, gap_w = st["gap_Z"][:, :, 0], st["gap_translation_rows"][:, :, 0], torch.ones_like(w_tr)
-        else:
-            gap_M = (st["gap_V"] * st["gap_S2"].unsqueeze(-2)) @ st["gap_V"].mT
-            S2, V, rotation_rows, Z, trans_rows, gap_w = combine_statistics(
-                gap_M, st["gap_S2"], st["gap_rotation_rows"], st["gap_Z"], st["gap_translation_rows"]
-            )
-        st["S2"], st["V"], st["rotation_rows"] = S2, V, rotation_rows
-
-        est = estimate(S2, V, Z, rotation_rows, trans_rows, self.refine)
-        x = torch.cat([est["translation"], est["scale"].unsqueeze(-1)], -1)
-        if self.solver == "rls":
-            t1 = motion[:, 1:, :, :3, 3]
-            R0, t0 = motion[:, :1, :, :3, :3].expand_as(motion[:, 1:, :, :3, :3]), motion[:, :1, :, :3, 3].expand_as(t1)
-            B, b = translation_rows(R0, t0, t1, est["rotation"][:, :, None])
-            sw = (w_tr * gap_w).sqrt()[..., None]
-            x, C = rls_update(st["rls_x"], st["rls_C"], (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2), lam)
-            go = frame >= self.rls_delay
-            x = st["rls_x"] = torch.where(go, x, st["rls_x"])
-            st["rls_C"] = torch.where(go, C, st["rls_C"])
-            axis = est["axis"]
-            x = torch.cat([x[..., :3] - axis * (axis * x[..., :3]).sum(-1, keepdim=True), x[..., 3:]], -1)
-
-        used = ok.any(-1)
-        st["frames_used"] = st["frames_used"] + used
-        st["frames_rejected"] = st["frames_rejected"] + (~used & (frame > 0))
-        slot = (frame % self.history_size).reshape(1)
+        slot = (st["frame"] % self.history_size).reshape(1)
         if differentiable:  # keep earlier frames' graph intact
             st["history"] = st["history"].index_copy(2, slot, poses.unsqueeze(2))
         else:  # in place: the ring buffer is the largest state (B x C x 32 poses)
             st["history"] = st["history"].detach().index_copy_(2, slot, poses.unsqueeze(2))
         st["history_valid"] = st["history_valid"].index_copy(2, slot, valid.unsqueeze(2))
-        st["frame"] = frame + 1
+        return torch.cat(earlier, 2), torch.cat(earlier_valid, 2)
 
-        return Calibration(
-            rotation=est["rotation"],
-            quaternion=est["quaternion"],
-            translation=x[..., :3],
-            scale=x[..., 3],
-            rotation_singular_values=est["singular_values"],
-            rotation_observable=est["observable"],
-            planar_motion=est["planar"],
-            planar_axis=est["axis"],
-            frames_used=st["frames_used"],
-            frames_rejected=st["frames_rejected"],
-            rotation_basis=V,
-            rotation_rows=rotation_rows,
-            translation_moment=Z,
-            translation_rows=trans_rows,
-            refined=est["refined"],
+    def _rls(self, motion: Tensor, est: dict[str, Tensor], weight: Tensor) -> dict[str, Tensor]:
+        """The paper's recursive least squares: translation (B, K, 3) and scale (B, K) from the translation rows of
+        camera 0's motions against camera k's (``motion`` (B, C, P, 4, 4)) with the rotation of ``est``, each pair
+        weighing ``weight`` (B, K, P)."""
+        st = self._buffers
+        R0, t0, t1 = motion[:, :1, :, :3, :3], motion[:, :1, :, :3, 3], motion[:, 1:, :, :3, 3]
+        B, b = translation_rows(
+            R0.expand(-1, t1.shape[1], -1, -1, -1), t0.expand_as(t1), t1, est["rotation"][:, :, None]
         )
+        sw = weight.sqrt()[..., None]
+        x, C = rls_update(st["rls_x"], st["rls_C"], (sw[..., None] * B).flatten(-3, -2), (sw * b).flatten(-2),
+                          self.forgetting)  # fmt: skip
+        go = st["frame"] >= self.rls_delay
+        x = st["rls_x"] = torch.where(go, x, st["rls_x"])
+        st["rls_C"] = torch.where(go, C, st["rls_C"])
+        axis = est["planar_axis"]
+        return {"translation": x[..., :3] - axis * (axis * x[..., :3]).sum(-1, keepdim=True), "scale": x[..., 3]}
 
     def _kernel_applies(self, poses: Tensor, differentiable: bool) -> bool:
         """Whether this frame runs in the compiled CPU kernel (see ``backend``)."""

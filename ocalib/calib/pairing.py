@@ -19,15 +19,25 @@ independent noise and 0.99-1.02x of consecutive pairing under drift (rotation); 
 was 1.16x under drift; fixed 1/g weights (inverse variance under drift, which ignores that the gaps share
 frames) were 1.07-1.22x.
 
-Convention: gaps in frames; gap 0 stands for the pair with the first frame.
+Each frame gives every camera's motions over the gaps (:func:`motions_since`) and, once its statistics are updated,
+their combination (:func:`combine_statistics`); their compiled twins are in :mod:`ocalib.calib.pairing_kernel`.
+
+Convention: gaps in frames; gap 0 stands for the pair with the first frame. A motion is a camera's pose at the end
+of the gap in its own frame at the start (``T_start^-1 T_end``).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 
+from ocalib.calib.handeye import TranslationMoment
 from ocalib.calib.linalg import guarded_eigh
+from ocalib.calib.rotation import RotationSystem
+from ocalib.geometry.pose import invert_pose
+from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
 
 MOTIONS = {
     "first": (0,),  # every pose against frame 0: the paper
@@ -37,6 +47,24 @@ MOTIONS = {
 GAP_WEIGHT_POWER = 6.0
 GAP_PRIOR_DOF = 20.0
 NOISE_FLOOR = 1e-12  # variance floor relative to the largest signal per row: rounding (noise-free data: weights 1)
+
+
+class MotionPairs(NamedTuple):
+    """Every camera's motions over the P gaps of a frame."""
+
+    motion: Tensor  # (..., C, P, 4, 4)
+    quaternion: Tensor  # (..., C, P, 4), w >= 0
+    angle: Tensor  # (..., C, P) radians
+    valid: Tensor  # (..., K, P) bool: the pairs of camera 0 and camera k with all four poses valid
+
+
+def motions_since(earlier: Tensor, earlier_valid: Tensor, poses: Tensor, valid: Tensor) -> MotionPairs:
+    """The motions from the ``earlier`` poses (..., C, P, 4, 4) (valid: (..., C, P)) to ``poses`` (..., C, 4, 4)
+    (valid: (..., C)), camera-to-world. Kernel twin: :func:`ocalib.calib.pairing_kernel.motions_since`."""
+    motion = invert_pose(earlier) @ poses.unsqueeze(-3)
+    q = rotation_matrix_to_quaternion(motion[..., :3, :3])
+    both = earlier_valid & valid.unsqueeze(-1)
+    return MotionPairs(motion, q, quaternion_angle(q), both[..., :1, :] & both[..., 1:, :])
 
 
 def gap_weights(S2: Tensor, rows: Tensor) -> Tensor:
@@ -65,17 +93,17 @@ def combine_gaps(weights: Tensor, *statistics: Tensor) -> tuple[Tensor, ...]:
 
 
 def combine_statistics(
-    gap_M: Tensor, gap_S2: Tensor, gap_rotation_rows: Tensor, gap_Z: Tensor, gap_translation_rows: Tensor
-) -> tuple[Tensor, ...]:
+    gap_M: Tensor, gap_S2: Tensor, gap_rotation_rows: Tensor, gap_moment: TranslationMoment
+) -> tuple[RotationSystem, TranslationMoment, Tensor]:
     """The rotation system and translation moment of all gaps, weighted by :func:`gap_weights`.
 
-    Args: per gap (..., P, *): the Gram matrix (4, 4) of the rotation rows and its eigenvalues (4), descending,
-    their count, the translation moment (15, 15) and its row count.
+    Args: per gap (..., P, *): the Gram matrix (4, 4) of the rotation rows, its eigenvalues (4), descending, and
+    their count; the translation moment.
 
-    Returns ``S2`` (..., 4) descending, ``V`` (..., 4, 4), ``rotation_rows``, ``Z`` (..., 15, 15),
-    ``translation_rows`` and the weights (..., P).
+    Returns the combined rotation system and translation moment (...), and the weights (..., P). Kernel twin:
+    :func:`ocalib.calib.pairing_kernel.combine_statistics`.
     """
     w = gap_weights(gap_S2, gap_rotation_rows)
-    M, rotation_rows, Z, translation_rows = combine_gaps(w, gap_M, gap_rotation_rows, gap_Z, gap_translation_rows)
+    M, rotation_rows, Z, translation_rows = combine_gaps(w, gap_M, gap_rotation_rows, *gap_moment)
     evals, evecs = guarded_eigh(M)
-    return evals.flip(-1), evecs.flip(-1), rotation_rows, Z, translation_rows, w
+    return RotationSystem(evals.flip(-1), evecs.flip(-1), rotation_rows), TranslationMoment(Z, translation_rows), w

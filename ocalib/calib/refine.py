@@ -18,6 +18,11 @@ rotation coordinates ``dq = q * (1, d/2) / |.|``, which converges quadratically 
 kept only where its cost is below the closed form's (and finite); elsewhere, and where ``active`` is False,
 the closed form is returned.
 
+:func:`refine_estimate` applies it to the closed form of :mod:`ocalib.calib.solve` where two rotation directions are
+excited and the motion is not planar (``mode=True``), or only where the rotation rows alone leave the rotation
+unobservable (``mode="unobservable"``: for monocular front ends, see :data:`REFINE_MODES`). The compiled twins are in
+:mod:`ocalib.calib.refine_kernel`.
+
 Convention: ``dR`` (from the quaternion ``q``, w, x, y, z) and ``dT`` give ``T_cam0_camk``; ``s`` multiplies
 camera-k units into camera-0 units.
 """
@@ -27,8 +32,55 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ocalib.calib.rotation import RotationSystem, excited, rotation_gram
 from ocalib.geometry.constants import constant_cache
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, quaternion_to_rotation_matrix
+
+# The joint refinement lets the translation rows move the rotation. Where those rows are trustworthy (poses from
+# SLAM, metric VO) that makes it more accurate (docs/simulation.md: 0.137 vs 0.191 deg on OpenCV's protocol). A
+# monocular front end (OpenCV VO, a pose network) gets translation directions wrong in a biased way (the
+# rotation-translation ambiguity): the refinement weighs rows by their scatter, which does not see a bias, and
+# pulls the rotation off (measured on the held-out handheld rig: OpenCV VO 1.6 deg closed form vs 5.7 refined; the
+# networks 5.5 vs 6.9, 5.7 vs 13.5). "unobservable" refines only where the rotation needs the translation rows:
+# near-planar motion whose third rotation direction the rotation rows do not fix.
+REFINE_MODES = (True, False, "unobservable")
+
+
+def refine_estimate(
+    est: dict[str, Tensor],
+    rotation: RotationSystem,
+    quadratic: tuple[Tensor, Tensor, Tensor],
+    translation_rows: Tensor,
+    mode: bool | str = True,
+    steps: int = 3,
+) -> dict[str, Tensor]:
+    """The closed form ``est`` (:func:`~ocalib.calib.solve.closed_form`) refined jointly where ``mode`` (one of
+    :data:`REFINE_MODES`) asks and at least two rotation directions are excited, the motion is not planar and there
+    are 3 translation rows at least; ``refined`` says where the refinement was accepted.
+
+    Args: ``rotation`` and ``quadratic`` ``(P, p, c)`` of the statistics the closed form came from, the weighted
+    number of translation rows (...), the refinement's ``steps``. Kernel twin:
+    :func:`ocalib.calib.refine_kernel.refine_estimate`.
+    """
+    if not mode or steps == 0:
+        return est
+    active = excited(est["rotation_singular_values"], rotation.rotation_rows, 1) & ~est["planar_motion"]
+    active = active & (translation_rows >= 3)
+    if mode == "unobservable":
+        active = active & ~est["rotation_observable"]
+    M = rotation_gram(rotation.S2, rotation.V)
+    x = torch.cat([est["translation"], est["scale"].unsqueeze(-1)], -1)
+    quat, x, refined = joint_refine(M, quadratic, est["quaternion"], x, rotation.rotation_rows, translation_rows,
+                                    active, steps)  # fmt: skip
+    dR = torch.where(refined[..., None, None], quaternion_to_rotation_matrix(quat), est["rotation"])
+    return {
+        **est,
+        "quaternion": quat,
+        "rotation": dR,
+        "translation": x[..., :3],
+        "scale": x[..., 3],
+        "refined": refined,
+    }
 
 
 def joint_refine(

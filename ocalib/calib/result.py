@@ -9,10 +9,10 @@ from functools import cached_property
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import translation_quadratic
+from ocalib.calib.handeye import TranslationMoment, translation_quadratic
 from ocalib.calib.planar import planar_rotation_std
 from ocalib.calib.refine import costs, joint_covariance
-from ocalib.calib.rotation import rotation_std
+from ocalib.calib.rotation import RotationSystem, rotation_std
 from ocalib.calib.translation import translation_uncertainty, unobservable_directions
 from ocalib.io.jsonable import finite_or_null
 
@@ -47,6 +47,14 @@ class Calibration:
     translation_moment: Tensor  # (B, K, 15, 15) see ocalib.calib.handeye
     translation_rows: Tensor  # (B, K) weighted motion pairs in the translation system
     refined: Tensor | None = None  # (B, K) bool: the joint refinement was applied (None: nowhere)
+
+    @classmethod
+    def from_statistics(
+        cls, est: dict[str, Tensor], rotation: RotationSystem, moment: TranslationMoment, frames_used, frames_rejected
+    ) -> Calibration:
+        """The estimate ``est`` (:func:`~ocalib.calib.solve.closed_form`, refined) with the statistics it came from."""
+        return cls(**est, rotation_basis=rotation.V, rotation_rows=rotation.rotation_rows, translation_moment=moment.Z,
+                   translation_rows=moment.translation_rows, frames_used=frames_used, frames_rejected=frames_rejected)  # fmt: skip
 
     @cached_property
     def _joint(self) -> Tensor | None:

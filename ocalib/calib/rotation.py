@@ -14,6 +14,8 @@ values near zero are then accurate to about ``sqrt(machine eps) * S[0]`` in abso
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 
@@ -26,6 +28,27 @@ ROTATION_OBSERVABLE_MIN_SV = 0.1  # S[2] must exceed this (a ~6 degree motion, o
 # (docs/simulation.md): noise-only directions (planar car, sigma 0.01-0.05) reach 12 at most, median 4.
 ROTATION_OBSERVABLE_SIGNIFICANCE = 20.0
 PLANAR_SIGNIFICANCE = 12.0  # planar motion: the third direction is below this (consistent with noise alone)
+
+
+class RotationSystem(NamedTuple):
+    """The weighted rotation rows ``[A_1; A_2; ...]``, kept as their SVD (the field names are the head's buffers')."""
+
+    S2: Tensor  # (..., 4) squared singular values, descending
+    V: Tensor  # (..., 4, 4) right singular vectors (columns)
+    rotation_rows: Tensor  # (...) weighted number of motion pairs
+
+
+def update_rotation_system(system: RotationSystem, A: Tensor, weight: Tensor, forgetting: float) -> RotationSystem:
+    """Add blocks ``A`` (..., 4, 4) with row weights ``weight`` (...) to ``system`` (...): one step of incremental
+    SVD, old rows weighing ``forgetting``. Kernel twin: :func:`ocalib.calib.rotation_kernel.update_rotation_system`."""
+    S2, V = incremental_svd_update(system.S2, system.V, weight.sqrt()[..., None, None] * A, forgetting)
+    return RotationSystem(S2, V, forgetting * system.rotation_rows + weight)
+
+
+def rotation_gram(S2: Tensor, V: Tensor) -> Tensor:
+    """The Gram matrix ``V diag(S2) V^T`` (..., 4, 4) of the rotation rows: what ``(S2, V)`` stand for, whatever basis
+    a repeated eigenvalue got."""
+    return (V * S2.unsqueeze(-2)) @ V.mT
 
 
 def incremental_svd_update(S2: Tensor, V: Tensor, W: Tensor, forgetting: float = 1.0) -> tuple[Tensor, Tensor]:

@@ -2,7 +2,11 @@
 
 import torch
 
-from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories
+from ocalib.calib.handeye import TranslationMoment, translation_quadratic
+from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.rotation import RotationSystem
+from ocalib.geometry import make_pose
+from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, so3_exp
 
 
 def lds_rig(generator, frames=64, cameras=2, noise=0.0, scale=2.0, model="independent"):
@@ -21,3 +25,57 @@ def car_rig(generator, frames=200, noise=0.0, pitch_roll=0.0):
 
 def no_gating(**kw):
     return dict(screw_gate_deg=1e9, min_rotation_deg=0.0, robust_deg=1e9, **kw)
+
+
+def random_rotations(generator, *shape):
+    """Random rotation matrices (*shape, 3, 3), angles up to about 100 degrees."""
+    return so3_exp(torch.randn(*shape, 3, generator=generator, dtype=torch.float64))
+
+
+def random_poses(generator, *shape, scale=1.0):
+    """Random camera-to-world poses (*shape, 4, 4), translations of about ``scale``."""
+    t = scale * torch.randn(*shape, 3, generator=generator, dtype=torch.float64)
+    return make_pose(random_rotations(generator, *shape), t)
+
+
+def random_orthonormal(generator, *shape, n=4):
+    """Random orthonormal matrices (*shape, n, n)."""
+    return torch.linalg.qr(torch.randn(*shape, n, n, generator=generator, dtype=torch.float64))[0]
+
+
+def random_moment(generator, *shape, rows=20):
+    """A random translation moment (*shape, 15, 15): the second moment of ``rows`` random feature vectors."""
+    z = torch.randn(*shape, rows, 15, generator=generator, dtype=torch.float64)
+    return z.mT @ z
+
+
+def stream_statistics(poses, **options):
+    """The statistics the PyTorch head keeps after every frame of ``poses`` (T, B, C, 4, 4), stacked (T, B, K, ...):
+    the combined rotation system (RotationSystem) and translation moment (TranslationMoment)."""
+    head = OnlineCalibrator(poses.shape[2], poses.shape[1], backend="torch", **options)
+    out = [head(p) for p in poses]
+    S2 = torch.stack([o.rotation_singular_values for o in out]).square()
+    rotation = RotationSystem(
+        S2, torch.stack([o.rotation_basis for o in out]), torch.stack([o.rotation_rows for o in out])
+    )
+    Z, rows = torch.stack([o.translation_moment for o in out]), torch.stack([o.translation_rows for o in out])
+    return rotation, TranslationMoment(Z, rows)
+
+
+def head_statistics(generator, frames=40):
+    """The statistics of the PyTorch head after each frame of two noisy rigs and a car's (planar motion), flattened
+    (N, ...): the rotation system, the translation moment's quadratic form and its row count."""
+    rigs = torch.stack([lds_rig(generator, frames=frames, noise=0.01)[0] for _ in range(2)], 1)
+    car = car_rig(generator, frames=frames, noise=0.002)[0][:, None]
+    (rotation_a, moment_a), (rotation_b, moment_b) = stream_statistics(rigs), stream_statistics(car)
+
+    def join(a, b):
+        return torch.cat([a, b], 1).flatten(0, 2)
+
+    Z, rows = map(join, moment_a, moment_b)
+    return RotationSystem(*map(join, rotation_a, rotation_b)), translation_quadratic(Z), rows
+
+
+def entry(quantities, i):
+    """Entry ``i`` of batched tensors (a tuple of them) as numpy arrays or, where 0-d, floats, for a compiled twin."""
+    return tuple(float(x[i]) if x.dim() == 1 else x[i].numpy() for x in quantities)

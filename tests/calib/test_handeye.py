@@ -1,12 +1,18 @@
+import numpy as np
+import pytest
 import torch
-from calib_helpers import lds_rig
+from calib_helpers import lds_rig, random_moment, random_poses, random_rotations
 
+from ocalib.calib import handeye_kernel
 from ocalib.calib.handeye import (
+    TranslationMoment,
     normal_equations,
     rotation_block,
+    rotation_blocks,
     translation_features,
     translation_quadratic,
     translation_rows,
+    update_translation_moment,
 )
 from ocalib.geometry import invert_pose, rotation_matrix_to_quaternion
 
@@ -40,3 +46,46 @@ def test_normal_equations_equal_explicit_rows(generator):
     torch.testing.assert_close(H, Bf.T @ Bf, atol=1e-10, rtol=1e-12)
     torch.testing.assert_close(g, Bf.T @ bf, atol=1e-10, rtol=1e-12)
     torch.testing.assert_close(tt, bf @ bf, atol=1e-10, rtol=1e-12)
+
+
+def test_rotation_blocks_twin(generator):
+    q = rotation_matrix_to_quaternion(random_rotations(generator, 3, 2, 6))  # (B, C, P, 4), w >= 0
+    want = rotation_blocks(q)[:, 0]
+    for b in range(len(q)):
+        got = np.empty((6, 4, 4))
+        handeye_kernel.rotation_blocks(q[b, 0].numpy(), q[b, 1].numpy(), got)
+        np.testing.assert_array_equal(got, want[b].numpy())
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+@pytest.mark.parametrize("forgetting", [1.0, 0.9])
+def test_update_translation_moment_twin(generator, symmetric, forgetting):
+    B, C, P = 4, 2, 5
+    motion = random_poses(generator, B, C, P, scale=3.0)
+    ok = torch.rand(B, C - 1, P, generator=generator) < 0.7
+    moment = TranslationMoment(
+        random_moment(generator, B, 1, P), 10 * torch.rand(B, 1, P, generator=generator, dtype=torch.float64)
+    )
+    want = update_translation_moment(moment, motion, ok, forgetting, symmetric)
+    for b in range(B):
+        got = TranslationMoment(*(x[b, 0].numpy().copy() for x in moment))
+        handeye_kernel.update_translation_moment(got, motion[b, 0].numpy(), motion[b, 1].numpy(), ok[b, 0].numpy(),
+                                                 forgetting, symmetric, np.empty((2, 15)))  # fmt: skip
+        np.testing.assert_allclose(got.Z, want.Z[b, 0].numpy(), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got.translation_rows, want.translation_rows[b, 0].numpy(), rtol=1e-14)
+
+
+def test_translation_quadratic_and_normal_equations_twins(generator):
+    Z, maps = random_moment(generator, 3), random_rotations(generator, 3, 3)  # maps: any 3x3 matrices
+    for b in range(3):
+        P, p = np.empty((12, 12)), np.empty(12)
+        c = handeye_kernel.translation_quadratic(Z[b].numpy(), P, p)
+        want = translation_quadratic(Z[b])
+        for got, expected in zip((P, p, c), want):
+            np.testing.assert_array_equal(got, expected.numpy())
+        for m in (1, 3):
+            H, g = np.empty((6, 6)), np.empty(6)
+            handeye_kernel.normal_equations((P, p, c), maps[b].numpy(), m, H, g)
+            want_H, want_g, _ = normal_equations(want, maps[b, :m])
+            np.testing.assert_allclose(H[: 3 + m, : 3 + m], want_H.numpy(), rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(g[: 3 + m], want_g.numpy(), rtol=1e-12, atol=1e-12)

@@ -1,10 +1,21 @@
+import numpy as np
 import pytest
 import torch
-from calib_helpers import lds_rig
+from calib_helpers import lds_rig, random_moment, random_orthonormal, random_poses
 
+from ocalib.calib import pairing_kernel
 from ocalib.calib.batch import batch_calibrate
+from ocalib.calib.handeye import TranslationMoment
 from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.pairing import GAP_PRIOR_DOF, GAP_WEIGHT_POWER, gap_weights
+from ocalib.calib.pairing import (
+    GAP_PRIOR_DOF,
+    GAP_WEIGHT_POWER,
+    MotionPairs,
+    combine_statistics,
+    gap_weights,
+    motions_since,
+)
+from ocalib.calib.rotation import RotationSystem, rotation_gram
 
 
 def _system(residual: list[float], rows: list[float]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -83,3 +94,49 @@ def test_weighted_gaps_equal_the_weighted_batch_under_drift(generator):
     torch.testing.assert_close(out.quaternion[0], ref["quaternion"], atol=1e-8, rtol=0)
     torch.testing.assert_close(out.translation[0], ref["translation"], atol=1e-8, rtol=0)
     assert gap_weights(cal.gap_S2, cal.gap_rotation_rows).min() < 0.1  # the weights did matter
+
+
+def test_motions_since_twin(generator):
+    B, C, P = 4, 3, 5
+    earlier, poses = random_poses(generator, B, C, P, scale=2.0), random_poses(generator, B, C, scale=2.0)
+    earlier_valid, valid = torch.rand(B, C, P, generator=generator) < 0.8, torch.rand(B, C, generator=generator) < 0.8
+    want = motions_since(earlier, earlier_valid, poses, valid)
+    for b in range(B):
+        got = MotionPairs(np.empty((C, P, 4, 4)), np.empty((C, P, 4)), np.empty((C, P)), np.empty((C - 1, P), bool))
+        pairing_kernel.motions_since(
+            earlier[b].numpy(), earlier_valid[b].numpy(), poses[b].numpy(), valid[b].numpy(), got
+        )
+        for name, value in zip(MotionPairs._fields, got):
+            np.testing.assert_allclose(value, getattr(want, name)[b].numpy(), rtol=0, atol=1e-12, err_msg=name)
+
+
+@pytest.mark.parametrize("gaps", [5, 1])
+def test_combine_statistics_twin(generator, gaps):
+    """Gaps with and without residual degrees of freedom; the twin decomposes in the last frame's basis."""
+    B = 6
+    S2 = torch.rand(B, gaps, 4, generator=generator, dtype=torch.float64) * torch.tensor([10, 10, 10, 1])
+    S2 = S2.sort(-1, descending=True).values
+    rows = torch.rand(B, gaps, generator=generator, dtype=torch.float64) * 40
+    rows[0] = 1.0  # no gap measured: all weigh 1
+    gaps_ = RotationSystem(S2, random_orthonormal(generator, B, gaps), rows)
+    moment = TranslationMoment(
+        random_moment(generator, B, gaps), 40 * torch.rand(B, gaps, generator=generator, dtype=torch.float64)
+    )
+    want_rotation, want_moment, want_weights = combine_statistics(rotation_gram(S2, gaps_.V), S2, rows, moment)
+    basis = random_orthonormal(generator, B)
+    for b in range(B):
+        S2_b, V_b, Z_b, work = np.empty(4), basis[b].numpy().copy(), np.empty((15, 15)), pairing_kernel.workspace(gaps)
+        got_rows, got_translation_rows = pairing_kernel.combine_statistics(
+            RotationSystem(*(x[b].numpy() for x in gaps_)), TranslationMoment(*(x[b].numpy() for x in moment)), S2_b,
+            V_b, Z_b, work,
+        )  # fmt: skip
+        if gaps > 1:
+            np.testing.assert_allclose(work.weights, want_weights[b].numpy(), rtol=1e-10, atol=0)
+        np.testing.assert_allclose(got_rows, want_rotation.rotation_rows[b].item(), rtol=1e-12)
+        np.testing.assert_allclose(got_translation_rows, want_moment.translation_rows[b].item(), rtol=1e-12)
+        np.testing.assert_allclose(Z_b, want_moment.Z[b].numpy(), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(S2_b, want_rotation.S2[b].numpy(), rtol=0, atol=1e-12 * S2_b[0])
+        M = rotation_gram(torch.from_numpy(S2_b), torch.from_numpy(V_b))
+        torch.testing.assert_close(
+            M, rotation_gram(want_rotation.S2[b], want_rotation.V[b]), rtol=0, atol=1e-12 * S2_b[0]
+        )

@@ -1,10 +1,20 @@
+import numpy as np
 import pytest
 import torch
-from calib_helpers import lds_rig
+from calib_helpers import lds_rig, random_orthonormal, random_rotations
 
-from ocalib.calib.handeye import rotation_block
+from ocalib.calib import rotation_kernel
+from ocalib.calib.handeye import rotation_block, rotation_blocks
 from ocalib.calib.linalg import guarded_eigh
-from ocalib.calib.rotation import batch_rotation, incremental_svd_update, rotation_solution, singular_values
+from ocalib.calib.rotation import (
+    RotationSystem,
+    batch_rotation,
+    incremental_svd_update,
+    rotation_gram,
+    rotation_solution,
+    singular_values,
+    update_rotation_system,
+)
 from ocalib.geometry import invert_pose, rotation_matrix_to_quaternion
 
 
@@ -60,3 +70,29 @@ def test_guarded_gradients_on_repeated_eigenvalues():
     e2, v2 = torch.linalg.eigh(M2)
     (v2[:, 0].sum() + e2.sum()).backward()
     assert not torch.isfinite(M2.grad).all()
+
+
+@pytest.mark.parametrize("forgetting", [1.0, 0.9])
+def test_update_rotation_system_twin(generator, forgetting):
+    """Each gap's system, from nothing (repeated zero singular values) and from earlier rows; weights 0 to 1."""
+    B, P = 4, 5
+    S2 = (10 * torch.rand(B, P, 4, generator=generator, dtype=torch.float64)).sort(-1, descending=True).values
+    S2[0] = 0.0
+    V = random_orthonormal(generator, B, P)
+    V[0] = torch.eye(4, dtype=torch.float64)
+    system = RotationSystem(S2, V, 20 * torch.rand(B, P, generator=generator, dtype=torch.float64))
+    A = rotation_blocks(rotation_matrix_to_quaternion(random_rotations(generator, B, 2, P)))[:, 0]  # (B, P, 4, 4)
+    weight = torch.rand(B, P, generator=generator, dtype=torch.float64)
+    weight[:, 0] = 0.0
+    want = update_rotation_system(system, A, weight, forgetting)
+    for b in range(B):
+        got = RotationSystem(*(x[b].numpy().copy() for x in system))
+        rotation_kernel.update_rotation_system(
+            got, A[b].numpy(), weight[b].numpy(), forgetting, rotation_kernel.workspace()
+        )
+        np.testing.assert_allclose(got.rotation_rows, want.rotation_rows[b].numpy(), rtol=1e-14)
+        np.testing.assert_allclose(got.S2, want.S2[b].numpy(), rtol=0, atol=1e-12 * want.S2[b].max().item())
+        M = rotation_gram(torch.from_numpy(got.S2), torch.from_numpy(got.V))
+        torch.testing.assert_close(
+            M, rotation_gram(want.S2[b], want.V[b]), rtol=0, atol=1e-12 * want.S2[b].max().item()
+        )

@@ -4,7 +4,6 @@ import pytest
 import torch
 from calib_helpers import lds_rig
 
-from ocalib.calib.gating import affine_scan, screw_gate_sequence, screw_threshold, update_screw_scale
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.geometry import make_pose
@@ -52,30 +51,3 @@ def test_sequence_equals_stream_with_outliers_and_bad_poses(generator):
         seq, ref = calibrate_sequence(poses, chunk=16, **options), stream(poses, **options)
     assert_same(seq, ref)
     assert ref["frames_rejected"][-1, 1].item() == 2 and ref["frames_rejected"][-1, 0].item() > 0
-
-
-def test_affine_scan_equals_the_recurrence(generator):
-    a = torch.rand(37, 3, generator=generator, dtype=torch.float64)
-    b = torch.randn(37, 3, generator=generator, dtype=torch.float64)
-    s, expected = torch.ones(3, dtype=torch.float64), []
-    for t in range(37):
-        s = a[t] * s + b[t]
-        expected.append(s)
-    torch.testing.assert_close(affine_scan(a, b, torch.ones(3, dtype=torch.float64)), torch.stack(expected))
-
-
-def test_screw_gate_sequence_equals_frame_by_frame(generator):
-    L, P = 200, 4
-    screw = torch.rand(L, 2, P, generator=generator, dtype=torch.float64).mul(0.01).abs()
-    screw[torch.rand(L, 2, P, generator=generator) < 0.1] = 0.5  # outliers: clipped, then gated
-    valid = torch.rand(L, 2, P, generator=generator) < 0.9
-    scale, count = torch.zeros(2, dtype=torch.float64), torch.zeros(2, dtype=torch.float64)
-    ok = []
-    for t in range(L):
-        ok.append(valid[t] & (screw[t] <= screw_threshold(scale, count, math.radians(1), 4.0).unsqueeze(-1)))
-        scale, count = update_screw_scale(scale, count, screw[t], valid[t])
-    zero = torch.zeros(2, dtype=torch.float64)
-    got, got_scale, got_count = screw_gate_sequence(screw, valid, zero, zero, math.radians(1), 4.0)
-    assert torch.equal(got, torch.stack(ok)) and (~got & valid).any()
-    torch.testing.assert_close(got_scale, scale, atol=1e-14, rtol=0)
-    torch.testing.assert_close(got_count, count)

@@ -1,9 +1,11 @@
+import numpy as np
 import pytest
 import torch
-from calib_helpers import lds_rig
+from calib_helpers import lds_rig, random_moment, random_rotations
 
+from ocalib.calib import translation_kernel
 from ocalib.calib.handeye import translation_features, translation_quadratic, translation_rows
-from ocalib.calib.translation import rls_update, solve_translation
+from ocalib.calib.translation import pinv_solve, rls_update, solve_translation
 from ocalib.geometry import invert_pose
 
 
@@ -69,3 +71,29 @@ def test_rls_forgetting_equals_weighted_batch(generator, forgetting):
     H = torch.einsum("t,tri,trj->ij", w, B, B) + forgetting**n * torch.eye(4, dtype=torch.float64) / c0
     g = torch.einsum("t,tri,tr->i", w, B, b)
     torch.testing.assert_close(x, torch.linalg.solve(H, g), atol=1e-8, rtol=0)
+
+
+def test_solve_translation_twin(generator):
+    Z, dR = random_moment(generator, 4), random_rotations(generator, 4)
+    want = solve_translation(translation_quadratic(Z), dR)
+    for b in range(len(Z)):
+        x = np.empty(4)
+        P, p, c = translation_quadratic(Z[b])
+        quadratic = (P.numpy(), p.numpy(), float(c))
+        translation_kernel.solve_translation(quadratic, dR[b].numpy(), x, translation_kernel.workspace())
+        np.testing.assert_allclose(x, want[b].numpy(), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("solve", [translation_kernel.pinv_solve, translation_kernel.spd_solve])
+def test_minimum_norm_solve_twins_on_rank_deficient_systems(generator, solve):
+    """Cholesky gives way to the eigen-decomposition's pseudo-inverse where a direction is (nearly) free."""
+    J = torch.randn(4, 6, 3, generator=generator, dtype=torch.float64)
+    H = J @ J.mT  # rank 3
+    H[1] += 1e-12 * torch.eye(6, dtype=torch.float64)  # positive definite, but beyond the rank tolerance
+    H[2] = torch.eye(6, dtype=torch.float64) + H[2]  # well conditioned: Cholesky's
+    g = (H @ torch.randn(4, 6, 1, generator=generator, dtype=torch.float64)).squeeze(-1)
+    want = pinv_solve(H, g)[0]
+    for b in range(len(H)):
+        x = np.empty(6)
+        solve(H[b].numpy(), g[b].numpy(), 6, x, translation_kernel.workspace())
+        np.testing.assert_allclose(x, want[b].numpy(), rtol=1e-9, atol=1e-9)

@@ -1,0 +1,143 @@
+"""Compiled twins (numba) of :mod:`ocalib.calib.handeye`: the hand-eye rows of motion pairs and the translation
+moment, for one rig and camera k (no batch dimension; results written into the arrays passed).
+
+Convention: as :mod:`ocalib.calib.handeye`; ``P`` motion pairs, quaternions (w, x, y, z).
+"""
+
+from __future__ import annotations
+
+from ocalib.calib.linalg_kernel import jit
+
+
+@jit
+def rotation_blocks(q0, qk, A):
+    """:func:`~ocalib.calib.handeye.rotation_blocks`: ``A = L(q0) - R(qk)`` (P, 4, 4) from the motion quaternions of
+    camera 0 and camera k (P, 4), both with w >= 0 (as :func:`~ocalib.calib.pairing_kernel.motions_since` gives)."""
+    for j in range(A.shape[0]):
+        w0, x0, y0, z0 = q0[j, 0], q0[j, 1], q0[j, 2], q0[j, 3]
+        w1, x1, y1, z1 = qk[j, 0], qk[j, 1], qk[j, 2], qk[j, 3]
+        Aj = A[j]
+        Aj[0, 0], Aj[0, 1], Aj[0, 2], Aj[0, 3] = w0 - w1, -x0 + x1, -y0 + y1, -z0 + z1
+        Aj[1, 0], Aj[1, 1], Aj[1, 2], Aj[1, 3] = x0 - x1, w0 - w1, -z0 - z1, y0 + y1
+        Aj[2, 0], Aj[2, 1], Aj[2, 2], Aj[2, 3] = y0 - y1, z0 + z1, w0 - w1, -x0 - x1
+        Aj[3, 0], Aj[3, 1], Aj[3, 2], Aj[3, 3] = z0 - z1, -y0 - y1, x0 + x1, w0 - w1
+
+
+@jit
+def pair_features(m0, mk, symmetric, z):
+    """:func:`~ocalib.calib.handeye.pair_features` of one motion pair (camera 0's and camera k's motions, 4x4) into
+    ``z`` (2, 15); returns the number of rows written (2 if ``symmetric``: the pair and its reverse)."""
+    for i in range(3):
+        for l in range(3):
+            z[0, 3 * i + l] = (1.0 if i == l else 0.0) - m0[i, l]
+        z[0, 9 + i] = mk[i, 3]
+        z[0, 12 + i] = m0[i, 3]
+    if not symmetric:
+        return 1
+    for i in range(3):  # the reverse pair: R0^T, -R0^T t0, -Rk^T tk
+        for l in range(3):
+            z[1, 3 * i + l] = (1.0 if i == l else 0.0) - m0[l, i]
+        z[1, 9 + i] = -(mk[0, i] * mk[0, 3] + mk[1, i] * mk[1, 3] + mk[2, i] * mk[2, 3])
+        z[1, 12 + i] = -(m0[0, i] * m0[0, 3] + m0[1, i] * m0[1, 3] + m0[2, i] * m0[2, 3])
+    return 2
+
+
+@jit
+def update_translation_moment(moment, m0, mk, ok, forgetting, symmetric, z):
+    """:func:`~ocalib.calib.handeye.update_translation_moment` of one rig and camera k, in place: ``moment`` a
+    :class:`~ocalib.calib.handeye.TranslationMoment` of each gap (``Z`` (P, 15, 15), ``translation_rows`` (P,)), the
+    motions of camera 0 and camera k ``m0``, ``mk`` (P, 4, 4), the pairs ``ok`` (P,); ``z`` (2, 15) scratch."""
+    Z, rows = moment
+    for j in range(Z.shape[0]):
+        Zj = Z[j]
+        if forgetting != 1.0:
+            for i in range(15):
+                for l in range(15):
+                    Zj[i, l] *= forgetting
+        rows[j] = forgetting * rows[j] + (1.0 if ok[j] else 0.0)
+        if not ok[j]:
+            continue
+        n = pair_features(m0[j], mk[j], symmetric, z)
+        for i in range(15):  # the moment is symmetric: its upper triangle, mirrored
+            for l in range(i, 15):
+                acc = z[0, i] * z[0, l]
+                if n == 2:
+                    acc += z[1, i] * z[1, l]
+                Zj[i, l] += acc
+                if l != i:
+                    Zj[l, i] = Zj[i, l]
+
+
+@jit
+def translation_quadratic(Z, P, p):
+    """:func:`~ocalib.calib.handeye.translation_quadratic` of ``Z`` (15, 15): ``P`` (12, 12) and ``p`` (12,) written,
+    ``c`` returned."""
+    for i in range(12):
+        for j in range(12):
+            P[i, j] = 0.0
+    for i in range(3):
+        for j in range(3):
+            P[i, j] = Z[i, j] + Z[3 + i, 3 + j] + Z[6 + i, 6 + j]
+        for r in range(3):
+            for j in range(3):
+                P[i, 3 + 3 * r + j] = Z[3 * r + i, 9 + j]
+                P[3 + 3 * r + j, i] = Z[3 * r + i, 9 + j]
+    for a in range(3):
+        for b in range(3):
+            for d in range(3):
+                P[3 + 3 * a + b, 3 + 3 * a + d] = Z[9 + b, 9 + d]
+    for i in range(3):
+        s = 0.0
+        for r in range(3):
+            s += Z[3 * r + i, 12 + r]
+        p[i] = s
+    for r in range(3):
+        for j in range(3):
+            p[3 + 3 * r + j] = Z[9 + j, 12 + r]
+    return Z[12, 12] + Z[13, 13] + Z[14, 14]
+
+
+@jit
+def apply_quadratic(P, y, out):
+    """``out = P y`` for the quadratic's ``P`` (12, 12), whose lower-right block is ``I (x) Z_t1t1``."""
+    for i in range(3):
+        acc = 0.0
+        for j in range(12):
+            acc += P[i, j] * y[j]
+        out[i] = acc
+    for a in range(3):
+        for b in range(3):
+            i = 3 + 3 * a + b
+            out[i] = (P[i, 0] * y[0] + P[i, 1] * y[1] + P[i, 2] * y[2]
+                      + P[i, 3 + 3 * a] * y[3 + 3 * a] + P[i, 4 + 3 * a] * y[4 + 3 * a] + P[i, 5 + 3 * a] * y[5 + 3 * a])  # fmt: skip
+
+
+@jit
+def normal_equations(quadratic, maps, m, H, g):
+    """:func:`~ocalib.calib.handeye.normal_equations` of ``quadratic`` ``(P, p, c)`` for the first ``m`` maps of
+    ``maps`` (3, 3, 3): ``H`` ((3 + m) x (3 + m) block) and ``g`` written."""
+    P, p, _ = quadratic
+    for a in range(3):
+        g[a] = p[a]
+        for b in range(3):
+            H[a, b] = P[a, b]
+    for k in range(m):
+        s = 0.0
+        for i in range(9):
+            s += maps[k, i // 3, i % 3] * p[3 + i]
+        g[3 + k] = s
+        for a in range(3):
+            s = 0.0
+            for i in range(9):
+                s += P[a, 3 + i] * maps[k, i // 3, i % 3]
+            H[a, 3 + k] = s
+            H[3 + k, a] = s
+        for l in range(m):
+            s = 0.0
+            for i in range(9):
+                li = maps[k, i // 3, i % 3]
+                if li == 0.0:
+                    continue
+                for j in range(9):
+                    s += li * P[3 + i, 3 + j] * maps[l, j // 3, j % 3]
+            H[3 + k, 3 + l] = s

@@ -1,0 +1,227 @@
+"""Compiled twins (numba) of :mod:`ocalib.calib.refine`: the joint refinement of rotation, translation and scale, for
+one entry (no batch dimension; results written into the arrays passed).
+
+Convention: as :mod:`ocalib.calib.refine`: unknowns ordered ``(d, s, dT)`` with ``d`` the local rotation
+(``q <- q * (1, d/2) / |.|``), ``x = (dT, s)``, quaternions (w, x, y, z).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ocalib.calib.handeye_kernel import apply_quadratic
+from ocalib.calib.linalg_kernel import jit, jit_inline, left_product_matrix, lu_solve, quaternion_to_rotation_matrix
+from ocalib.calib.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
+from ocalib.calib.rotation_kernel import excited, rotation_gram
+
+REFINE_CODES = {False: 0, True: 1, "unobservable": 2}  # refine_estimate's mode, for each of refine.REFINE_MODES
+_EPS2 = float(np.finfo(np.float64).eps) ** 2
+
+
+class Workspace(NamedTuple):
+    """Scratch arrays of :func:`refine_estimate`."""
+
+    M: np.ndarray  # (4, 4) the rotation system's Gram matrix
+    q: np.ndarray  # (4,) the iterate's rotation
+    x: np.ndarray  # (4,) and its (dT, s)
+    R: np.ndarray  # (3, 3) its rotation matrix
+    y: np.ndarray  # (12,) (dT, vec(s dR))
+    Py: np.ndarray  # (12,)
+    r: np.ndarray  # (12,) the weighted gradient of E_t in y
+    C: np.ndarray  # (9, 4) d vec(s dR) / d(d, s)
+    K: np.ndarray  # (12, 7) P J_y
+    H: np.ndarray  # (7, 7) the system
+    g: np.ndarray  # (7,)
+    d: np.ndarray  # (7,) the step
+    L: np.ndarray  # (4, 4)
+    Jq: np.ndarray  # (4, 3) dq / dd
+    MJ: np.ndarray  # (4, 3)
+    Mq: np.ndarray  # (4,) wr M q
+    D: np.ndarray  # (3, 3) dR^T times the gradient in s dR
+
+
+@jit
+def workspace():
+    return Workspace(np.empty((4, 4)), np.empty(4), np.empty(4), np.empty((3, 3)), np.empty(12), np.empty(12),
+                     np.empty(12), np.empty((9, 4)), np.empty((12, 7)), np.empty((7, 7)), np.empty(7), np.empty(7),
+                     np.empty((4, 4)), np.empty((4, 3)), np.empty((4, 3)), np.empty(4), np.empty((3, 3)))  # fmt: skip
+
+
+@jit
+def refine_estimate(est, rotation, quadratic, translation_rows, mode, steps, flags, work):
+    """:func:`~ocalib.calib.refine.refine_estimate` of one entry: ``est`` the closed form
+    (:class:`~ocalib.calib.solve_kernel.Estimate`, refined in place where accepted), ``rotation`` the
+    :class:`~ocalib.calib.rotation.RotationSystem` and ``quadratic`` ``(P, p, c)`` it came from, ``mode`` a code of
+    :data:`REFINE_CODES`, ``flags`` the closed form's ``(observable, planar)``. Returns whether it was refined.
+    ``work``: :func:`workspace`."""
+    observable, planar = flags
+    rows = rotation.rotation_rows
+    if mode == 0 or steps == 0:
+        return False
+    active = excited(est.rotation_singular_values, rows, 1, ROTATION_OBSERVABLE_SIGNIFICANCE) and not planar
+    if not (active and translation_rows >= 3 and (mode == 1 or not observable)):
+        return False
+    rotation_gram(rotation.S2, rotation.V, work.M)
+    refined = joint_refine(
+        work.M, quadratic, est.quaternion, est.translation_scale, rows, translation_rows, steps, work
+    )
+    if refined:
+        quaternion_to_rotation_matrix(est.quaternion, est.rotation)
+    return refined
+
+
+@jit
+def joint_refine(M, quadratic, quat, x, rotation_rows, translation_rows, steps, work):
+    """:func:`~ocalib.calib.refine.joint_refine` of one active entry: ``quat`` (4,) and ``x`` (4,) the closed form, the
+    refined estimate where it is accepted (returned: whether)."""
+    _, _, c = quadratic
+    Er0, Et0 = costs(M, quadratic, quat, x, work)
+    trace = M[0, 0] + M[1, 1] + M[2, 2] + M[3, 3]
+    wr = max(2.0 * rotation_rows - 3.0, 1.0) / max(Er0 + _EPS2 * trace, 1e-300)
+    wt = max(3.0 * translation_rows - 4.0, 1.0) / max(Et0 + _EPS2 * c, 1e-300)
+    q, xr, H, g, d, Jq = work.q, work.x, work.H, work.g, work.d, work.Jq
+    q[:] = quat
+    xr[:] = x
+    for step in range(steps):
+        _system(M, quadratic, q, xr, wr, wt, work)
+        if step > 0:
+            _newton_terms(q, xr[3], work)
+        mean = 0.0
+        for i in range(7):
+            mean += abs(H[i, i])
+        mean = 1e-14 * mean / 7.0
+        for i in range(7):
+            H[i, i] += mean
+            g[i] = -g[i]
+        lu_solve(H, g, 7, d)
+        for i in range(4):
+            q[i] += Jq[i, 0] * d[0] + Jq[i, 1] * d[1] + Jq[i, 2] * d[2]
+        nq = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        for i in range(4):
+            q[i] /= nq
+        xr[3] += d[3]
+        for i in range(3):
+            xr[i] += d[4 + i]
+    if q[0] < 0:
+        for i in range(4):
+            q[i] = -q[i]
+    Er, Et = costs(M, quadratic, q, xr, work)
+    ok = wr * Er + wt * Et <= wr * Er0 + wt * Et0
+    for i in range(4):
+        ok = ok and math.isfinite(q[i]) and math.isfinite(xr[i])
+    if ok:
+        quat[:] = q
+        x[:] = xr
+    return ok
+
+
+@jit_inline
+def costs(M, quadratic, q, x, work):
+    """:func:`~ocalib.calib.refine.costs`: ``(Er, Et)`` at ``(q, x)``."""
+    P, p, c = quadratic
+    R, y, Py = work.R, work.y, work.Py
+    quaternion_to_rotation_matrix(q, R)
+    for i in range(3):
+        y[i] = x[i]
+    for i in range(9):
+        y[3 + i] = x[3] * R[i // 3, i % 3]
+    Er = 0.0
+    for i in range(4):
+        for j in range(4):
+            Er += q[i] * M[i, j] * q[j]
+    apply_quadratic(P, y, Py)
+    Et = c
+    for i in range(12):
+        Et += y[i] * (Py[i] - 2.0 * p[i])
+    return Er, Et
+
+
+@jit_inline
+def _system(M, quadratic, q, x, wr, wt, work):
+    """The Gauss-Newton system of :func:`~ocalib.calib.refine.joint_refine` at ``(q, x)``: ``work.H`` (7, 7) and
+    ``work.g`` (7,), and the pieces the Newton terms and the update reuse: ``R = dR``, ``Jq``, ``r``, ``Mq``."""
+    P, p, _ = quadratic
+    R, y, r, C, K, H, g, L, Jq, MJ, Mq = (
+        work.R,
+        work.y,
+        work.r,
+        work.C,
+        work.K,
+        work.H,
+        work.g,
+        work.L,
+        work.Jq,
+        work.MJ,
+        work.Mq,
+    )
+    s = x[3]
+    quaternion_to_rotation_matrix(q, R)
+    for i in range(3):  # C[:, k] = s vec(dR [e_k]x): dR [e_k]x = [0, R2, -R1], [-R2, 0, R0], [R1, -R0, 0]
+        C[3 * i, 0], C[3 * i + 1, 0], C[3 * i + 2, 0] = 0.0, s * R[i, 2], -s * R[i, 1]
+        C[3 * i, 1], C[3 * i + 1, 1], C[3 * i + 2, 1] = -s * R[i, 2], 0.0, s * R[i, 0]
+        C[3 * i, 2], C[3 * i + 1, 2], C[3 * i + 2, 2] = s * R[i, 1], -s * R[i, 0], 0.0
+    for i in range(9):
+        C[i, 3] = R[i // 3, i % 3]
+        y[3 + i] = s * R[i // 3, i % 3]
+    for i in range(3):
+        y[i] = x[i]
+    apply_quadratic(P, y, r)
+    for i in range(12):
+        r[i] = wt * (r[i] - p[i])
+    for i in range(12):  # K = P J_y: [P[:, 3:] C, P[:, :3]], P[3:, 3:] block diagonal
+        lo, hi = (0, 9) if i < 3 else (3 * ((i - 3) // 3), 3 * ((i - 3) // 3) + 3)
+        for j in range(4):
+            acc = 0.0
+            for k in range(lo, hi):
+                acc += P[i, 3 + k] * C[k, j]
+            K[i, j] = acc
+        for j in range(3):
+            K[i, 4 + j] = P[i, j]
+    for i in range(4):
+        for j in range(7):
+            acc = 0.0
+            for k in range(9):
+                acc += C[k, i] * K[3 + k, j]
+            H[i, j] = wt * acc
+        acc = 0.0
+        for k in range(9):
+            acc += C[k, i] * r[3 + k]
+        g[i] = acc
+    for i in range(3):
+        for j in range(7):
+            H[4 + i, j] = wt * K[i, j]
+        g[4 + i] = r[i]
+    left_product_matrix(q, L)
+    for i in range(4):
+        for j in range(3):
+            Jq[i, j] = 0.5 * L[i, 1 + j]
+        Mq[i] = wr * (M[i, 0] * q[0] + M[i, 1] * q[1] + M[i, 2] * q[2] + M[i, 3] * q[3])
+    for i in range(4):
+        for b in range(3):
+            MJ[i, b] = M[i, 0] * Jq[0, b] + M[i, 1] * Jq[1, b] + M[i, 2] * Jq[2, b] + M[i, 3] * Jq[3, b]
+    for a in range(3):
+        for b in range(3):
+            H[a, b] += wr * (Jq[0, a] * MJ[0, b] + Jq[1, a] * MJ[1, b] + Jq[2, a] * MJ[2, b] + Jq[3, a] * MJ[3, b])
+        g[a] += Jq[0, a] * Mq[0] + Jq[1, a] * Mq[1] + Jq[2, a] * Mq[2] + Jq[3, a] * Mq[3]
+
+
+@jit_inline
+def _newton_terms(q, s, work):
+    """Add Newton's second-derivative terms to ``work.H``: those of ``m = vec(s dR)`` and of ``q``, contracted with the
+    gradient (``_system``'s ``r`` and ``Mq``)."""
+    R, r, H, Mq, D = work.R, work.r, work.H, work.Mq, work.D
+    for i in range(3):  # D = dR^T R_g, R_g the gradient in s dR
+        for j in range(3):
+            D[i, j] = R[0, i] * r[3 + j] + R[1, i] * r[6 + j] + R[2, i] * r[9 + j]
+    qMq = Mq[0] * q[0] + Mq[1] * q[1] + Mq[2] * q[2] + Mq[3] * q[3]
+    trD = D[0, 0] + D[1, 1] + D[2, 2]
+    for k in range(3):  # <D, (G_k G_l + G_l G_k) / 2> with G_k G_l = e_l e_k^T - delta_kl I
+        for l in range(3):
+            H[k, l] += s * (0.5 * (D[l, k] + D[k, l]) - (trD if k == l else 0.0))
+        H[k, k] -= 0.25 * qMq
+    for k, dG in enumerate((D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1])):  # <D, G_k>
+        H[k, 3] += dG
+        H[3, k] += dG
