@@ -52,7 +52,7 @@ def main() -> None:
     args = p.parse_args()
     trees = {"this": HERE} | ({"compare": Path(args.compare).resolve()} if args.compare else {})
     times: dict[str, dict[str, list[float]]] = {}
-    cases = [(ensure(Path(args.root), name, 300), f) for name in args.sequences for f in args.frontends]
+    cases = [(ensure(Path(args.root), name, 300).resolve(), f) for name in args.sequences for f in args.frontends]
     for _ in range(args.repeats):
         for sequence, frontend in cases:
             for label, tree in trees.items():
