@@ -228,7 +228,7 @@ def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     assert proc.poll() is None, "finished before it could be interrupted"
     time.sleep(0.3)
     os.killpg(proc.pid, signal.SIGINT)
-    out, err = proc.communicate(timeout=120)
+    out, err = proc.communicate(timeout=300)  # a loaded machine can take minutes to wind the loader down
     return subprocess.CompletedProcess(args, proc.returncode, out, err)
 
 
