@@ -10,6 +10,8 @@ where ``n`` (camera 0's frame) is the common rotation axis. The translation equa
 is linear in ``(dT, c0, c1, c2) = (dT, s, s cos(theta), s sin(theta))``. The component of ``dT``
 along ``n`` (camera height for a car) is unobservable; the minimum-norm solution sets it to zero.
 
+The compiled twin is in :mod:`ocalib.calib.planar_kernel`.
+
 Convention: ``n`` and ``dT`` in camera 0's frame; quaternions (w, x, y, z).
 """
 
