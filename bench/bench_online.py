@@ -15,7 +15,12 @@ Prints a table and writes ``bench/results/online.json``. Medians over repeats; t
 interleaved, ``--repeats`` times, so that a change in the machine's load hits all of them alike. The kernel's
 compilation (or loading from numba's cache) happens before the timed frames.
 
-    python bench/bench_online.py [--quick]
+``--against DIR`` times the head's cases (not the batch and OpenCV ones) of another checkout of ocalib, e.g. a
+``git worktree add /tmp/before <commit>``, beside this one's: each case in a fresh process for each checkout
+(``PYTHONPATH``), the two alternating, ``--repeats`` times; prints the medians side by side and writes
+``bench/results/online_against.json``.
+
+    python bench/bench_online.py [--quick] [--against DIR]
 """
 
 from __future__ import annotations
@@ -24,6 +29,8 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -39,7 +46,13 @@ from ocalib.calib.sequence import calibrate_sequence
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 
 OUT = Path(__file__).parent / "results" / "online.json"
+OUT_AGAINST = Path(__file__).parent / "results" / "online_against.json"
 THREADS = numba.get_num_threads()  # the kernel's default: one per core
+FRAMES = {
+    False: {1: 300, 64: 200, 4096: 16},
+    True: {1: 40, 64: 30, 4096: 4},
+}  # timed frames (after 20 warm-up), --quick
+SEQUENCE_FRAMES = {False: {1: 2000, 4096: 32}, True: {1: 200, 4096: 8}}
 
 
 def rig_sequence(frames: int, rigs: int, seed: int = 0) -> torch.Tensor:
@@ -101,19 +114,69 @@ def time_opencv(n: int, repeats: int, method: int) -> list[float]:
     return times
 
 
+def time_case(kind: str, rigs: int, refine: bool, threads: int, quick: bool) -> list[float]:
+    """Seconds per frame of one case: ``kind`` a backend (``"auto"``, ``"torch"``) or ``"sequence"``."""
+    with torch.inference_mode():  # compile the kernel (or load it from numba's cache) before timing
+        OnlineCalibrator(2, batch_size=64)(rig_sequence(1, 64)[0])
+    if kind == "sequence":
+        return [time_sequence(rig_sequence(SEQUENCE_FRAMES[quick][rigs], rigs))]
+    return time_stream(rig_sequence(FRAMES[quick][rigs] + 20, rigs), 20, threads, backend=kind, refine=refine)
+
+
+def against(other: str, repeats: int, quick: bool) -> None:
+    """The head's cases of the checkout ``other`` and of this one, alternating, each in a fresh process."""
+    trees = {"other": str(Path(other).resolve()), "this": str(Path(__file__).resolve().parents[1])}
+    cases = [
+        (kind, rigs, refine, THREADS)
+        for rigs in (1, 64, 4096)
+        for refine in (True, False)
+        for kind in ("auto", "torch")
+    ]
+    cases += [("auto", 4096, True, 1)] * (THREADS > 1) + [("sequence", rigs, True, 0) for rigs in (1, 4096)]
+    samples: dict[tuple, list[float]] = {}
+    for r in range(repeats):
+        for case in cases:
+            for name in list(trees)[:: 1 - 2 * (r % 2)]:  # this one first every other round
+                env = dict(os.environ, PYTHONPATH=trees[name])
+                spec = json.dumps([*case, quick])
+                out = subprocess.run(
+                    [sys.executable, __file__, "--case", spec], env=env, capture_output=True, text=True
+                )
+                if out.returncode:
+                    raise RuntimeError(f"{name} {case}: {out.stderr[-2000:]}")
+                samples.setdefault((case, name), []).extend(json.loads(out.stdout.splitlines()[-1]))
+    print(
+        f"{'case':<44} {'other ms':>10} {'this ms':>10} {'this/other':>10}   (medians; load {os.getloadavg()[0]:.1f})"
+    )
+    rows = []
+    for case in cases:
+        kind, rigs, refine, threads = case
+        label = {"auto": f"kernel, {threads} thr", "torch": "PyTorch", "sequence": "whole-sequence path"}[kind]
+        name = f"{label}, {rigs} rig(s)" + ("" if kind == "sequence" else (", refined" if refine else ", closed form"))
+        a, b = (statistics.median(samples[(case, tree)]) * 1e3 for tree in trees)
+        rows.append({"case": name, "other_ms": a, "this_ms": b, "ratio": b / a, "n": len(samples[(case, "this")])})
+        print(f"{name:<44} {a:>10.4f} {b:>10.4f} {b / a:>10.3f}", flush=True)
+    write_json(OUT_AGAINST, {"other": trees["other"], "this": trees["this"], "rows": rows})
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats (a smoke run)")
     parser.add_argument("--repeats", type=int, default=3, help="interleaved repeats of the streaming cases")
+    parser.add_argument(
+        "--against", metavar="DIR", help="time the head of the ocalib checkout in DIR beside this one's"
+    )
+    parser.add_argument("--case", help=argparse.SUPPRESS)  # one case of --against, in this process: prints its times
     args = parser.parse_args()
     torch.set_num_threads(1)
     repeats = 1 if args.quick else args.repeats
-    frames = {1: 300, 64: 200, 4096: 16} if not args.quick else {1: 40, 64: 30, 4096: 4}
-    data = {rigs: rig_sequence(n + 20, rigs) for rigs, n in frames.items()}
-    sequences = {
-        1: rig_sequence(2000 if not args.quick else 200, 1),
-        4096: rig_sequence(32 if not args.quick else 8, 4096),
-    }
+    if args.case:
+        print(json.dumps(time_case(*json.loads(args.case))))
+        return
+    if args.against:
+        return against(args.against, repeats, args.quick)
+    data = {rigs: rig_sequence(n + 20, rigs) for rigs, n in FRAMES[args.quick].items()}
+    sequences = {rigs: rig_sequence(n, rigs) for rigs, n in SEQUENCE_FRAMES[args.quick].items()}
     samples: dict[tuple, list[float]] = {}
     with torch.inference_mode():  # compile the kernel (or load it from numba's cache) before timing
         OnlineCalibrator(2, batch_size=64)(data[64][0])

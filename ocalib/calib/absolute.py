@@ -40,10 +40,11 @@ import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from torch import Tensor, nn
 
+from ocalib.calib.gating import check_poses, rig_poses
 from ocalib.calib.options import POSE_ERRORS  # where the poses' translation error lives
 from ocalib.calib.planar import skew
 from ocalib.geometry.constants import constant_cache
-from ocalib.geometry.pose import invert_pose, orthonormality_error
+from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.io.jsonable import finite_or_null
 
@@ -391,23 +392,13 @@ class AbsoluteCalibrator(nn.Module):
 
     def forward(self, poses: Tensor) -> AbsoluteCalibration:
         """Consume one synchronised frame. poses: (B, C, 4, 4) or (C, 4, 4) camera-to-world."""
-        if poses.dim() == 3:
-            poses = poses.unsqueeze(0)
-        if poses.shape != (self.batch_size, self.num_cameras, 4, 4):
-            raise ValueError(
-                f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}"
-            )
-        poses = poses.to(self.K.dtype)
-        eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
-        valid = poses.isfinite().flatten(-2).all(-1)
-        poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
-        valid = valid & (orthonormality_error(poses[..., :3, :3]) < self.pose_tolerance)
-        C = torch.where(valid[..., None, None], poses, eye)
+        poses = rig_poses(poses, self.batch_size, self.num_cameras)
+        C, valid = check_poses(poses.to(self.K.dtype), self.pose_tolerance)
         C = invert_pose(C) if self.pose_error == "camera" else C  # world-to-camera (world: roles exchanged)
         kron, D = absolute_rows(C[:, :1, :3, :3].expand_as(C[:, 1:, :3, :3]), C[:, 1:, :3, :3],
                                 C[:, :1, :3, 3].expand_as(C[:, 1:, :3, 3]), C[:, 1:, :3, 3])  # fmt: skip
         used = valid[:, :1] & valid[:, 1:]  # (B, K)
-        w = used.to(poses.dtype)
+        w = used.to(C.dtype)
         lam = self.forgetting
         self.K = lam * self.K + w[..., None, None] * kron
         self.M = lam * self.M + w[..., None, None] * D.mT @ D

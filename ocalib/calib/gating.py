@@ -3,7 +3,8 @@
 Pure functions of the state, shared by the streaming head (:mod:`ocalib.calib.online`) and the
 whole-sequence path (:mod:`ocalib.calib.sequence`); their compiled twins are in :mod:`ocalib.calib.gating_kernel`.
 
-* Pose checks: a pose with a non-finite entry or a rotation further than a tolerance from orthonormal is skipped.
+* Pose checks: a frame's poses must have the rig's shape; a pose with a non-finite entry or a rotation further than
+  a tolerance from orthonormal is skipped.
 * Screw congruence: the two motions of a rigid rig rotate by the same angle. A pair is rejected when its
   angles differ by more than ``max(gate, sigma * robust std)``, the robust std from a running mean absolute
   difference (each sample clipped at 5 robust std, so outliers barely count; capped at 1000 samples, so it
@@ -29,6 +30,15 @@ from ocalib.geometry.pose import orthonormality_error
 MAD_TO_STD = 1.25  # mean absolute deviation -> standard deviation, for Gaussian noise
 SCREW_MIN_SAMPLES = 10
 SCREW_MAX_SAMPLES = 1000.0
+
+
+def rig_poses(poses: Tensor, batch_size: int, num_cameras: int) -> Tensor:
+    """A frame's poses (B, C, 4, 4), given as (B, C, 4, 4) or (C, 4, 4) for one rig; any other shape is an error."""
+    if poses.dim() == 3:
+        poses = poses.unsqueeze(0)
+    if poses.shape != (batch_size, num_cameras, 4, 4):
+        raise ValueError(f"expected poses of shape ({batch_size}, {num_cameras}, 4, 4), got {tuple(poses.shape)}")
+    return poses
 
 
 def check_poses(poses: Tensor, tolerance: float) -> tuple[Tensor, Tensor]:

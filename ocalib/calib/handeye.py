@@ -20,6 +20,8 @@ Each motion pair can give its translation rows in both directions (:func:`pair_f
 from frame a to b and its reverse, whose residual lives in frame b. Their rotation rows are the same
 (``|A' q| = |A q|``), their translation rows are not: the forward rows carry the rotation noise of
 frame a's pose times the motion's length, the reverse rows frame b's.
+
+The compiled twins are in :mod:`ocalib.calib.handeye_kernel`.
 """
 
 from __future__ import annotations

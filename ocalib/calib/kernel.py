@@ -49,7 +49,6 @@ from ocalib.calib import (
     gating_kernel,
     handeye_kernel,
     pairing_kernel,
-    planar_kernel,
     refine_kernel,
     rotation_kernel,
     solve_kernel,
@@ -57,6 +56,7 @@ from ocalib.calib import (
 from ocalib.calib.handeye import TranslationMoment
 from ocalib.calib.linalg_kernel import OPTIONS, jit, jit_inline
 from ocalib.calib.pairing import MotionPairs
+from ocalib.calib.refine import REFINE_STEPS
 from ocalib.calib.rotation import RotationSystem
 
 PARALLEL_MIN_RIGS = 16  # fewer rigs run on the calling thread (starting the thread pool costs more)
@@ -127,7 +127,7 @@ class Workspace(NamedTuple):
     p: np.ndarray  # (12,)
     rotation: rotation_kernel.Workspace
     combine: pairing_kernel.Workspace
-    solve: planar_kernel.Workspace  # solve_kernel.workspace()
+    solve: solve_kernel.Workspace
     refine: refine_kernel.Workspace
 
 
@@ -241,13 +241,13 @@ def _parallel(poses, state, settings, out, chunks):
 def step(head, poses: Tensor) -> dict[str, Tensor]:
     """Run one frame of ``head`` (an :class:`~ocalib.calib.online.OnlineCalibrator` with ``solver="exact"``, float64
     buffers on the CPU) on ``poses`` (B, C, 4, 4), updating its buffers in place. Returns the fields of
-    :class:`~ocalib.calib.result.Calibration`, in new arrays every frame (new arrays cost about 0.5 us each, and their
-    page faults 0.5 ms a frame for 4096 rigs: not worth keeping the last frame's for reuse)."""
+    :class:`~ocalib.calib.result.Calibration`, in new arrays every frame (as fast as reusing the last frame's: the
+    allocator hands their memory back once the caller drops them; 0.5 us an array)."""
     B, K = head.batch_size, head.num_cameras - 1
     buffers, state = _numpy_buffers(head)
     settings = (buffers["gap_tensor"], 0 in head.gaps, int(buffers["frame"]), head.symmetric, float(head.forgetting),
                 head.min_rotation, head.screw_gate, head.screw_gate_sigma, head.robust, head.pose_tolerance,
-                refine_kernel.REFINE_CODES[head.refine], 3)  # fmt: skip  # 3: solve's refine steps
+                refine_kernel.REFINE_CODES[head.refine], REFINE_STEPS)  # fmt: skip
     out = tuple(np.empty((B, K) + shape, dtype) for shape, dtype in OUTPUTS.values())
     args = (poses.detach().to(torch.float64).contiguous().numpy(), state, settings, out)
     threads = numba.get_num_threads()
@@ -260,8 +260,9 @@ def step(head, poses: Tensor) -> dict[str, Tensor]:
 
 
 def _numpy_buffers(head) -> tuple[dict[str, np.ndarray], tuple[np.ndarray, ...]]:
-    """Numpy views of ``head``'s buffers, by name and (the kernel's state) in the order of :class:`State`; kept while
-    the buffers are where they were (``Tensor.numpy`` costs 2-4 us: all of them, a third of a frame of one rig)."""
+    """Numpy views of ``head``'s buffers, by name and (the kernel's state) in the order of :class:`State`, kept while
+    every buffer's memory is where it was (``Tensor.numpy`` costs 2-4 us: all of them, a third of a frame of one rig).
+    The views hold their tensors, so a buffer the module replaced cannot come back at a kept address."""
     addresses = list(map(Tensor.data_ptr, head._buffers.values()))
     kept = head.__dict__.get("_kernel_buffers")
     if kept is None or kept[0] != addresses:

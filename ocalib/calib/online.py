@@ -13,7 +13,7 @@ import math
 import torch
 from torch import Tensor, nn
 
-from ocalib.calib.gating import check_poses, rotation_weights, screw_gate
+from ocalib.calib.gating import check_poses, rig_poses, rotation_weights, screw_gate
 from ocalib.calib.handeye import (
     FEATURES,
     TranslationMoment,
@@ -151,12 +151,7 @@ class OnlineCalibrator(nn.Module):
 
     def forward(self, poses: Tensor) -> Calibration:
         """Consume one synchronised frame. poses: (B, C, 4, 4) or (C, 4, 4) camera-to-world."""
-        if poses.dim() == 3:
-            poses = poses.unsqueeze(0)
-        if poses.shape != (self.batch_size, self.num_cameras, 4, 4):
-            raise ValueError(
-                f"expected poses of shape ({self.batch_size}, {self.num_cameras}, 4, 4), got {tuple(poses.shape)}"
-            )
+        poses = rig_poses(poses, self.batch_size, self.num_cameras)
         st = self._buffers  # the state, read and replaced directly (nn.Module attribute access is slow)
         differentiable = torch.is_grad_enabled() and (poses.requires_grad or st["gap_Z"].requires_grad)
         if self._kernel_applies(poses, differentiable):

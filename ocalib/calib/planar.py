@@ -10,6 +10,8 @@ where ``n`` (camera 0's frame) is the common rotation axis. The translation equa
 is linear in ``(dT, c0, c1, c2) = (dT, s, s cos(theta), s sin(theta))``. The component of ``dT``
 along ``n`` (camera height for a car) is unobservable; the minimum-norm solution sets it to zero.
 
+The compiled twin is in :mod:`ocalib.calib.planar_kernel`.
+
 Convention: ``n`` and ``dT`` in camera 0's frame; quaternions (w, x, y, z).
 """
 
@@ -19,6 +21,7 @@ import torch
 from torch import Tensor
 
 from ocalib.calib.handeye import normal_equations
+from ocalib.calib.rotation import rotation_gram
 from ocalib.calib.translation import pinv_solve
 from ocalib.geometry.quaternion import (
     left_product_matrix,
@@ -88,7 +91,7 @@ def planar_rotation_std(
     var_theta = st2 * (c2**2 * H_pinv[..., 4, 4] + c1**2 * H_pinv[..., 5, 5] - 2 * c1 * c2 * H_pinv[..., 4, 5])
     var_theta = var_theta / (c1**2 + c2**2).square().clamp_min(1e-300)
     # The rotation rows: residual at dq, two constrained directions.
-    M = (V * S.square().unsqueeze(-2)) @ V.mT
+    M = rotation_gram(S.square(), V)
     dof_r = 2 * rotation_rows - 2
     Er = (quat.unsqueeze(-2) @ M @ quat.unsqueeze(-1)).squeeze((-1, -2))
     sr2 = torch.where(dof_r > 0, Er / dof_r.clamp_min(1), torch.inf)

@@ -44,6 +44,7 @@ from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix
 # networks 5.5 vs 6.9, 5.7 vs 13.5). "unobservable" refines only where the rotation needs the translation rows:
 # near-planar motion whose third rotation direction the rotation rows do not fix.
 REFINE_MODES = (True, False, "unobservable")
+REFINE_STEPS = 3  # one Gauss-Newton step and two Newton steps
 
 
 def refine_estimate(
@@ -52,7 +53,7 @@ def refine_estimate(
     quadratic: tuple[Tensor, Tensor, Tensor],
     translation_rows: Tensor,
     mode: bool | str = True,
-    steps: int = 3,
+    steps: int = REFINE_STEPS,
 ) -> dict[str, Tensor]:
     """The closed form ``est`` (:func:`~ocalib.calib.solve.closed_form`) refined jointly where ``mode`` (one of
     :data:`REFINE_MODES`) asks and at least two rotation directions are excited, the motion is not planar and there
@@ -91,7 +92,7 @@ def joint_refine(
     rotation_rows: Tensor,
     translation_rows: Tensor,
     active: Tensor,
-    steps: int = 3,
+    steps: int = REFINE_STEPS,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Refine ``(q, dT, s)`` jointly.
 

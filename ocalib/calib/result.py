@@ -12,7 +12,7 @@ from torch import Tensor
 from ocalib.calib.handeye import TranslationMoment, translation_quadratic
 from ocalib.calib.planar import planar_rotation_std
 from ocalib.calib.refine import costs, joint_covariance
-from ocalib.calib.rotation import RotationSystem, rotation_std
+from ocalib.calib.rotation import RotationSystem, rotation_gram, rotation_std
 from ocalib.calib.translation import translation_uncertainty, unobservable_directions
 from ocalib.io.jsonable import finite_or_null
 
@@ -64,7 +64,7 @@ class Calibration:
         r = self.refined
         S2, V = self.rotation_singular_values[r].square(), self.rotation_basis[r]
         x = torch.cat([self.translation[r], self.scale[r].unsqueeze(-1)], -1)
-        cov = joint_covariance((V * S2.unsqueeze(-2)) @ V.mT, translation_quadratic(self.translation_moment[r]),
+        cov = joint_covariance(rotation_gram(S2, V), translation_quadratic(self.translation_moment[r]),
                                self.quaternion[r], x, self.rotation_rows[r], self.translation_rows[r])  # fmt: skip
         std = torch.full((*r.shape, 7), math.inf, dtype=x.dtype, device=x.device)
         return std.index_put((r,), torch.diagonal(cov, dim1=-2, dim2=-1).sqrt())
@@ -136,7 +136,7 @@ class Calibration:
         S2, V = self.rotation_singular_values.square(), self.rotation_basis
         P, p, c = translation_quadratic(self.translation_moment)
         x = torch.cat([self.translation, self.scale.unsqueeze(-1)], -1)
-        Er, Et = costs((V * S2.unsqueeze(-2)) @ V.mT, P, p, c, self.quaternion, x)
+        Er, Et = costs(rotation_gram(S2, V), P, p, c, self.quaternion, x)
         rows = self.rotation_rows
         rotation = torch.where(rows > 0, 2 * (Er.clamp_min(0) / rows.clamp_min(1e-300)).sqrt(), torch.nan)
         translation = torch.where(c > 0, (Et.clamp_min(0) / c.clamp_min(1e-300)).sqrt(), torch.nan)

@@ -10,6 +10,8 @@ The small SVD is taken through its 4x4 Gram matrix ``lam diag(S^2) + (W V)^T (W 
 :func:`~ocalib.calib.linalg.guarded_eigh`: the same right singular vectors and singular values,
 3x faster on large batches of rigs, and with gradients that stay finite on planar motion. Singular
 values near zero are then accurate to about ``sqrt(machine eps) * S[0]`` in absolute terms.
+
+The compiled twins are in :mod:`ocalib.calib.rotation_kernel`.
 """
 
 from __future__ import annotations

@@ -30,10 +30,8 @@ class Estimate(NamedTuple):
     planar_axis: np.ndarray  # (3,)
 
 
-@jit
-def workspace():
-    """Scratch arrays of :func:`closed_form`."""
-    return planar_kernel.workspace()
+Workspace = planar_kernel.Workspace  # closed_form's scratch: the planar route's, which holds the translation solve's
+workspace = planar_kernel.workspace
 
 
 @jit

@@ -8,6 +8,8 @@ Two on-line solvers:
 * :func:`rls_update` -- the paper's recursive least squares with forgetting factor, with the typos of
   the paper corrected (``C <- C / lam - G Gamma^-1 G^T``, minus).
 
+The compiled twins of the exact solve are in :mod:`ocalib.calib.translation_kernel`.
+
 Convention: ``dT`` is in camera 0's frame and units; ``s`` multiplies camera-k units into camera-0 units.
 """
 

@@ -1,4 +1,5 @@
-"""The compiled CPU kernel (``backend="auto"`` on the CPU) equals the PyTorch head at every frame."""
+"""The compiled CPU kernel (``backend="auto"`` on the CPU) equals the PyTorch head at every frame (each stage's
+compiled twin against its PyTorch function: the test module of the stage's module)."""
 
 import copy
 
@@ -7,15 +8,11 @@ import torch
 from calib_helpers import car_rig, lds_rig
 
 from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.rotation import rotation_gram as gram
 
 kernel = pytest.importorskip("ocalib.calib.kernel", reason="numba is not installed")
 
 TOL = dict(atol=1e-8, rtol=1e-8)
-
-
-def gram(S2, V):
-    """The rotation system's Gram matrix: what the head's (S2, V) stand for, whatever basis a repeated eigenvalue got."""
-    return (V * S2.unsqueeze(-2)) @ V.mT
 
 
 def assert_same_frame(a, b, t):

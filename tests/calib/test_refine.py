@@ -6,7 +6,7 @@ import torch
 from calib_helpers import entry, head_statistics
 
 from ocalib.calib import refine_kernel, solve_kernel
-from ocalib.calib.refine import REFINE_MODES, refine_estimate
+from ocalib.calib.refine import REFINE_MODES, REFINE_STEPS, refine_estimate
 from ocalib.calib.rotation import RotationSystem
 from ocalib.calib.solve import closed_form
 
@@ -24,7 +24,7 @@ def test_refine_estimate_twin(generator, mode):
         est = solve_kernel.Estimate(*(f[i].numpy().copy() for f in fields))
         flags = (bool(start["rotation_observable"][i]), bool(start["planar_motion"][i]))
         refined = refine_kernel.refine_estimate(est, RotationSystem(*entry(rotation, i)), entry(quadratic, i),
-                                                float(translation_rows[i]), refine_kernel.REFINE_CODES[mode], 3, flags,
+                                                float(translation_rows[i]), refine_kernel.REFINE_CODES[mode], REFINE_STEPS, flags,
                                                 refine_kernel.workspace())  # fmt: skip
         assert refined == want["refined"][i]
         got = {"quaternion": est.quaternion, "rotation": est.rotation, "translation": est.translation_scale[:3],
