@@ -17,6 +17,7 @@ from torch import Tensor
 from ocalib.calib.handeye import pair_features, rotation_block, translation_rows
 from ocalib.calib.pairing import MOTIONS, gap_weights
 from ocalib.calib.rotation import batch_rotation, planar_motion, rotation_observable
+from ocalib.calib.translation import symmetric_scale
 from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
@@ -42,7 +43,11 @@ def pair_motions(poses: Tensor, start: Tensor, end: Tensor) -> Tensor:
 
 
 def batch_calibrate(
-    poses: Tensor, motion: str | tuple[int, ...] = "multi", symmetric: bool = True, refine: bool = True
+    poses: Tensor,
+    motion: str | tuple[int, ...] = "multi",
+    symmetric: bool = True,
+    refine: bool = True,
+    scale_fit: str = "symmetric",
 ) -> dict[str, Tensor]:
     """Batch hand-eye calibration of cameras 1..C-1 against camera 0.
 
@@ -52,6 +57,8 @@ def batch_calibrate(
         symmetric: translation rows of each pair in both directions (see :mod:`ocalib.calib.handeye`).
         refine: refine rotation, translation and scale jointly (where rotation is observable and the motion
             not planar); else the closed form.
+        scale_fit: ``"symmetric"``: the scale re-fitted at the final rotation with no preferred camera (as the
+            on-line head's, :func:`~ocalib.calib.translation.symmetric_scale`); ``"regression"``: least squares'.
 
     Returns:
         ``quaternion`` (K, 4), ``rotation`` (K, 3, 3), ``translation`` (K, 3), ``scale`` (K,),
@@ -69,9 +76,8 @@ def batch_calibrate(
     z = pair_features(m[:, :1].expand_as(m[:, 1:]), m[:, 1:], symmetric).transpose(0, 1).flatten(1, 2)  # (K, MD, 15)
     R0, t0, t1 = z[..., :9].unflatten(-1, (3, 3)), z[..., 12:], z[..., 9:12]
     R0 = torch.eye(3, dtype=R0.dtype) - R0
-    B, b = translation_rows(R0, t0, t1, dR.unsqueeze(1))
     sw = w.sqrt().repeat_interleave(z.shape[1] // len(start), 1)[..., None]  # each pair's D rows
-    B, b = (sw[..., None] * B).flatten(1, 2), (sw * b).flatten(1, 2)  # (K, 3MD, 4), (K, 3MD)
+    B, b = _weighted_rows(R0, t0, t1, dR, sw)
     x = (torch.linalg.pinv(B) @ b.unsqueeze(-1)).squeeze(-1)
     refined = torch.zeros(len(quat), dtype=torch.bool)
     if refine:
@@ -82,6 +88,9 @@ def batch_calibrate(
                 w[k].sqrt()[:, None, None] * A[k], R0[k], t0[k], t1[k], sw[k], quat[k], x[k], float(pairs[k])
             )
         dR = quaternion_to_rotation_matrix(quat)
+    if scale_fit == "symmetric":
+        B, b = _weighted_rows(R0, t0, t1, dR, sw)
+        x = symmetric_scale(B.mT @ B, (B.mT @ b.unsqueeze(-1)).squeeze(-1), b.square().sum(-1), x)
     return {
         "quaternion": quat,
         "rotation": dR,
@@ -92,6 +101,13 @@ def batch_calibrate(
         "blocks": A,
         "features": z,
     }
+
+
+def _weighted_rows(R0: Tensor, t0: Tensor, t1: Tensor, dR: Tensor, row_weight: Tensor) -> tuple[Tensor, Tensor]:
+    """The translation rows at the rotation ``dR`` (K, 3, 3), each pair's times ``row_weight`` (K, MD, 1):
+    ``B`` (K, 3MD, 4), ``b`` (K, 3MD)."""
+    B, b = translation_rows(R0, t0, t1, dR.unsqueeze(1))
+    return (row_weight[..., None] * B).flatten(1, 2), (row_weight * b).flatten(1, 2)
 
 
 def _pair_weights(A: Tensor, gap: Tensor) -> Tensor:

@@ -20,6 +20,7 @@ with (..., K, P).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -30,6 +31,28 @@ from ocalib.geometry.pose import orthonormality_error
 MAD_TO_STD = 1.25  # mean absolute deviation -> standard deviation, for Gaussian noise
 SCREW_MIN_SAMPLES = 10
 SCREW_MAX_SAMPLES = 1000.0
+
+
+@dataclass(frozen=True)
+class Gates:
+    """The head's thresholds of what it trusts (the defaults of :class:`~ocalib.calib.online.OnlineCalibrator`).
+
+    ``min_rotation_deg``: motions rotating less than this give no rotation rows. ``screw_gate_deg``,
+    ``screw_gate_sigma``: a pair is rejected when its two rotation angles differ by more than
+    ``max(screw_gate_deg, screw_gate_sigma * robust std of that difference)``. ``robust_deg``: rotation rows whose
+    residual exceeds this are down-weighted by ``robust_deg / residual``. ``pose_tolerance``: poses with a non-finite
+    entry or a rotation further than this from orthonormal are skipped (and counted in ``frames_rejected``).
+    :data:`NO_GATES` turns the minimum rotation, the screw gate and the robust weights off (the paper's head).
+    """
+
+    min_rotation_deg: float = 0.05
+    screw_gate_deg: float = 1.0
+    screw_gate_sigma: float = 4.0
+    robust_deg: float = 5.0
+    pose_tolerance: float = 1e-3
+
+
+NO_GATES = Gates(min_rotation_deg=0.0, screw_gate_deg=1e9, robust_deg=1e9)
 
 
 def rig_poses(poses: Tensor, batch_size: int, num_cameras: int) -> Tensor:

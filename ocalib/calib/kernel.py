@@ -17,6 +17,7 @@ per-gap moment            :func:`ocalib.calib.handeye.update_translation_moment`
 gap combination           :func:`ocalib.calib.pairing.combine_statistics`         ``pairing_kernel.combine_statistics``
 closed form               :func:`ocalib.calib.solve.closed_form`                  ``solve_kernel.closed_form``
 refinement                :func:`ocalib.calib.refine.refine_estimate`             ``refine_kernel.refine_estimate``
+scale fit                 :func:`ocalib.calib.translation.fit_scale`              ``translation_kernel.fit_scale``
 ========================  =====================================================  ====================================
 
 The twins work on one rig (and camera k) in float64, updating the head's buffers in place (``state_dict`` is
@@ -52,6 +53,7 @@ from ocalib.calib import (
     refine_kernel,
     rotation_kernel,
     solve_kernel,
+    translation_kernel,
 )
 from ocalib.calib.handeye import TranslationMoment
 from ocalib.calib.linalg_kernel import OPTIONS, jit, jit_inline
@@ -98,6 +100,7 @@ class Settings(NamedTuple):
     pose_tolerance: float
     refine: int  # refine_kernel.REFINE_CODES
     refine_steps: int
+    scale_fit: int  # translation_kernel.SCALE_FIT_CODES
 
 
 # The estimate's arrays (B, K, *shape): the fields of :class:`~ocalib.calib.result.Calibration`.
@@ -178,6 +181,7 @@ def _camera_step(b, k, state, settings, out, work):
     flags = solve_kernel.closed_form(rotation, quadratic, est, work.solve)
     out.refined[b, k] = refine_kernel.refine_estimate(est, rotation, quadratic, translation_rows, settings.refine,
                                                       settings.refine_steps, flags, work.refine)  # fmt: skip
+    translation_kernel.fit_scale(est, quadratic, settings.scale_fit, work.solve.solve)
     out.rotation_observable[b, k], out.planar_motion[b, k] = flags
     out.translation[b, k], out.scale[b, k] = work.x[:3], work.x[3]
     used = False
@@ -247,7 +251,8 @@ def step(head, poses: Tensor) -> dict[str, Tensor]:
     buffers, state = _numpy_buffers(head)
     settings = (buffers["gap_tensor"], 0 in head.gaps, int(buffers["frame"]), head.symmetric, float(head.forgetting),
                 head.min_rotation, head.screw_gate, head.screw_gate_sigma, head.robust, head.pose_tolerance,
-                refine_kernel.REFINE_CODES[head.refine], REFINE_STEPS)  # fmt: skip
+                refine_kernel.REFINE_CODES[head.refine], REFINE_STEPS,
+                translation_kernel.SCALE_FIT_CODES[head.scale_fit])  # fmt: skip
     out = tuple(np.empty((B, K) + shape, dtype) for shape, dtype in OUTPUTS.values())
     args = (poses.detach().to(torch.float64).contiguous().numpy(), state, settings, out)
     threads = numba.get_num_threads()

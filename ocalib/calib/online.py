@@ -13,7 +13,7 @@ import math
 import torch
 from torch import Tensor, nn
 
-from ocalib.calib.gating import check_poses, rig_poses, rotation_weights, screw_gate
+from ocalib.calib.gating import Gates, check_poses, rig_poses, rotation_weights, screw_gate
 from ocalib.calib.handeye import (
     FEATURES,
     TranslationMoment,
@@ -27,7 +27,7 @@ from ocalib.calib.refine import REFINE_MODES, refine_estimate
 from ocalib.calib.result import Calibration
 from ocalib.calib.rotation import RotationSystem, rotation_gram, update_rotation_system
 from ocalib.calib.solve import closed_form
-from ocalib.calib.translation import rls_update
+from ocalib.calib.translation import SCALE_FITS, fit_scale, rls_update
 
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU kernel's compiler
 
@@ -43,7 +43,8 @@ class OnlineCalibrator(nn.Module):
     (:func:`~ocalib.calib.handeye.update_translation_moment`); the gaps combined with weights from their noise
     (:func:`~ocalib.calib.pairing.combine_statistics`); the closed form (:func:`~ocalib.calib.solve.closed_form`:
     translation and scale by the exact moment solver) or the paper's RLS (:mod:`ocalib.calib.translation`); and the
-    joint refinement of rotation, translation and scale (:func:`~ocalib.calib.refine.refine_estimate`). All state is
+    joint refinement of rotation, translation and scale (:func:`~ocalib.calib.refine.refine_estimate`); last the scale
+    fit (:func:`~ocalib.calib.translation.fit_scale`). All state is
     kept in buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
 
     Args:
@@ -57,15 +58,16 @@ class OnlineCalibrator(nn.Module):
             first, then translation and scale), which equals the batch closed form; ``"unobservable"``: refine
             only where the rotation rows alone leave the rotation unobservable (monocular front ends, whose
             translation directions are biased: see :data:`~ocalib.calib.refine.REFINE_MODES`).
+        scale_fit: how the exact solver fits the scale: ``"symmetric"`` with no preferred camera, the geometric
+            mean of regressing each camera's translations on the other's
+            (:func:`~ocalib.calib.translation.symmetric_scale`); ``"regression"``: least squares' regression of
+            camera 0's translations on camera k's, biased toward 0 by camera k's translation noise however many
+            frames come.
         symmetric: translation rows of every motion pair in both directions (see :mod:`ocalib.calib.handeye`).
         forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
         rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
-        min_rotation_deg: motions rotating less than this give no rotation rows.
-        screw_gate_deg, screw_gate_sigma: a pair is rejected when its two rotation angles differ by more
-            than ``max(screw_gate_deg, screw_gate_sigma * robust std of that difference)``.
-        robust_deg: rotation rows whose residual exceeds this are down-weighted by ``robust_deg / residual``.
-        pose_tolerance: poses with a non-finite entry or a rotation further than this from orthonormal are
-            skipped (and counted in ``frames_rejected``).
+        gates: the thresholds of the pose checks, the screw gate and the robust weights
+            (:class:`~ocalib.calib.gating.Gates`; :data:`~ocalib.calib.gating.NO_GATES` turns gating off).
         backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`: the stages' compiled
             twins, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64,
             ``solver="exact"``, no gradients -- and in PyTorch elsewhere; ``"torch"`` always in PyTorch.
@@ -78,15 +80,12 @@ class OnlineCalibrator(nn.Module):
         motion: str | tuple[int, ...] = "multi",
         solver: str = "exact",
         refine: bool | str = True,
+        scale_fit: str = "symmetric",
         symmetric: bool = True,
         forgetting: float = 1.0,
         rls_c0: float = 1e4,
         rls_delay: int = 0,
-        min_rotation_deg: float = 0.05,
-        screw_gate_deg: float = 1.0,
-        screw_gate_sigma: float = 4.0,
-        robust_deg: float = 5.0,
-        pose_tolerance: float = 1e-3,
+        gates: Gates = Gates(),  # noqa: B008 (frozen)
         backend: str = "auto",
         dtype: torch.dtype = torch.float64,
         device: torch.device | str | None = None,
@@ -100,6 +99,8 @@ class OnlineCalibrator(nn.Module):
             raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
         if refine not in REFINE_MODES:
             raise ValueError(f"refine must be one of {REFINE_MODES}, got {refine!r}")
+        if scale_fit not in SCALE_FITS:
+            raise ValueError(f"scale_fit must be one of {SCALE_FITS}, got {scale_fit!r}")
         if backend not in ("auto", "torch"):
             raise ValueError(f"backend must be 'auto' or 'torch', got {backend!r}")
         gaps = MOTIONS[motion] if isinstance(motion, str) else tuple(int(g) for g in motion)
@@ -107,11 +108,12 @@ class OnlineCalibrator(nn.Module):
             raise ValueError(f"motion gaps must be non-negative frame counts, got {gaps}")
         self.num_cameras, self.batch_size, self.gaps, self.solver = num_cameras, batch_size, gaps, solver
         self.refine, self.symmetric = refine if solver == "exact" else False, symmetric
+        self.scale_fit = scale_fit
         self.forgetting, self.rls_c0, self.rls_delay = forgetting, rls_c0, rls_delay
-        self.min_rotation = math.radians(min_rotation_deg)
-        self.screw_gate, self.screw_gate_sigma = math.radians(screw_gate_deg), screw_gate_sigma
-        self.robust = math.radians(robust_deg)
-        self.pose_tolerance = pose_tolerance
+        self.min_rotation = math.radians(gates.min_rotation_deg)
+        self.screw_gate, self.screw_gate_sigma = math.radians(gates.screw_gate_deg), gates.screw_gate_sigma
+        self.robust = math.radians(gates.robust_deg)
+        self.pose_tolerance = gates.pose_tolerance
         self.history_size = max(max(gaps), 1)
         self.backend = backend
         self._dtype, self._device = dtype, device
@@ -175,6 +177,7 @@ class OnlineCalibrator(nn.Module):
         quadratic = translation_quadratic(moment.Z)
         est = closed_form(rotation, quadratic)
         est = refine_estimate(est, rotation, quadratic, moment.translation_rows, self.refine)
+        est = fit_scale(est, quadratic, self.scale_fit)
         self._set("gap_", gaps, gap_moments)
         self._set("", rotation)
         if self.solver == "rls":

@@ -24,6 +24,7 @@ from tqdm import tqdm
 from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.clock import estimate_time_offset, refine_time_offset
+from ocalib.calib.gating import Gates
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.options import HeadOptions
 from ocalib.calib.planar import planar_axis
@@ -224,7 +225,9 @@ def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bo
     elif head.solver == "exact":
         (final, trace), frames = _sequence(poses, head, progress), np.arange(len(poses))
     else:
-        calibrator = OnlineCalibrator(rig.poses.shape[1], **head.head_kwargs(), pose_tolerance=POSE_TOLERANCE)
+        calibrator = OnlineCalibrator(
+            rig.poses.shape[1], **head.head_kwargs(), gates=Gates(pose_tolerance=POSE_TOLERANCE)
+        )
         (final, trace), frames = _stream(calibrator, poses, progress), np.arange(len(poses))
     times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
     trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
@@ -266,7 +269,7 @@ def _sequence(poses: torch.Tensor, head: HeadOptions, progress: bool | None) -> 
         tqdm(total=len(poses), unit="frame", disable=None if progress is None else not progress, leave=False) as bar,
     ):
         out = calibrate_sequence(poses, motion=head.motion, forgetting=head.forgetting, refine=head.refine,
-                                 pose_tolerance=POSE_TOLERANCE, progress=bar.update)  # fmt: skip
+                                 gates=Gates(pose_tolerance=POSE_TOLERANCE), progress=bar.update)  # fmt: skip
         names = [f.name for f in fields(Calibration)]
         part = lambda a, b: Calibration(**{n: getattr(out, n)[a:b] for n in names})  # noqa: E731
         chunks = [trace_rows(part(a, a + TRACE_CHUNK)) for a in range(0, len(poses), TRACE_CHUNK)]

@@ -32,6 +32,7 @@ from ocalib.calib.refine import refine_estimate
 from ocalib.calib.result import Calibration
 from ocalib.calib.rotation import RotationSystem, rotation_gram
 from ocalib.calib.solve import closed_form
+from ocalib.calib.translation import fit_scale
 
 PAIRS_PER_CHUNK = 16384  # motion pairs (frames x rigs x cameras x gaps) held at once
 WEIGHT_TOLERANCE = 1e-13  # robust weights this close to the previous pass's are final
@@ -127,6 +128,7 @@ def _chunk(
         weight = new
     quadratic = translation_quadratic(moment.Z)
     est = refine_estimate(closed_form(rotation, quadratic), rotation, quadratic, moment.translation_rows, head.refine)
+    est = fit_scale(est, quadratic, head.scale_fit)
 
     used = ok.any(-1)
     frames_used = st["frames_used"] + used.cumsum(0)

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from ocalib.calib.planar import planar_rotation
 from ocalib.calib.rotation import RotationSystem, planar_motion, rotation_observable, rotation_solution, singular_values
-from ocalib.calib.translation import solve_translation
+from ocalib.calib.translation import minimum_norm, solve_translation
 from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 
@@ -51,9 +51,7 @@ def closed_form(rotation: RotationSystem, quadratic: tuple[Tensor, Tensor, Tenso
         dR, axis = dR.index_put((planar,), dR_planar), axis.index_put((planar,), axis_planar)
         quat = quat.index_put((planar,), rotation_matrix_to_quaternion(dR_planar))
     x = solve_translation(quadratic, dR)
-    # Planar motion: the translation along the rotation axis (a car's height) is unobservable. The solver's
-    # rank cut-off keeps whatever the noise made of it; report the minimum-norm value, 0.
-    dT = x[..., :3] - axis * (axis * x[..., :3]).sum(-1, keepdim=True)
+    dT = minimum_norm(x[..., :3], axis)  # the solver's rank cut-off keeps whatever the noise made of the axis's part
     return {
         "quaternion": quat,
         "rotation": dR,

@@ -1,5 +1,5 @@
-"""Compiled twins (numba) of :mod:`ocalib.calib.translation`: the exact translation solve, for one entry (no batch
-dimension; results written into the arrays passed).
+"""Compiled twins (numba) of :mod:`ocalib.calib.translation`: the exact translation solve and the scale fit, for one
+entry (no batch dimension; results written into the arrays passed).
 
 Convention: as :mod:`ocalib.calib.translation`: ``x = (dT, s)``.
 """
@@ -13,7 +13,10 @@ import numpy as np
 
 from ocalib.calib.handeye_kernel import normal_equations
 from ocalib.calib.linalg_kernel import eigh, jit
-from ocalib.calib.translation import RANK_TOLERANCE
+from ocalib.calib.translation import RANK_TOLERANCE, SCALE_FITS, UNOBSERVABLE_RELATIVE
+
+SCALE_FIT_CODES = {name: code for code, name in enumerate(SCALE_FITS)}  # fit_scale's mode
+SYMMETRIC = SCALE_FIT_CODES["symmetric"]
 
 
 class Workspace(NamedTuple):
@@ -25,13 +28,14 @@ class Workspace(NamedTuple):
     evals: np.ndarray  # (6,)
     evecs: np.ndarray  # (6, 6)
     jacobi: np.ndarray  # (6, 6)
+    u: np.ndarray  # (3,) symmetric_scale's H_TT^-1 h_Ts
+    v: np.ndarray  # (3,) and H_TT^-1 g_T
 
 
 @jit
 def workspace():
-    return Workspace(
-        np.empty((3, 3, 3)), np.empty((6, 6)), np.empty(6), np.empty(6), np.empty((6, 6)), np.empty((6, 6))
-    )
+    return Workspace(np.empty((3, 3, 3)), np.empty((6, 6)), np.empty(6), np.empty(6), np.empty((6, 6)),
+                     np.empty((6, 6)), np.empty(3), np.empty(3))  # fmt: skip
 
 
 @jit
@@ -41,6 +45,47 @@ def solve_translation(quadratic, dR, x, work):
     work.maps[0] = dR
     normal_equations(quadratic, work.maps, 1, work.H, work.g)
     spd_solve(work.H, work.g, 4, x, work)
+
+
+@jit
+def fit_scale(est, quadratic, mode, work):
+    """:func:`~ocalib.calib.translation.fit_scale`: ``est`` (:class:`~ocalib.calib.solve_kernel.Estimate`) has its
+    translation and scale re-fitted in place where ``mode`` (a code of :data:`SCALE_FIT_CODES`) is the symmetric fit.
+    ``work``: :func:`workspace`."""
+    if mode != SYMMETRIC:
+        return
+    x, axis = est.translation_scale, est.planar_axis
+    work.maps[0] = est.rotation
+    normal_equations(quadratic, work.maps, 1, work.H, work.g)
+    symmetric_scale(work.H, work.g, quadratic[2], x, work)
+    along = axis[0] * x[0] + axis[1] * x[1] + axis[2] * x[2]  # minimum_norm
+    for i in range(3):
+        x[i] -= axis[i] * along
+
+
+@jit
+def symmetric_scale(H, g, c, x, work):
+    """:func:`~ocalib.calib.translation.symmetric_scale` of the normal equations ``H`` (4x4 block), ``g`` (4), ``c``:
+    ``x`` (4) updated where the scale is observable. ``work``: :func:`workspace` (``H`` and ``g`` may be its own)."""
+    u, v = work.u, work.v
+    spd_solve(H, H[:, 3], 3, u, work)
+    spd_solve(H, g, 3, v, work)
+    A, B, C = H[3, 3], g[3], c
+    for i in range(3):
+        A -= H[i, 3] * u[i]
+        B -= H[i, 3] * v[i]
+        C -= g[i] * v[i]
+    if not A > UNOBSERVABLE_RELATIVE * H[3, 3]:
+        return
+    s = math.sqrt(max(C, 0.0) / A)
+    s = s if B > 0.0 else (-s if B < 0.0 else 0.0)
+    fitted = math.isfinite(s)
+    for i in range(3):
+        fitted = fitted and math.isfinite(v[i] - u[i] * s)
+    if fitted:
+        for i in range(3):
+            x[i] = v[i] - u[i] * s
+        x[3] = s
 
 
 @jit

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ocalib.calib.gating import NO_GATES
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.errors import InputError
@@ -29,9 +30,7 @@ from ocalib.sim.trajectory import (
     straight_trajectory,
 )
 
-_PAPER = dict(
-    motion="first", solver="rls", rls_c0=1.0, rls_delay=0, screw_gate_deg=1e9, robust_deg=1e9, min_rotation_deg=0
-)
+_PAPER = dict(motion="first", solver="rls", rls_c0=1.0, rls_delay=0, gates=NO_GATES)
 
 # method name -> OnlineCalibrator keyword arguments
 METHODS: dict[str, dict] = {

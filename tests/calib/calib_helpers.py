@@ -2,6 +2,7 @@
 
 import torch
 
+from ocalib.calib.gating import NO_GATES
 from ocalib.calib.handeye import TranslationMoment, translation_quadratic
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.rotation import RotationSystem
@@ -24,7 +25,7 @@ def car_rig(generator, frames=200, noise=0.0, pitch_roll=0.0):
 
 
 def no_gating(**kw):
-    return dict(screw_gate_deg=1e9, min_rotation_deg=0.0, robust_deg=1e9, **kw)
+    return dict(gates=NO_GATES, **kw)
 
 
 def random_rotations(generator, *shape):

@@ -64,6 +64,14 @@ def test_equals_torch_head_every_frame(generator, motion, refine):
     assert_same_state(fast, slow)
 
 
+@pytest.mark.parametrize("scale_fit", ["symmetric", "regression"])
+def test_equals_torch_head_with_either_scale_fit(generator, scale_fit):
+    poses = batch_of_rigs(generator, 2, frames=48, noise=0.02)
+    poses[:, :, 1:, :3, 3] /= 2.5  # camera 1 in other units
+    fast, slow = stream(poses, scale_fit=scale_fit)
+    assert_same_state(fast, slow)
+
+
 @pytest.mark.parametrize("symmetric", [True, False])
 def test_equals_torch_head_three_cameras_forgetting_and_drift(generator, symmetric):
     poses = batch_of_rigs(generator, 2, frames=48, cameras=3, noise=0.01, model="drift")

@@ -30,7 +30,9 @@ def assert_same(seq, ref, start=3):
             assert torch.equal(got, want), name
 
 
-@pytest.mark.parametrize("options", [{}, {"motion": "first"}, {"forgetting": 0.9}, {"refine": False}])
+@pytest.mark.parametrize(
+    "options", [{}, {"motion": "first"}, {"forgetting": 0.9}, {"refine": False}, {"scale_fit": "regression"}]
+)
 def test_sequence_equals_stream_every_frame(generator, options):
     poses, _, _ = lds_rig(generator, frames=90, cameras=3, noise=0.01)
     with torch.no_grad():
