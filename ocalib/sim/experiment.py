@@ -11,7 +11,7 @@ noise is in radians, translation noise in baseline units.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, is_dataclass
 
 import torch
 from torch import Tensor
@@ -228,4 +228,5 @@ def _check(noise, seeds, frames, noise_model, trajectory) -> None:
 
 
 def _jsonable(kwargs: dict) -> dict:
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in kwargs.items()}
+    """A method's keyword arguments as JSON values (gaps as lists, :class:`~ocalib.calib.gating.Gates` as a dict)."""
+    return {k: list(v) if isinstance(v, tuple) else (asdict(v) if is_dataclass(v) else v) for k, v in kwargs.items()}

@@ -44,96 +44,16 @@ def plot_trace(
     bundle = "bundle_translation" in trace
     fig, axes = plt.subplots(5 + bundle, K, figsize=(6.5 * K, 13.5 + 2.7 * bundle), sharex=True, squeeze=False)
     for k in range(K):
-        q = trace["quaternion"][:, k]
-        ax = axes[0, k]
-        q_true = None if truth is None else rotation_matrix_to_quaternion(torch.from_numpy(truth[k, :3, :3])).numpy()
-        if truth is None:
-            delta, what = rotation_error_deg(q, q[-1]), "rotation - final (deg)"
-        else:
-            delta = rotation_error_deg(q, q_true)
-            what = f"rotation error against the truth (deg), final {np.linalg.norm(delta[-1]):.3f} deg"
-        std = trace["rotation_std_deg"][:, k]
-        unobservable = not trace["rotation_observable"][-1, k, 0] and not trace["planar_motion"][-1, k, 0]
-        labels = [
-            f"about {a}" + ("" if unobservable or not np.isfinite(sd) else f", std {sd:.2g}")
-            for a, sd in zip(AXES, std[-1])
-        ]
-        _bands(ax, frames, delta, np.where(unobservable, np.inf, std), labels, min_span=0.02)
-        if truth is not None:
-            ax.axhline(0, color="black", lw=0.8, label="truth")
-        title = f"{Path(cameras[k]).name}: {what}\n{angles_text(q[-1])}"
-        if q_true is not None:
-            title += f"\ntruth: {angles_text(q_true)}"
-        ax.set_title(title, fontsize=9)
-        if unobservable:
-            ax.text(
-                0.5,
-                0.5,
-                "ROTATION UNOBSERVABLE\n(the motion does not determine it)",
-                transform=ax.transAxes,
-                ha="center",
-                va="center",
-                color="red",
-                fontsize=11,
-                alpha=0.8,
-            )
-
-        ax = axes[1, k]
-        t = trace["translation"][:, k]
-        t_std = trace["translation_std"][:, k]
-        labels = [
-            f"t{a} = {v:.4f}" + ("" if np.isfinite(sd) else " (unobservable)")
-            for a, v, sd in zip(AXES, t[-1], t_std[-1])
-        ]
-        title = "translation in camera 0's frame (camera-0 units)"
-        if truth is not None:
-            true_t = truth[k, :3, 3]
-            direction = true_t / max(np.linalg.norm(true_t), 1e-300)
-            for i in range(3):  # the true direction at the final estimate's length (the units differ)
-                ax.axhline(direction[i] * np.linalg.norm(t[-1]), color=COLORS[i], lw=1, ls="--")
-            labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, direction * np.linalg.norm(t[-1]))]
-            cos = t[-1] @ true_t / max(np.linalg.norm(t[-1]) * np.linalg.norm(true_t), 1e-300)
-            title += (
-                f"\ntruth (dashed): the true direction at the final length; final "
-                f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
-            )
-        _bands(ax, frames, t, t_std, labels, min_span=1e-3 * max(np.abs(t[-1]).max(), 1e-3))
-        ax.set_title(title, fontsize=9)
-
-        ax = axes[2, k]
+        true_k = None if truth is None else truth[k]
+        _rotation_row(axes[0, k], frames, trace, k, Path(cameras[k]).name, true_k)
+        _translation_row(axes[1, k], frames, trace, k, true_k)
         s = trace["scale"][:, k]
-        _bands(ax, frames, s, trace["scale_std"][:, k], [f"scale = {s[-1, 0]:.5f}"], min_span=1e-3)
-        ax.set_title("scale (camera-k units -> camera-0 units)", fontsize=9)
-
-        ax = axes[3, k]
-        sv = trace["rotation_singular_values"][:, k]
-        for i in range(4):
-            ax.plot(frames, np.maximum(sv[:, i], 1e-12), color=COLORS[i], lw=1, label=f"S{i}")
-        ax.set_yscale("log")
-        tail = sv[len(sv) // 10 :]
-        ax.set_ylim(max(tail[tail > 0].min(initial=1.0) / 3, 1e-9), tail.max(initial=1.0) * 3)
-        planar = trace["planar_motion"][:, k, 0] == 1
-        for flag, color, label in (
-            ((trace["rotation_observable"][:, k, 0] == 0) & ~planar, "red", "rotation unobservable"),
-            (planar, "orange", "planar motion (rotation from translation)"),
-        ):
-            if flag.any():
-                ax.fill_between(frames, 0, 1, where=flag, transform=ax.get_xaxis_transform(), color=color,
-                                alpha=0.15, step="mid", label=label)  # fmt: skip
-        more = f" (first 4 of {sv.shape[-1]})" if sv.shape[-1] > 4 else ""  # absolute poses: 9
-        ax.set_title(f"observability: rotation singular values{more}", fontsize=9)
-
-        ax = axes[4, k]
-        if "rotation_residual_deg" in trace:
-            residuals = trace["rotation_residual_deg"][:, k, 0], 100 * trace["translation_residual"][:, k, 0]
-            ax.plot(frames, residuals[0], color=COLORS[0], lw=1, label="rotation (deg)")
-            ax.plot(frames, residuals[1], color=COLORS[2], lw=1, label="translation (% of camera 0's motion)")
-            if any((r[np.isfinite(r)] > 0).any() for r in residuals):
-                ax.set_yscale("log")
-        ax.set_title("fit residuals, RMS over the motion pairs (absolute poses: frames) so far", fontsize=9)
-        ax.set_xlabel("frame")
+        _bands(axes[2, k], frames, s, trace["scale_std"][:, k], [f"scale = {s[-1, 0]:.5f}"], min_span=1e-3)
+        axes[2, k].set_title("scale (camera-k units -> camera-0 units)", fontsize=9)
+        _observability_row(axes[3, k], frames, trace, k)
+        _residual_row(axes[4, k], frames, trace, k)
         if bundle:
-            _bundle_row(axes[5, k], frames, trace, k, None if truth is None else truth[k], units)
+            _bundle_row(axes[5, k], frames, trace, k, true_k, units)
     for ax in axes.flat:
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0] and ax.get_legend() is None:
@@ -141,6 +61,88 @@ def plot_trace(
         if ax.get_yscale() == "linear":
             ax.ticklabel_format(axis="y", useOffset=False)
     save_figure(fig, path, dpi=110)
+
+
+def _rotation_row(ax, frames: np.ndarray, trace: dict, k: int, camera: str, truth: np.ndarray | None) -> None:
+    """Camera k's rotation over the frames: its change against the final estimate, or its error against ``truth``
+    (4, 4), with the reported 1-sigma band; flagged where the motion does not determine it."""
+    q = trace["quaternion"][:, k]
+    q_true = None if truth is None else rotation_matrix_to_quaternion(torch.from_numpy(truth[:3, :3])).numpy()
+    if q_true is None:
+        delta, what = rotation_error_deg(q, q[-1]), "rotation - final (deg)"
+    else:
+        delta = rotation_error_deg(q, q_true)
+        what = f"rotation error against the truth (deg), final {np.linalg.norm(delta[-1]):.3f} deg"
+    std = trace["rotation_std_deg"][:, k]
+    unobservable = not trace["rotation_observable"][-1, k, 0] and not trace["planar_motion"][-1, k, 0]
+    labels = [
+        f"about {a}" + ("" if unobservable or not np.isfinite(sd) else f", std {sd:.2g}")
+        for a, sd in zip(AXES, std[-1])
+    ]
+    _bands(ax, frames, delta, np.where(unobservable, np.inf, std), labels, min_span=0.02)
+    title = f"{camera}: {what}\n{angles_text(q[-1])}"
+    if q_true is not None:
+        ax.axhline(0, color="black", lw=0.8, label="truth")
+        title += f"\ntruth: {angles_text(q_true)}"
+    ax.set_title(title, fontsize=9)
+    if unobservable:
+        ax.text(0.5, 0.5, "ROTATION UNOBSERVABLE\n(the motion does not determine it)", transform=ax.transAxes,
+                ha="center", va="center", color="red", fontsize=11, alpha=0.8)  # fmt: skip
+
+
+def _translation_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | None) -> None:
+    """Camera k's translation over the frames with its 1-sigma band; with ``truth`` (4, 4) the true direction at the
+    final estimate's length (the units differ) and the final direction's error."""
+    t, t_std = trace["translation"][:, k], trace["translation_std"][:, k]
+    labels = [
+        f"t{a} = {v:.4f}" + ("" if np.isfinite(sd) else " (unobservable)") for a, v, sd in zip(AXES, t[-1], t_std[-1])
+    ]
+    title = "translation in camera 0's frame (camera-0 units)"
+    if truth is not None:
+        true_t = truth[:3, 3]
+        direction = true_t / max(np.linalg.norm(true_t), 1e-300)
+        for i in range(3):
+            ax.axhline(direction[i] * np.linalg.norm(t[-1]), color=COLORS[i], lw=1, ls="--")
+        labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, direction * np.linalg.norm(t[-1]))]
+        cos = t[-1] @ true_t / max(np.linalg.norm(t[-1]) * np.linalg.norm(true_t), 1e-300)
+        title += (
+            f"\ntruth (dashed): the true direction at the final length; final "
+            f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
+        )
+    _bands(ax, frames, t, t_std, labels, min_span=1e-3 * max(np.abs(t[-1]).max(), 1e-3))
+    ax.set_title(title, fontsize=9)
+
+
+def _observability_row(ax, frames: np.ndarray, trace: dict, k: int) -> None:
+    """The rotation system's singular values (log scale), the frames of unobservable or planar motion shaded."""
+    sv = trace["rotation_singular_values"][:, k]
+    for i in range(4):
+        ax.plot(frames, np.maximum(sv[:, i], 1e-12), color=COLORS[i], lw=1, label=f"S{i}")
+    ax.set_yscale("log")
+    tail = sv[len(sv) // 10 :]
+    ax.set_ylim(max(tail[tail > 0].min(initial=1.0) / 3, 1e-9), tail.max(initial=1.0) * 3)
+    planar = trace["planar_motion"][:, k, 0] == 1
+    for flag, color, label in (
+        ((trace["rotation_observable"][:, k, 0] == 0) & ~planar, "red", "rotation unobservable"),
+        (planar, "orange", "planar motion (rotation from translation)"),
+    ):
+        if flag.any():
+            ax.fill_between(frames, 0, 1, where=flag, transform=ax.get_xaxis_transform(), color=color,
+                            alpha=0.15, step="mid", label=label)  # fmt: skip
+    more = f" (first 4 of {sv.shape[-1]})" if sv.shape[-1] > 4 else ""  # absolute poses: 9
+    ax.set_title(f"observability: rotation singular values{more}", fontsize=9)
+
+
+def _residual_row(ax, frames: np.ndarray, trace: dict, k: int) -> None:
+    """The fit's RMS residuals so far: rotation (deg) and translation (% of camera 0's motion)."""
+    if "rotation_residual_deg" in trace:
+        residuals = trace["rotation_residual_deg"][:, k, 0], 100 * trace["translation_residual"][:, k, 0]
+        ax.plot(frames, residuals[0], color=COLORS[0], lw=1, label="rotation (deg)")
+        ax.plot(frames, residuals[1], color=COLORS[2], lw=1, label="translation (% of camera 0's motion)")
+        if any((r[np.isfinite(r)] > 0).any() for r in residuals):
+            ax.set_yscale("log")
+    ax.set_title("fit residuals, RMS over the motion pairs (absolute poses: frames) so far", fontsize=9)
+    ax.set_xlabel("frame")
 
 
 def _bundle_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | None, units: str | None) -> None:
