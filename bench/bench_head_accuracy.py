@@ -32,7 +32,8 @@ translation noise is 2.5 times larger against its motion than camera 0's.
 
 Heads (``--heads``): the default, and the default with least squares' scale (``scale_fit="regression"``, the
 default before the symmetric scale fit). Prints one table (ratios of medians and of means; ``*`` marks a ratio
-above ``--target``) and writes ``bench/results/head_accuracy.json``.
+above ``--target``; the 90 % interval of each ratio of medians over rigs resampled with replacement) and writes
+``bench/results/head_accuracy.json``.
 
     python bench/bench_head_accuracy.py [--rigs 50] [--frames 128] [--trajectories lds handheld]
         [--noise independent:0.01 drift:0.001] [--scales 1 2.5] [--heads '{"default": {}}'] [--out PATH]
@@ -152,6 +153,15 @@ def statistics(e: np.ndarray) -> dict:
     return {name: {s: float(values[s][i]) for s in STATISTICS} for i, name in enumerate(ERRORS)}
 
 
+def bootstrap_ratio(head: np.ndarray, references: list[np.ndarray], draws: int = 2000, seed: int = 0) -> np.ndarray:
+    """90 % interval (3, 2) of each error's ratio of medians, the head's (B, 3) to the best reference's ((B, 3) each),
+    over rigs drawn with replacement (the same rigs for the head and every reference)."""
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(head), (draws, len(head)))
+    best = np.min([np.median(r[idx], 1) for r in references], 0)  # (draws, 3)
+    return np.quantile(np.median(head[idx], 1) / best, [0.05, 0.95], 0).T
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--rigs", type=int, default=50)
@@ -170,7 +180,7 @@ def main() -> None:
     print(f"{args.rigs} rigs, {args.frames} frames; final-frame errors; heads: {heads}")
     print("ratio = head / best batch reference for that error (median, mean over rigs); * above the target")
     print(f"{'trajectory':10} {'noise':17} {'scale':>5} {'head':11} | {'rot deg / t rel / scale rel':>30} | "
-          f"{'best batch':>28} | {'ratio (median)':>20} | {'ratio (mean)':>20}")  # fmt: skip
+          f"{'best batch':>28} | {'ratio (median)':>20} | {'ratio (mean)':>20} | 90 % interval of the median ratios")  # fmt: skip
     settings, worst = [], {h: {s: 0.0 for s in ("median", "mean")} for h in heads}
     for trajectory in args.trajectories:
         for spec in args.noise:
@@ -180,18 +190,20 @@ def main() -> None:
                     trajectory, noise, float(sigma), scale, args.rigs, args.frames,
                     args.handheld_rate, args.handheld_baseline,
                 )  # fmt: skip
-                methods, per_frame = {}, {}
+                methods, per_frame, per_rig = {}, {}, []
                 for name, options in SOLVES.items():
                     regression, symmetric = run_batch(poses, rigs, scale, options)
                     methods[name], methods[name + "-symscale"] = statistics(regression), statistics(symmetric)
+                    per_rig += [regression, symmetric]
                 best = {e: {s: min(methods[r][e][s] for r in REFERENCES) for s in STATISTICS} for e in ERRORS}
                 best_by = {e: {s: min(REFERENCES, key=lambda r: methods[r][e][s]) for s in STATISTICS} for e in ERRORS}
-                ratio = {}
+                ratio, interval = {}, {}
                 for head, options in heads.items():
                     options = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
                     head_errors, per_frame[head] = run_head(poses, rigs, scale, options)
                     methods[head] = statistics(head_errors)
                     ratio[head] = {e: {s: methods[head][e][s] / best[e][s] for s in STATISTICS} for e in ERRORS}
+                    interval[head] = dict(zip(ERRORS, bootstrap_ratio(head_errors, per_rig).tolist()))
                     for s in worst[head]:
                         worst[head][s] = max(worst[head][s], *(ratio[head][e][s] for e in ERRORS))
 
@@ -202,10 +214,12 @@ def main() -> None:
                         return " / ".join(f"{r[e][s]:.2f}" + ("*" if r[e][s] > args.target else " ") for e in ERRORS)
 
                     print(f"{trajectory:10} {noise + ' ' + sigma:17} {scale:5g} {head:11} | {cells(methods[head]):>30} | "
-                          f"{cells(best):>28} | {ratios('median'):>20} | {ratios('mean'):>20}", flush=True)  # fmt: skip
+                          f"{cells(best):>28} | {ratios('median'):>20} | {ratios('mean'):>20} | "
+                          + " / ".join(f"{a:.2f}-{b:.2f}" for a, b in interval[head].values()), flush=True)  # fmt: skip
                 settings.append(
                     dict(trajectory=trajectory, noise=noise, sigma=float(sigma), scale=scale, methods=methods,
-                         best=best, best_by=best_by, ratio=ratio, head_seconds_per_frame=per_frame)
+                         best=best, best_by=best_by, ratio=ratio, ratio_median_interval90=interval,
+                         head_seconds_per_frame=per_frame)
                 )  # fmt: skip
     for head in heads:
         print(f"{head}: worst ratio, median {worst[head]['median']:.2f}, mean {worst[head]['mean']:.2f} "
