@@ -58,7 +58,7 @@ class OnlineCalibrator(nn.Module):
             first, then translation and scale), which equals the batch closed form; ``"unobservable"``: refine
             only where the rotation rows alone leave the rotation unobservable (monocular front ends, whose
             translation directions are biased: see :data:`~ocalib.calib.refine.REFINE_MODES`).
-        scale_fit: how the exact solver fits the scale: ``"symmetric"`` with no preferred camera, the geometric
+        scale_fit: how the exact solver fits the scale (the RLS keeps its own): ``"symmetric"`` with no preferred camera, the geometric
             mean of regressing each camera's translations on the other's
             (:func:`~ocalib.calib.translation.symmetric_scale`); ``"regression"``: least squares' regression of
             camera 0's translations on camera k's, biased toward 0 by camera k's translation noise however many
@@ -67,7 +67,7 @@ class OnlineCalibrator(nn.Module):
         forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
         rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
         gates: the thresholds of the pose checks, the screw gate and the robust weights
-            (:class:`~ocalib.calib.gating.Gates`; :data:`~ocalib.calib.gating.NO_GATES` turns gating off).
+            (:class:`~ocalib.calib.gating.Gates`; :data:`~ocalib.calib.gating.NO_GATES` keeps only the pose checks).
         backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`: the stages' compiled
             twins, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64,
             ``solver="exact"``, no gradients -- and in PyTorch elsewhere; ``"torch"`` always in PyTorch.
@@ -108,7 +108,7 @@ class OnlineCalibrator(nn.Module):
             raise ValueError(f"motion gaps must be non-negative frame counts, got {gaps}")
         self.num_cameras, self.batch_size, self.gaps, self.solver = num_cameras, batch_size, gaps, solver
         self.refine, self.symmetric = refine if solver == "exact" else False, symmetric
-        self.scale_fit = scale_fit
+        self.scale_fit = scale_fit if solver == "exact" else "regression"  # the RLS fits its own
         self.forgetting, self.rls_c0, self.rls_delay = forgetting, rls_c0, rls_delay
         self.min_rotation = math.radians(gates.min_rotation_deg)
         self.screw_gate, self.screw_gate_sigma = math.radians(gates.screw_gate_deg), gates.screw_gate_sigma
