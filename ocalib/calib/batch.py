@@ -17,7 +17,7 @@ from torch import Tensor
 from ocalib.calib.handeye import pair_features, rotation_block, translation_rows
 from ocalib.calib.pairing import MOTIONS, gap_weights
 from ocalib.calib.rotation import batch_rotation, planar_motion, rotation_observable
-from ocalib.calib.translation import symmetric_scale
+from ocalib.calib.translation import SCALE_FITS, symmetric_scale
 from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
@@ -65,6 +65,8 @@ def batch_calibrate(
         ``singular_values`` (K, 4), ``refined`` (K,) bool, and the stacked ``blocks`` (K, M, 4, 4) and
         ``features`` (K, M D, 15) (D = 2 if symmetric).
     """
+    if scale_fit not in SCALE_FITS:
+        raise ValueError(f"scale_fit must be one of {SCALE_FITS}, got {scale_fit!r}")
     start, end, gap = motion_pairs(poses.shape[0], motion)
     m = pair_motions(poses, start, end)  # (M, C, 4, 4)
     q = rotation_matrix_to_quaternion(m[..., :3, :3])

@@ -12,6 +12,7 @@ from ocalib.calib.handeye import (
     translation_quadratic,
     translation_rows,
 )
+from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.calib.solve_kernel import Estimate
 from ocalib.calib.translation import fit_scale, pinv_solve, rls_update, solve_translation, symmetric_scale
@@ -152,6 +153,13 @@ def test_geometric_mean_of_the_two_regressions(generator):
     assert forward < fitted[3] < reverse
     assert abs(fitted[3] - 2.5) < abs(forward - 2.5)
     assert dT.isfinite().all()
+
+
+def test_unknown_scale_fit_is_refused(generator):
+    poses, _, _ = lds_rig(generator, frames=20)
+    for make in (lambda: OnlineCalibrator(2, scale_fit="deming"), lambda: batch_calibrate(poses, scale_fit="deming")):
+        with pytest.raises(ValueError, match="scale_fit must be one of"):
+            make()
 
 
 def test_unobservable_scale_is_left_as_it_is():
