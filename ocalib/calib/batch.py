@@ -86,9 +86,9 @@ def batch_calibrate(
         pairs = w.sum(-1)
         refined = rotation_observable(S, pairs) & ~planar_motion(S, pairs) & (pairs >= 3)
         for k in torch.nonzero(refined).flatten().tolist():
-            quat[k], x[k] = _refine(
-                w[k].sqrt()[:, None, None] * A[k], R0[k], t0[k], t1[k], sw[k], quat[k], x[k], float(pairs[k])
-            )
+            for _ in range(2):  # weighted by the closed form's residual variances, then by those of the first solve
+                quat[k], x[k] = _refine(w[k].sqrt()[:, None, None] * A[k], R0[k], t0[k], t1[k], sw[k], quat[k], x[k],
+                                        float(pairs[k]), 2 if symmetric else 1)  # fmt: skip
         dR = quaternion_to_rotation_matrix(quat)
     if scale_fit == "symmetric":
         B, b = _weighted_rows(R0, t0, t1, dR, sw)
@@ -122,10 +122,13 @@ def _pair_weights(A: Tensor, gap: Tensor) -> Tensor:
     return w[:, torch.searchsorted(present, gap)]
 
 
-def _refine(A, R0, t0, t1, row_weight, quat, x, pairs: float, iterations: int = 100) -> tuple[Tensor, Tensor]:
-    """Levenberg-Marquardt on all rows: rotation rows ``A q`` (M, 4, 4) (weighted) and translation rows
-    ``(I - R0) dT + s dR t1 - t0`` (N, ...), each times ``row_weight`` (N, 1), weighted by the closed form's residual variances
-    (``2 M - 3`` and ``3 M - 4`` degrees of freedom for M motion pairs). -> (quat (4,), x (4,))."""
+def _refine(
+    A, R0, t0, t1, row_weight, quat, x, pairs: float, groups: int = 1, iterations: int = 100
+) -> tuple[Tensor, Tensor]:
+    """Levenberg-Marquardt on all rows from ``(quat, x)``: rotation rows ``A q`` (M, 4, 4) (weighted) and translation
+    rows ``(I - R0) dT + s dR t1 - t0`` (N, ...), each times ``row_weight`` (N, 1), in ``groups`` interleaved groups
+    (pair by pair: a pair's rows in each direction), weighted by their residual variances at ``(quat, x)`` (``2 M - 3``
+    and ``3 M - 4`` degrees of freedom for M motion pairs, for each group). -> (quat (4,), x (4,))."""
     eye = torch.eye(3, dtype=quat.dtype)
 
     def rows(theta, q0, x):  # theta: rotation vector applied on the right of q0
@@ -139,11 +142,12 @@ def _refine(A, R0, t0, t1, row_weight, quat, x, pairs: float, iterations: int = 
 
     zero = torch.zeros(3, dtype=quat.dtype)
     rot, trans = rows(zero, quat, x)
-    wr, wt = (2 * pairs - 3) / rot.square().sum(), (3 * pairs - 4) / trans.square().sum()
+    wr = (2 * pairs - 3) / rot.square().sum()
+    wt = (3 * pairs - 4) / trans.view(-1, groups, 3).square().sum((0, 2)) / groups  # (groups,): a pair's share
 
     def residual(p):
         rot, trans = rows(p[:3], quat, p[3:])
-        return torch.cat([wr.sqrt() * rot, wt.sqrt() * trans])
+        return torch.cat([wr.sqrt() * rot, (wt.sqrt()[:, None] * trans.view(-1, groups, 3)).flatten()])
 
     p = torch.cat([zero, x])
     cost, mu = residual(p).square().sum(), 1e-6

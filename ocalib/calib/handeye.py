@@ -42,6 +42,7 @@ class TranslationMoment(NamedTuple):
 
     Z: Tensor  # (..., 15, 15)
     translation_rows: Tensor  # (...) weighted number of motion pairs
+    Z_reverse: Tensor  # (..., 15, 15) the reverse rows' share of Z (zero with rows in one direction)
 
 
 def rotation_block(q0: Tensor, q1: Tensor) -> Tensor:
@@ -60,11 +61,14 @@ def rotation_blocks(quaternion: Tensor) -> Tensor:
     return rotation_block(quaternion[..., :1, :, :].expand_as(quaternion[..., 1:, :, :]), quaternion[..., 1:, :, :])
 
 
-def translation_moment(motion: Tensor, ok: Tensor, symmetric: bool) -> Tensor:
+def translation_moment(motion: Tensor, ok: Tensor, symmetric: bool) -> tuple[Tensor, Tensor]:
     """The moment ``sum z^T z`` (..., K, P, 15, 15) of the translation rows (:func:`pair_features`) of camera 0's
-    motions against camera k's, from every camera's motions (..., C, P, 4, 4), for the pairs ``ok`` (..., K, P)."""
+    motions against camera k's, from every camera's motions (..., C, P, 4, 4), for the pairs ``ok`` (..., K, P), and
+    its reverse rows' share (zero unless ``symmetric``)."""
     z = pair_features(motion[..., :1, :, :, :].expand_as(motion[..., 1:, :, :, :]), motion[..., 1:, :, :, :], symmetric)
-    return (z * ok[..., None, None]).mT @ z
+    z = z * ok[..., None, None]
+    back = z[..., -1, :] * symmetric
+    return z.mT @ z, back.unsqueeze(-1) * back.unsqueeze(-2)
 
 
 def update_translation_moment(
@@ -73,8 +77,12 @@ def update_translation_moment(
     """Add the translation rows of the pairs ``ok`` (..., K, P) of every camera's motions (..., C, P, 4, 4) to
     ``moment`` (..., K, P), old rows weighing ``forgetting``. Kernel twin:
     :func:`ocalib.calib.handeye_kernel.update_translation_moment`."""
-    Z = (moment.Z if forgetting == 1 else forgetting * moment.Z) + translation_moment(motion, ok, symmetric)
-    return TranslationMoment(Z, forgetting * moment.translation_rows + ok)
+    Z, Z_reverse = translation_moment(motion, ok, symmetric)
+    if forgetting != 1:
+        Z, Z_reverse = forgetting * moment.Z + Z, forgetting * moment.Z_reverse + Z_reverse
+    else:
+        Z, Z_reverse = moment.Z + Z, moment.Z_reverse + Z_reverse
+    return TranslationMoment(Z, forgetting * moment.translation_rows + ok, Z_reverse)
 
 
 def translation_features(R0: Tensor, t0: Tensor, t1: Tensor) -> Tensor:

@@ -45,27 +45,29 @@ def pair_features(m0, mk, symmetric, z):
 @jit
 def update_translation_moment(moment, m0, mk, ok, forgetting, symmetric, z):
     """:func:`~ocalib.calib.handeye.update_translation_moment` of one rig and camera k, in place: ``moment`` a
-    :class:`~ocalib.calib.handeye.TranslationMoment` of each gap (``Z`` (P, 15, 15), ``translation_rows`` (P,)), the
-    motions of camera 0 and camera k ``m0``, ``mk`` (P, 4, 4), the pairs ``ok`` (P,); ``z`` (2, 15) scratch."""
-    Z, rows = moment
+    :class:`~ocalib.calib.handeye.TranslationMoment` of each gap (``Z`` (P, 15, 15), ``translation_rows`` (P,),
+    ``Z_reverse`` (P, 15, 15)), the motions of camera 0 and camera k ``m0``, ``mk`` (P, 4, 4), the pairs ``ok`` (P,);
+    ``z`` (2, 15) scratch."""
+    Z, rows, Z_reverse = moment
     for j in range(Z.shape[0]):
-        Zj = Z[j]
+        Zj, Zr = Z[j], Z_reverse[j]
         if forgetting != 1.0:
             for i in range(15):
                 for l in range(15):
                     Zj[i, l] *= forgetting
+                    Zr[i, l] *= forgetting
         rows[j] = forgetting * rows[j] + (1.0 if ok[j] else 0.0)
         if not ok[j]:
             continue
         n = pair_features(m0[j], mk[j], symmetric, z)
-        for i in range(15):  # the moment is symmetric: its upper triangle, mirrored
+        for i in range(15):  # the moments are symmetric: their upper triangles, mirrored
             for l in range(i, 15):
-                acc = z[0, i] * z[0, l]
+                Zj[i, l] += z[0, i] * z[0, l]
                 if n == 2:
-                    acc += z[1, i] * z[1, l]
-                Zj[i, l] += acc
+                    Zr[i, l] += z[1, i] * z[1, l]
+                    Zj[i, l] += z[1, i] * z[1, l]
                 if l != i:
-                    Zj[l, i] = Zj[i, l]
+                    Zj[l, i], Zr[l, i] = Zj[i, l], Zr[i, l]
 
 
 @jit

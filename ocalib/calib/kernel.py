@@ -76,6 +76,7 @@ class State(NamedTuple):
     gap_rotation_rows: np.ndarray
     gap_Z: np.ndarray
     gap_translation_rows: np.ndarray
+    gap_Z_reverse: np.ndarray
     S2: np.ndarray
     V: np.ndarray
     rotation_rows: np.ndarray
@@ -109,7 +110,8 @@ OUTPUTS = {"rotation": ((3, 3), np.float64), "quaternion": ((4,), np.float64), "
            "rotation_observable": ((), np.bool_), "planar_motion": ((), np.bool_), "planar_axis": ((3,), np.float64),
            "frames_used": ((), np.int64), "frames_rejected": ((), np.int64), "rotation_basis": ((4, 4), np.float64),
            "rotation_rows": ((), np.float64), "translation_moment": ((15, 15), np.float64),
-           "translation_rows": ((), np.float64), "refined": ((), np.bool_)}  # fmt: skip
+           "translation_rows": ((), np.float64), "refined": ((), np.bool_),
+           "translation_moment_reverse": ((15, 15), np.float64)}  # fmt: skip
 Outputs = namedtuple("Outputs", list(OUTPUTS))
 
 
@@ -128,6 +130,8 @@ class Workspace(NamedTuple):
     x: np.ndarray  # (4,) translation and scale
     P: np.ndarray  # (12, 12) the translation quadratic
     p: np.ndarray  # (12,)
+    P_reverse: np.ndarray  # (12, 12) the reverse rows' share of the translation quadratic
+    p_reverse: np.ndarray  # (12,)
     rotation: rotation_kernel.Workspace
     combine: pairing_kernel.Workspace
     solve: solve_kernel.Workspace
@@ -141,7 +145,8 @@ def _workspace(C, n_pairs):
                      MotionPairs(np.empty((C, n_pairs, 4, 4)), np.empty((C, n_pairs, 4)), np.empty((C, n_pairs)),
                                  np.empty((C - 1, n_pairs), dtype=np.bool_)),
                      np.empty((C - 1, n_pairs), dtype=np.bool_), np.empty((n_pairs, 4, 4)), np.empty(n_pairs),
-                     np.empty((2, 15)), np.empty(4), np.empty((12, 12)), np.empty(12), rotation_kernel.workspace(),
+                     np.empty((2, 15)), np.empty(4), np.empty((12, 12)), np.empty(12), np.empty((12, 12)),
+                     np.empty(12), rotation_kernel.workspace(),
                      pairing_kernel.workspace(n_pairs), solve_kernel.workspace(), refine_kernel.workspace())  # fmt: skip
 
 
@@ -167,20 +172,22 @@ def _camera_step(b, k, state, settings, out, work):
                                    settings.robust, weight)  # fmt: skip
     gaps = RotationSystem(state.gap_S2[b, k], state.gap_V[b, k], state.gap_rotation_rows[b, k])
     rotation_kernel.update_rotation_system(gaps, A, weight, settings.forgetting, work.rotation)
-    gap_moment = TranslationMoment(state.gap_Z[b, k], state.gap_translation_rows[b, k])
+    gap_moment = TranslationMoment(state.gap_Z[b, k], state.gap_translation_rows[b, k], state.gap_Z_reverse[b, k])
     handeye_kernel.update_translation_moment(gap_moment, pairs.motion[0], pairs.motion[k + 1], ok, settings.forgetting,
                                              settings.symmetric, work.z)  # fmt: skip
-    Z = out.translation_moment[b, k]
+    Z, Z_reverse = out.translation_moment[b, k], out.translation_moment_reverse[b, k]
     rows, translation_rows = pairing_kernel.combine_statistics(gaps, gap_moment, state.S2[b, k], state.V[b, k], Z,
-                                                               work.combine)  # fmt: skip
+                                                               Z_reverse, work.combine)  # fmt: skip
     state.rotation_rows[b, k] = rows
     rotation = RotationSystem(state.S2[b, k], state.V[b, k], rows)
     quadratic = (work.P, work.p, handeye_kernel.translation_quadratic(Z, work.P, work.p))
     est = solve_kernel.Estimate(out.quaternion[b, k], out.rotation[b, k], work.x, out.rotation_singular_values[b, k],
                                 out.planar_axis[b, k])  # fmt: skip
     flags = solve_kernel.closed_form(rotation, quadratic, est, work.solve)
-    out.refined[b, k] = refine_kernel.refine_estimate(est, rotation, quadratic, translation_rows, settings.refine,
-                                                      settings.refine_steps, flags, work.refine)  # fmt: skip
+    reverse = (work.P_reverse, work.p_reverse,
+               handeye_kernel.translation_quadratic(Z_reverse, work.P_reverse, work.p_reverse))  # fmt: skip
+    out.refined[b, k] = refine_kernel.refine_estimate(est, rotation, quadratic, reverse, translation_rows,
+                                                      settings.refine, settings.refine_steps, flags, work.refine)  # fmt: skip
     translation_kernel.fit_scale(est, quadratic, settings.scale_fit, work.solve.solve)
     out.rotation_observable[b, k], out.planar_motion[b, k] = flags
     out.translation[b, k], out.scale[b, k] = work.x[:3], work.x[3]

@@ -137,6 +137,7 @@ class OnlineCalibrator(nn.Module):
             "gap_rotation_rows": torch.zeros(B, K, P, **f),
             "gap_Z": torch.zeros(B, K, P, FEATURES, FEATURES, **f),
             "gap_translation_rows": torch.zeros(B, K, P, **f),
+            "gap_Z_reverse": torch.zeros(B, K, P, FEATURES, FEATURES, **f),
             # the combined rotation system of the last frame (its estimate weighs the next frame's rows)
             "S2": torch.zeros(B, K, 4, **f),
             "V": eye4.expand(B, K, 4, 4).clone(),
@@ -176,7 +177,8 @@ class OnlineCalibrator(nn.Module):
         )
         quadratic = translation_quadratic(moment.Z)
         est = closed_form(rotation, quadratic)
-        est = refine_estimate(est, rotation, quadratic, moment.translation_rows, self.refine)
+        reverse = translation_quadratic(moment.Z_reverse)  # zero (and weighing nothing) with rows one way
+        est = refine_estimate(est, rotation, quadratic, moment.translation_rows, self.refine, reverse=reverse)
         est = fit_scale(est, quadratic, self.scale_fit)
         self._set("gap_", gaps, gap_moments)
         self._set("", rotation)

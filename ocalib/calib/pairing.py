@@ -104,6 +104,6 @@ def combine_statistics(
     :func:`ocalib.calib.pairing_kernel.combine_statistics`.
     """
     w = gap_weights(gap_S2, gap_rotation_rows)
-    M, rotation_rows, Z, translation_rows = combine_gaps(w, gap_M, gap_rotation_rows, *gap_moment)
+    M, rotation_rows, *moment = combine_gaps(w, gap_M, gap_rotation_rows, *gap_moment)
     evals, evecs = guarded_eigh(M)
-    return RotationSystem(evals.flip(-1), evecs.flip(-1), rotation_rows), TranslationMoment(Z, translation_rows), w
+    return RotationSystem(evals.flip(-1), evecs.flip(-1), rotation_rows), TranslationMoment(*moment), w

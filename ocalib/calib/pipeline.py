@@ -329,4 +329,5 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str, refine: bool) ->
         translation_moment=(features.mT @ features)[None],
         translation_rows=rows[None],
         refined=out["refined"][None],
+        translation_moment_reverse=(features[:, 1::2].mT @ features[:, 1::2])[None],  # rows: (pair, direction)
     )

@@ -14,6 +14,7 @@ import numpy as np
 
 from ocalib.calib.handeye_kernel import apply_quadratic
 from ocalib.calib.linalg_kernel import jit, jit_inline, left_product_matrix, lu_solve, quaternion_to_rotation_matrix
+from ocalib.calib.refine import REWEIGHT_STEPS
 from ocalib.calib.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
 from ocalib.calib.rotation_kernel import excited, rotation_gram
 
@@ -41,22 +42,27 @@ class Workspace(NamedTuple):
     MJ: np.ndarray  # (4, 3)
     Mq: np.ndarray  # (4,) wr M q
     D: np.ndarray  # (3, 3) dR^T times the gradient in s dR
+    Pw: np.ndarray  # (12, 12) the translation quadratic, each group of rows weighted
+    pw: np.ndarray  # (12,)
+    wt: np.ndarray  # (2,) the weights of the groups
+    Et: np.ndarray  # (2,) their residuals
 
 
 @jit
 def workspace():
     return Workspace(np.empty((4, 4)), np.empty(4), np.empty(4), np.empty((3, 3)), np.empty(12), np.empty(12),
                      np.empty(12), np.empty((9, 4)), np.empty((12, 7)), np.empty((7, 7)), np.empty(7), np.empty(7),
-                     np.empty((4, 4)), np.empty((4, 3)), np.empty((4, 3)), np.empty(4), np.empty((3, 3)))  # fmt: skip
+                     np.empty((4, 4)), np.empty((4, 3)), np.empty((4, 3)), np.empty(4), np.empty((3, 3)),
+                     np.empty((12, 12)), np.empty(12), np.empty(2), np.empty(2))  # fmt: skip
 
 
 @jit
-def refine_estimate(est, rotation, quadratic, translation_rows, mode, steps, flags, work):
+def refine_estimate(est, rotation, quadratic, reverse, translation_rows, mode, steps, flags, work):
     """:func:`~ocalib.calib.refine.refine_estimate` of one entry: ``est`` the closed form
     (:class:`~ocalib.calib.solve_kernel.Estimate`, refined in place where accepted), ``rotation`` the
-    :class:`~ocalib.calib.rotation.RotationSystem` and ``quadratic`` ``(P, p, c)`` it came from, ``mode`` a code of
-    :data:`REFINE_CODES`, ``flags`` the closed form's ``(observable, planar)``. Returns whether it was refined.
-    ``work``: :func:`workspace`."""
+    :class:`~ocalib.calib.rotation.RotationSystem` and ``quadratic`` ``(P, p, c)`` it came from, ``reverse`` the reverse
+    rows' share of it, ``mode`` a code of :data:`REFINE_CODES`, ``flags`` the closed
+    form's ``(observable, planar)``. Returns whether it was refined. ``work``: :func:`workspace`."""
     observable, planar = flags
     rows = rotation.rotation_rows
     if mode == 0 or steps == 0:
@@ -66,7 +72,7 @@ def refine_estimate(est, rotation, quadratic, translation_rows, mode, steps, fla
         return False
     rotation_gram(rotation.S2, rotation.V, work.M)
     refined = joint_refine(
-        work.M, quadratic, est.quaternion, est.translation_scale, rows, translation_rows, steps, work
+        work.M, quadratic, reverse, est.quaternion, est.translation_scale, rows, translation_rows, steps, work
     )
     if refined:
         quaternion_to_rotation_matrix(est.quaternion, est.rotation)
@@ -74,19 +80,17 @@ def refine_estimate(est, rotation, quadratic, translation_rows, mode, steps, fla
 
 
 @jit
-def joint_refine(M, quadratic, quat, x, rotation_rows, translation_rows, steps, work):
+def joint_refine(M, quadratic, reverse, quat, x, rotation_rows, translation_rows, steps, work):
     """:func:`~ocalib.calib.refine.joint_refine` of one active entry: ``quat`` (4,) and ``x`` (4,) the closed form, the
     refined estimate where it is accepted (returned: whether)."""
-    _, _, c = quadratic
-    Er0, Et0 = costs(M, quadratic, quat, x, work)
-    trace = M[0, 0] + M[1, 1] + M[2, 2] + M[3, 3]
-    wr = max(2.0 * rotation_rows - 3.0, 1.0) / max(Er0 + _EPS2 * trace, 1e-300)
-    wt = max(3.0 * translation_rows - 4.0, 1.0) / max(Et0 + _EPS2 * c, 1e-300)
-    q, xr, H, g, d, Jq = work.q, work.x, work.H, work.g, work.d, work.Jq
+    q, xr, H, g, d, Jq, wt, Et = work.q, work.x, work.H, work.g, work.d, work.Jq, work.wt, work.Et
+    wr = _weights(M, quadratic, reverse, quat, x, rotation_rows, translation_rows, work)
     q[:] = quat
     xr[:] = x
-    for step in range(steps):
-        _system(M, quadratic, q, xr, wr, wt, work)
+    for step in range(steps + REWEIGHT_STEPS):
+        if step == steps:  # the residual variances at the refined estimate
+            wr = _weights(M, quadratic, reverse, _canonical(q), xr, rotation_rows, translation_rows, work)
+        _system(M, work.Pw, work.pw, q, xr, wr, work)
         if step > 0:
             _newton_terms(q, xr[3], work)
         mean = 0.0
@@ -105,17 +109,55 @@ def joint_refine(M, quadratic, quat, x, rotation_rows, translation_rows, steps, 
         xr[3] += d[3]
         for i in range(3):
             xr[i] += d[4 + i]
-    if q[0] < 0:
-        for i in range(4):
-            q[i] = -q[i]
-    Er, Et = costs(M, quadratic, q, xr, work)
-    ok = wr * Er + wt * Et <= wr * Er0 + wt * Et0
+    _canonical(q)
+    Er = _group_costs(M, quadratic, reverse, q, xr, work)
+    cost = wr * Er + wt[0] * Et[0] + wt[1] * Et[1]
+    Er0 = _group_costs(M, quadratic, reverse, quat, x, work)
+    ok = cost <= wr * Er0 + wt[0] * Et[0] + wt[1] * Et[1]
     for i in range(4):
         ok = ok and math.isfinite(q[i]) and math.isfinite(xr[i])
     if ok:
         quat[:] = q
         x[:] = xr
     return ok
+
+
+@jit_inline
+def _canonical(q):
+    """``q`` on the ``w >= 0`` hemisphere, in place; returns it."""
+    if q[0] < 0:
+        for i in range(4):
+            q[i] = -q[i]
+    return q
+
+
+@jit_inline
+def _group_costs(M, quadratic, reverse, q, x, work):
+    """:func:`~ocalib.calib.refine.group_costs`: returns ``Er``; the forward and the reverse rows' translation residuals
+    in ``work.Et``."""
+    Er, Et = costs(M, quadratic, q, x, work)
+    work.Et[1] = costs(M, reverse, q, x, work)[1]
+    work.Et[0] = Et - work.Et[1]
+    return Er
+
+
+@jit_inline
+def _weights(M, quadratic, reverse, q, x, rotation_rows, translation_rows, work):
+    """:func:`~ocalib.calib.refine._group_weights` at ``(q, x)``: returns ``1 / sr^2``; writes each group's ``1 / st^2``
+    (0 for an empty group) into ``work.wt`` and the translation quadratic weighted by them into ``work.Pw``,
+    ``work.pw``."""
+    (P, p, c), (Pr, pr, cr), wt, Pw, pw = quadratic, reverse, work.wt, work.Pw, work.pw
+    Er = _group_costs(M, quadratic, reverse, q, x, work)
+    trace = M[0, 0] + M[1, 1] + M[2, 2] + M[3, 3]
+    dof = max(3.0 * translation_rows - 4.0, 1.0)
+    n = (1.0 if c - cr > 0 else 0.0) + (1.0 if cr > 0 else 0.0)  # groups with rows
+    wt[0] = dof / max(n * (work.Et[0] + _EPS2 * (c - cr)), 1e-300) if c - cr > 0 else 0.0
+    wt[1] = dof / max(n * (work.Et[1] + _EPS2 * cr), 1e-300) if cr > 0 else 0.0
+    for i in range(12):
+        pw[i] = wt[0] * p[i] + (wt[1] - wt[0]) * pr[i]
+        for j in range(12):
+            Pw[i, j] = wt[0] * P[i, j] + (wt[1] - wt[0]) * Pr[i, j]
+    return max(2.0 * rotation_rows - 3.0, 1.0) / max(Er + _EPS2 * trace, 1e-300)
 
 
 @jit_inline
@@ -140,10 +182,9 @@ def costs(M, quadratic, q, x, work):
 
 
 @jit_inline
-def _system(M, quadratic, q, x, wr, wt, work):
+def _system(M, P, p, q, x, wr, work):
     """The Gauss-Newton system of :func:`~ocalib.calib.refine.joint_refine` at ``(q, x)``: ``work.H`` (7, 7) and
     ``work.g`` (7,), and the pieces the Newton terms and the update reuse: ``R = dR``, ``Jq``, ``r``, ``Mq``."""
-    P, p, _ = quadratic
     R, y, r, C, K, H, g, L, Jq, MJ, Mq = (
         work.R,
         work.y,
@@ -170,7 +211,7 @@ def _system(M, quadratic, q, x, wr, wt, work):
         y[i] = x[i]
     apply_quadratic(P, y, r)
     for i in range(12):
-        r[i] = wt * (r[i] - p[i])
+        r[i] = r[i] - p[i]
     for i in range(12):  # K = P J_y: [P[:, 3:] C, P[:, :3]], P[3:, 3:] block diagonal
         lo, hi = (0, 9) if i < 3 else (3 * ((i - 3) // 3), 3 * ((i - 3) // 3) + 3)
         for j in range(4):
@@ -185,14 +226,14 @@ def _system(M, quadratic, q, x, wr, wt, work):
             acc = 0.0
             for k in range(9):
                 acc += C[k, i] * K[3 + k, j]
-            H[i, j] = wt * acc
+            H[i, j] = acc
         acc = 0.0
         for k in range(9):
             acc += C[k, i] * r[3 + k]
         g[i] = acc
     for i in range(3):
         for j in range(7):
-            H[4 + i, j] = wt * K[i, j]
+            H[4 + i, j] = K[i, j]
         g[4 + i] = r[i]
     left_product_matrix(q, L)
     for i in range(4):

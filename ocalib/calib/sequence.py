@@ -104,10 +104,11 @@ def _chunk(
     ok, st["screw_scale"], st["screw_count"] = screw_gate_sequence(
         pairs.angle, pairs.valid, st["screw_scale"], st["screw_count"], head.screw_gate, head.screw_gate_sigma
     )
+    Z, Z_reverse = translation_moment(pairs.motion, ok, head.symmetric)  # (L, B, K, P, 15, 15) each
     gap_moment = TranslationMoment(
-        _scan(translation_moment(pairs.motion, ok, head.symmetric), st["gap_Z"], lam),  # (L, B, K, P, 15, 15)
-        _scan(ok.to(M.dtype), st["gap_translation_rows"], lam),
-    )
+        _scan(Z, st["gap_Z"], lam), _scan(ok.to(M.dtype), st["gap_translation_rows"], lam),
+        _scan(Z_reverse, st["gap_Z_reverse"], lam),
+    )  # fmt: skip
     # Rotation rows. Their robust weights need the previous frame's estimate: start from the estimate before the
     # chunk, solve, re-weight with the new estimates, until the weights stop changing (one pass when no row is
     # down-weighted; pass k is exact for the chunk's first k frames at least).
@@ -127,17 +128,19 @@ def _chunk(
             break
         weight = new
     quadratic = translation_quadratic(moment.Z)
-    est = refine_estimate(closed_form(rotation, quadratic), rotation, quadratic, moment.translation_rows, head.refine)
+    reverse = translation_quadratic(moment.Z_reverse)  # zero (and weighing nothing) with rows one way
+    est = closed_form(rotation, quadratic)
+    est = refine_estimate(est, rotation, quadratic, moment.translation_rows, head.refine, reverse=reverse)
     est = fit_scale(est, quadratic, head.scale_fit)
 
     used = ok.any(-1)
     frames_used = st["frames_used"] + used.cumsum(0)
     frames_rejected = st["frames_rejected"] + (~used & (frames > 0)[:, None, None]).cumsum(0)
     gap_S2, gap_V = (x.flip(-1) for x in guarded_eigh(gap_M[-1]))  # the stream's per-gap state after the chunk
-    st.update(gap_S2=gap_S2, gap_V=gap_V, gap_rotation_rows=gap_rotation_rows[-1], gap_Z=gap_moment.Z[-1],
-              gap_translation_rows=gap_moment.translation_rows[-1], S2=rotation.S2[-1], V=rotation.V[-1],
-              rotation_rows=rotation.rotation_rows[-1], frames_used=frames_used[-1],
+    st.update(gap_S2=gap_S2, gap_V=gap_V, gap_rotation_rows=gap_rotation_rows[-1], S2=rotation.S2[-1],
+              V=rotation.V[-1], rotation_rows=rotation.rotation_rows[-1], frames_used=frames_used[-1],
               frames_rejected=frames_rejected[-1])  # fmt: skip
+    st.update({"gap_" + name: value[-1] for name, value in gap_moment._asdict().items()})
     return Calibration.from_statistics(est, rotation, moment, frames_used, frames_rejected), gap_M[-1]
 
 

@@ -59,13 +59,15 @@ def stream_statistics(poses, **options):
     rotation = RotationSystem(
         S2, torch.stack([o.rotation_basis for o in out]), torch.stack([o.rotation_rows for o in out])
     )
-    Z, rows = torch.stack([o.translation_moment for o in out]), torch.stack([o.translation_rows for o in out])
-    return rotation, TranslationMoment(Z, rows)
+    moment = (torch.stack([getattr(o, name) for o in out]) for name in ("translation_moment", "translation_rows",
+                                                                         "translation_moment_reverse"))  # fmt: skip
+    return rotation, TranslationMoment(*moment)
 
 
 def head_statistics(generator, frames=40):
     """The statistics of the PyTorch head after each frame of two noisy rigs and a car's (planar motion), flattened
-    (N, ...): the rotation system, the translation moment's quadratic form and its row count."""
+    (N, ...): the rotation system, the translation moment's quadratic form, its row count and the quadratic form of
+    its reverse rows."""
     rigs = torch.stack([lds_rig(generator, frames=frames, noise=0.01)[0] for _ in range(2)], 1)
     car = car_rig(generator, frames=frames, noise=0.002)[0][:, None]
     (rotation_a, moment_a), (rotation_b, moment_b) = stream_statistics(rigs), stream_statistics(car)
@@ -73,8 +75,9 @@ def head_statistics(generator, frames=40):
     def join(a, b):
         return torch.cat([a, b], 1).flatten(0, 2)
 
-    Z, rows = map(join, moment_a, moment_b)
-    return RotationSystem(*map(join, rotation_a, rotation_b)), translation_quadratic(Z), rows
+    Z, rows, Z_reverse = map(join, moment_a, moment_b)
+    rotation = RotationSystem(*map(join, rotation_a, rotation_b))
+    return rotation, translation_quadratic(Z), rows, translation_quadratic(Z_reverse)
 
 
 def entry(quantities, i):

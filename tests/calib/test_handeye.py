@@ -64,7 +64,9 @@ def test_update_translation_moment_twin(generator, symmetric, forgetting):
     motion = random_poses(generator, B, C, P, scale=3.0)
     ok = torch.rand(B, C - 1, P, generator=generator) < 0.7
     moment = TranslationMoment(
-        random_moment(generator, B, 1, P), 10 * torch.rand(B, 1, P, generator=generator, dtype=torch.float64)
+        random_moment(generator, B, 1, P),
+        10 * torch.rand(B, 1, P, generator=generator, dtype=torch.float64),
+        random_moment(generator, B, 1, P),
     )
     want = update_translation_moment(moment, motion, ok, forgetting, symmetric)
     for b in range(B):
@@ -72,6 +74,7 @@ def test_update_translation_moment_twin(generator, symmetric, forgetting):
         handeye_kernel.update_translation_moment(got, motion[b, 0].numpy(), motion[b, 1].numpy(), ok[b, 0].numpy(),
                                                  forgetting, symmetric, np.empty((2, 15)))  # fmt: skip
         np.testing.assert_allclose(got.Z, want.Z[b, 0].numpy(), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got.Z_reverse, want.Z_reverse[b, 0].numpy(), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(got.translation_rows, want.translation_rows[b, 0].numpy(), rtol=1e-14)
 
 

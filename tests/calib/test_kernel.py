@@ -19,7 +19,8 @@ def assert_same_frame(a, b, t):
     """Frame t of the kernel (a) and of PyTorch (b): flags exactly, numbers to 1e-8."""
     for name in ("rotation_observable", "planar_motion", "refined", "frames_used", "frames_rejected"):
         assert torch.equal(getattr(a, name), getattr(b, name)), f"frame {t}: {name}"
-    for name in ("rotation_singular_values", "rotation_rows", "translation_rows", "translation_moment"):
+    for name in ("rotation_singular_values", "rotation_rows", "translation_rows", "translation_moment",
+                 "translation_moment_reverse"):  # fmt: skip
         torch.testing.assert_close(getattr(a, name), getattr(b, name), **TOL, msg=f"frame {t}: {name}")
     S2a, S2b = a.rotation_singular_values.square(), b.rotation_singular_values.square()
     torch.testing.assert_close(gram(S2a, a.rotation_basis), gram(S2b, b.rotation_basis), **TOL, msg=f"frame {t}: M")

@@ -33,11 +33,12 @@ def test_closed_form_equals_batch_every_frame(generator, motion, symmetric):
     assert compared > 30
 
 
-@pytest.mark.parametrize("motion", ["first", "multi"])
-def test_refined_equals_batch_joint_least_squares(generator, motion):
-    """The O(1) refinement equals Levenberg-Marquardt on all stacked rows (an independent implementation)."""
+@pytest.mark.parametrize(("motion", "symmetric"), [("first", True), ("multi", True), ("multi", False)])
+def test_refined_equals_batch_joint_least_squares(generator, motion, symmetric):
+    """The O(1) refinement equals Levenberg-Marquardt on all stacked rows (an independent implementation), each
+    direction of the translation rows weighed by its own residual variance, re-estimated once at the solution."""
     poses, _, _ = lds_rig(generator, frames=40, noise=0.01)
-    cal = OnlineCalibrator(2, motion=motion, **no_gating())
+    cal = OnlineCalibrator(2, motion=motion, symmetric=symmetric, **no_gating())
     refined = 0
     for t in range(len(poses)):
         out = cal(poses[t])
@@ -45,14 +46,14 @@ def test_refined_equals_batch_joint_least_squares(generator, motion):
         # of 0.06) and the three O(1) steps stop 1.4e-8 short of the batch minimum.
         if t < 10 or t % 3 or out.planar_motion.any():
             continue
-        ref = batch_calibrate(poses[: t + 1], motion)
+        ref = batch_calibrate(poses[: t + 1], motion, symmetric=symmetric)
         torch.testing.assert_close(out.quaternion[0], ref["quaternion"], atol=1e-8, rtol=0)
         torch.testing.assert_close(out.translation[0], ref["translation"], atol=1e-8, rtol=0)
         torch.testing.assert_close(out.scale[0], ref["scale"], atol=1e-8, rtol=0)
         refined += int(ref["refined"].all())
     assert refined >= 8
     # ... and it moved away from the closed form (by more than the tolerance).
-    closed = batch_calibrate(poses, motion, refine=False)
+    closed = batch_calibrate(poses, motion, symmetric=symmetric, refine=False)
     assert (out.quaternion[0] - closed["quaternion"]).abs().max() > 1e-5
 
 

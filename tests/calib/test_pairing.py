@@ -121,21 +121,25 @@ def test_combine_statistics_twin(generator, gaps):
     rows[0] = 1.0  # no gap measured: all weigh 1
     gaps_ = RotationSystem(S2, random_orthonormal(generator, B, gaps), rows)
     moment = TranslationMoment(
-        random_moment(generator, B, gaps), 40 * torch.rand(B, gaps, generator=generator, dtype=torch.float64)
+        random_moment(generator, B, gaps),
+        40 * torch.rand(B, gaps, generator=generator, dtype=torch.float64),
+        random_moment(generator, B, gaps),
     )
     want_rotation, want_moment, want_weights = combine_statistics(rotation_gram(S2, gaps_.V), S2, rows, moment)
     basis = random_orthonormal(generator, B)
     for b in range(B):
-        S2_b, V_b, Z_b, work = np.empty(4), basis[b].numpy().copy(), np.empty((15, 15)), pairing_kernel.workspace(gaps)
+        S2_b, V_b, work = np.empty(4), basis[b].numpy().copy(), pairing_kernel.workspace(gaps)
+        Z_b, Z_reverse_b = np.empty((15, 15)), np.empty((15, 15))
         got_rows, got_translation_rows = pairing_kernel.combine_statistics(
             RotationSystem(*(x[b].numpy() for x in gaps_)), TranslationMoment(*(x[b].numpy() for x in moment)), S2_b,
-            V_b, Z_b, work,
+            V_b, Z_b, Z_reverse_b, work,
         )  # fmt: skip
         if gaps > 1:
             np.testing.assert_allclose(work.weights, want_weights[b].numpy(), rtol=1e-10, atol=0)
         np.testing.assert_allclose(got_rows, want_rotation.rotation_rows[b].item(), rtol=1e-12)
         np.testing.assert_allclose(got_translation_rows, want_moment.translation_rows[b].item(), rtol=1e-12)
         np.testing.assert_allclose(Z_b, want_moment.Z[b].numpy(), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(Z_reverse_b, want_moment.Z_reverse[b].numpy(), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(S2_b, want_rotation.S2[b].numpy(), rtol=0, atol=1e-12 * S2_b[0])
         M = rotation_gram(torch.from_numpy(S2_b), torch.from_numpy(V_b))
         torch.testing.assert_close(

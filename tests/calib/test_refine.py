@@ -14,9 +14,9 @@ from ocalib.calib.solve import closed_form
 @pytest.mark.parametrize("mode", REFINE_MODES)
 def test_refine_estimate_twin(generator, mode):
     """From the closed form of general and planar motion, every frame from the first."""
-    rotation, quadratic, translation_rows = head_statistics(generator)
+    rotation, quadratic, translation_rows, reverse = head_statistics(generator)
     start = closed_form(rotation, quadratic)
-    want = refine_estimate(start, rotation, quadratic, translation_rows, mode)
+    want = refine_estimate(start, rotation, quadratic, translation_rows, mode, reverse=reverse)
     assert want["refined"].any() == bool(mode) and not want["refined"].all()
     x = torch.cat([start["translation"], start["scale"][:, None]], -1)
     for i in range(len(translation_rows)):
@@ -24,7 +24,8 @@ def test_refine_estimate_twin(generator, mode):
         est = solve_kernel.Estimate(*(f[i].numpy().copy() for f in fields))
         flags = (bool(start["rotation_observable"][i]), bool(start["planar_motion"][i]))
         refined = refine_kernel.refine_estimate(est, RotationSystem(*entry(rotation, i)), entry(quadratic, i),
-                                                float(translation_rows[i]), refine_kernel.REFINE_CODES[mode], REFINE_STEPS, flags,
+                                                entry(reverse, i), float(translation_rows[i]),
+                                                refine_kernel.REFINE_CODES[mode], REFINE_STEPS, flags,
                                                 refine_kernel.workspace())  # fmt: skip
         assert refined == want["refined"][i]
         got = {"quaternion": est.quaternion, "rotation": est.rotation, "translation": est.translation_scale[:3],

@@ -10,7 +10,7 @@ from ocalib.calib.solve import closed_form
 
 def test_closed_form_twin(generator):
     """General and planar motion, from the first frames (rotation not observable) on."""
-    rotation, quadratic, translation_rows = head_statistics(generator)
+    rotation, quadratic, translation_rows, _ = head_statistics(generator)
     want = closed_form(rotation, quadratic)
     assert want["rotation_observable"].any() and want["planar_motion"].any() and not want["rotation_observable"].all()
     for i in range(len(translation_rows)):

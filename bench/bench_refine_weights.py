@@ -1,15 +1,21 @@
-"""A candidate for the head: each direction of the translation rows weighted by its own residual, in batch.
+"""How the joint refinement weighs its rows, in batch: the residual variances that set the weights, and which rows share
+one.
 
-A motion pair gives translation rows in both directions (:mod:`ocalib.calib.handeye`); which direction is the cleaner
-depends on which side of a step a front end's noise sits (``drift``: the frame the step ends in; ``drift-start``: the
-frame it starts from, :func:`bench_head_accuracy.drift_at_start`). This solves the batch problem on consecutive pairs
-of the hand-held trajectory (:func:`bench_head_accuracy.make_setting`) three ways, each refined jointly
-(``ocalib.calib.batch``'s Levenberg-Marquardt): rows in both directions weighing alike (``both``, the head's rows),
-the forward rows only (``oneway``), and both directions, each re-weighted twice by the inverse of its own mean squared
-residual at the estimate (``weighted``). Prints the median final errors (rotation deg / translation over the baseline /
-relative scale) and writes ``bench/results/direction_weights.json``.
+The refinement (:mod:`ocalib.calib.refine`, :func:`~ocalib.calib.batch.batch_calibrate`) weighs the rotation rows and
+the translation rows by their residual variances. This solves the batch problem on consecutive pairs of the hand-held
+trajectory (:func:`bench_head_accuracy.make_setting`; its best reference under drift) with the variances
 
-    python bench/bench_direction_weights.py [--rigs 50] [--frames 128]
+* ``closed form``: of the closed form (rotation first), once;
+* ``re-estimated``: of the closed form, then re-estimated at the first solution and solved again;
+* ``per direction`` (the default): re-estimated, with a variance for each direction of the translation rows
+  (:mod:`ocalib.calib.handeye`: which direction is the cleaner depends on where a front end's noise sits, ``drift``:
+  in the frame a step ends in; ``drift-start``, :func:`bench_head_accuracy.drift_at_start`: the one it starts from);
+* ``one way``: re-estimated, translation rows in one direction only.
+
+Prints the median final errors (rotation deg / translation over the baseline / relative scale, least squares' scale)
+and writes ``bench/results/refine_weights.json``.
+
+    python bench/bench_refine_weights.py [--rigs 50] [--frames 128]
 """
 
 from __future__ import annotations
@@ -26,28 +32,31 @@ from ocalib.calib.handeye import pair_features, rotation_block
 from ocalib.calib.rotation import batch_rotation
 from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
-MODES = ("both", "oneway", "weighted")
+MODES = {  # (rows in both directions, variances a direction, solves)
+    "closed form": (True, 1, 1),
+    "re-estimated": (True, 1, 2),
+    "per direction": (True, 2, 2),
+    "one way": (False, 1, 2),
+}
 
 
 def solve(poses: torch.Tensor, mode: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Rotation (1, 3, 3), translation (1, 3) and scale (1,) of camera 1 from (T, 2, 4, 4) poses."""
+    symmetric, groups, solves = MODES[mode]
     start, end, _ = batch.motion_pairs(poses.shape[0], "consecutive")
     m = batch.pair_motions(poses, start, end)
     q = rotation_matrix_to_quaternion(m[..., :3, :3])
     A = rotation_block(q[:, 0], q[:, 1])
     quat, _, _ = batch_rotation(A[None], torch.ones(1, len(A), dtype=A.dtype))
-    z = pair_features(m[:, 0], m[:, 1], mode != "oneway").flatten(0, 1)  # (M D, 15)
+    z = pair_features(m[:, 0], m[:, 1], symmetric).flatten(0, 1)  # (M D, 15)
     eye = torch.eye(3, dtype=z.dtype)
     R0, t0, t1 = eye - z[:, :9].unflatten(-1, (3, 3)), z[:, 12:], z[:, 9:12]
     weight = torch.ones(len(z), 1, dtype=z.dtype)
     B, b = batch._weighted_rows(R0[None], t0[None], t1[None], quaternion_to_rotation_matrix(quat), weight[None])
     x = (torch.linalg.pinv(B[0]) @ b[0].unsqueeze(-1)).squeeze(-1)
-    quat, x = batch._refine(A, R0, t0, t1, weight, quat[0], x, float(len(A)))
-    for _ in range(2 if mode == "weighted" else 0):
-        residual = (eye - R0) @ x[:3] + x[3] * (quaternion_to_rotation_matrix(quat) @ t1.unsqueeze(-1))[..., 0] - t0
-        variance = residual.square().sum(-1).view(-1, 2).mean(0)  # forward, backward
-        weight = (variance.min() / variance).sqrt().repeat(len(A))[:, None]
-        quat, x = batch._refine(A, R0, t0, t1, weight, quat, x, float(len(A)))
+    quat = quat[0]
+    for _ in range(solves):
+        quat, x = batch._refine(A, R0, t0, t1, weight, quat, x, float(len(A)), groups)
     return quaternion_to_rotation_matrix(quat)[None], x[None, :3], x[None, 3]
 
 
@@ -55,7 +64,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--rigs", type=int, default=50)
     p.add_argument("--frames", type=int, default=128)
-    p.add_argument("--out", default="bench/results/direction_weights.json")
+    p.add_argument("--out", default="bench/results/refine_weights.json")
     args = p.parse_args()
     torch.set_num_threads(1)
     results = {}
@@ -65,7 +74,7 @@ def main() -> None:
         for mode in MODES:
             e = np.concatenate([errors(*solve(poses[i], mode), rigs[i : i + 1], 1.0) for i in range(len(poses))])
             results[f"{noise} {mode}"] = dict(zip(ERRORS, np.median(e, 0).tolist()))
-            print(f"{noise:12} {mode:9} " + " / ".join(f"{v:.4g}" for v in np.median(e, 0)), flush=True)
+            print(f"{noise:12} {mode:14} " + " / ".join(f"{v:.4g}" for v in np.median(e, 0)), flush=True)
     write_json(args.out, dict(rigs=args.rigs, frames=args.frames, sigma=0.001, scale=1.0, medians=results))
 
 
