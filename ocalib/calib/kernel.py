@@ -146,8 +146,8 @@ def _workspace(C, n_pairs):
                                  np.empty((C - 1, n_pairs), dtype=np.bool_)),
                      np.empty((C - 1, n_pairs), dtype=np.bool_), np.empty((n_pairs, 4, 4)), np.empty(n_pairs),
                      np.empty((2, 15)), np.empty(4), np.empty((12, 12)), np.empty(12), np.empty((12, 12)),
-                     np.empty(12), rotation_kernel.workspace(),
-                     pairing_kernel.workspace(n_pairs), solve_kernel.workspace(), refine_kernel.workspace())  # fmt: skip
+                     np.empty(12), rotation_kernel.workspace(), pairing_kernel.workspace(n_pairs),
+                     solve_kernel.workspace(), refine_kernel.workspace())  # fmt: skip
 
 
 @jit_inline
@@ -184,10 +184,11 @@ def _camera_step(b, k, state, settings, out, work):
     est = solve_kernel.Estimate(out.quaternion[b, k], out.rotation[b, k], work.x, out.rotation_singular_values[b, k],
                                 out.planar_axis[b, k])  # fmt: skip
     flags = solve_kernel.closed_form(rotation, quadratic, est, work.solve)
-    reverse = (work.P_reverse, work.p_reverse,
-               handeye_kernel.translation_quadratic(Z_reverse, work.P_reverse, work.p_reverse))  # fmt: skip
+    c_reverse = handeye_kernel.translation_quadratic(Z_reverse, work.P_reverse, work.p_reverse)
+    reverse = (work.P_reverse, work.p_reverse, c_reverse)
     out.refined[b, k] = refine_kernel.refine_estimate(est, rotation, quadratic, reverse, translation_rows,
-                                                      settings.refine, settings.refine_steps, flags, work.refine)  # fmt: skip
+                                                      settings.refine, settings.refine_steps, flags,
+                                                      work.refine)  # fmt: skip
     translation_kernel.fit_scale(est, quadratic, settings.scale_fit, work.solve.solve)
     out.rotation_observable[b, k], out.planar_motion[b, k] = flags
     out.translation[b, k], out.scale[b, k] = work.x[:3], work.x[3]

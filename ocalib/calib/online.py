@@ -58,8 +58,8 @@ class OnlineCalibrator(nn.Module):
             first, then translation and scale), which equals the batch closed form; ``"unobservable"``: refine
             only where the rotation rows alone leave the rotation unobservable (monocular front ends, whose
             translation directions are biased: see :data:`~ocalib.calib.refine.REFINE_MODES`).
-        scale_fit: how the exact solver fits the scale (the RLS keeps its own): ``"symmetric"`` with no preferred camera, the geometric
-            mean of regressing each camera's translations on the other's
+        scale_fit: how the exact solver fits the scale (the RLS keeps its own): ``"symmetric"`` with no preferred
+            camera, the geometric mean of regressing each camera's translations on the other's
             (:func:`~ocalib.calib.translation.symmetric_scale`); ``"regression"``: least squares' regression of
             camera 0's translations on camera k's, biased toward 0 by camera k's translation noise however many
             frames come.

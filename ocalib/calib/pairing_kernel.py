@@ -91,10 +91,10 @@ def combine_statistics(gaps, gap_moment, S2, V, Z, Z_reverse, work):
     """:func:`~ocalib.calib.pairing.combine_statistics` for one rig and camera k: ``gaps`` a
     :class:`~ocalib.calib.rotation.RotationSystem` and ``gap_moment`` a :class:`~ocalib.calib.handeye.TranslationMoment`
     of each gap ((P, *)); writes the combined rotation system's ``S2`` (4,) and ``V`` (4, 4) and the moment ``Z``
-    (15, 15) and its reverse rows' share ``Z_reverse``, returns their row counts. Unlike the PyTorch stage it takes each gap's ``(S2, V)`` for its Gram matrix;
-    one gap is its own combination (PyTorch decomposes its Gram matrix again: the same to rounding). ``V`` comes in
-    as the last frame's, the basis the combined Gram matrix is decomposed in (nearly diagonal there: fewer Jacobi
-    sweeps). ``work``: :func:`workspace`."""
+    (15, 15) and its reverse rows' share ``Z_reverse``, returns their row counts. Unlike the PyTorch stage it takes
+    each gap's ``(S2, V)`` for its Gram matrix; one gap is its own combination (PyTorch decomposes its Gram matrix
+    again: the same to rounding). ``V`` comes in as the last frame's, the basis the combined Gram matrix is decomposed
+    in (nearly diagonal there: fewer Jacobi sweeps). ``work``: :func:`workspace`."""
     gap_S2, gap_V, gap_rows = gaps
     gap_Z, gap_translation_rows, gap_Z_reverse = gap_moment
     if gap_rows.shape[0] == 1:

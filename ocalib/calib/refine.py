@@ -162,7 +162,8 @@ def row_groups(quadratic: tuple[Tensor, Tensor, Tensor], reverse: tuple[Tensor, 
 
 
 def group_costs(M: Tensor, groups: tuple[Tensor, Tensor, Tensor], q: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
-    """:func:`costs` with the translation residual of each group of :func:`row_groups`: ``Er`` (...), ``Et`` (..., G)."""
+    """:func:`costs` with the translation residual of each group of :func:`row_groups`: ``Er`` (...), ``Et``
+    (..., G)."""
     P, p, c = groups
     Er, Et = costs(M.unsqueeze(-3), P, p, c, q.unsqueeze(-2), x.unsqueeze(-2))
     return Er[..., 0], Et

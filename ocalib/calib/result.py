@@ -47,7 +47,7 @@ class Calibration:
     translation_moment: Tensor  # (B, K, 15, 15) see ocalib.calib.handeye
     translation_rows: Tensor  # (B, K) weighted motion pairs in the translation system
     refined: Tensor | None = None  # (B, K) bool: the joint refinement was applied (None: nowhere)
-    translation_moment_reverse: Tensor | None = None  # (B, K, 15, 15) the reverse rows' share (None: all one way)
+    translation_moment_reverse: Tensor | None = None  # (B, K, 15, 15) the reverse rows' share (None: not kept)
 
     @classmethod
     def from_statistics(
@@ -55,7 +55,8 @@ class Calibration:
     ) -> Calibration:
         """The estimate ``est`` (:func:`~ocalib.calib.solve.closed_form`, refined) with the statistics it came from."""
         return cls(**est, rotation_basis=rotation.V, rotation_rows=rotation.rotation_rows, translation_moment=moment.Z,
-                   translation_rows=moment.translation_rows, translation_moment_reverse=moment.Z_reverse, frames_used=frames_used, frames_rejected=frames_rejected)  # fmt: skip
+                   translation_rows=moment.translation_rows, translation_moment_reverse=moment.Z_reverse,
+                   frames_used=frames_used, frames_rejected=frames_rejected)  # fmt: skip
 
     @cached_property
     def _joint(self) -> Tensor | None:
@@ -68,7 +69,8 @@ class Calibration:
         reverse = self.translation_moment_reverse
         reverse = None if reverse is None else translation_quadratic(reverse[r])
         cov = joint_covariance(rotation_gram(S2, V), translation_quadratic(self.translation_moment[r]),
-                               self.quaternion[r], x, self.rotation_rows[r], self.translation_rows[r], reverse)  # fmt: skip
+                               self.quaternion[r], x, self.rotation_rows[r], self.translation_rows[r],
+                               reverse)  # fmt: skip
         std = torch.full((*r.shape, 7), math.inf, dtype=x.dtype, device=x.device)
         return std.index_put((r,), torch.diagonal(cov, dim1=-2, dim2=-1).sqrt())
 
