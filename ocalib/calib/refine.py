@@ -121,15 +121,18 @@ def joint_refine(
     groups = row_groups(quadratic, reverse)
     dtype, device = M.dtype, M.device
     _, newton_s, newton_1, newton_r = _bases(dtype, device)
-    wr, wt = _group_weights(M, groups, quat, x, rotation_rows, translation_rows, active)
+    Er0, Et0 = group_costs(M, groups, quat, x)  # the closed form's
+    wr, wt = _group_weights(M, groups, Er0, Et0, rotation_rows, translation_rows, active)
+    weighted = _weighted(groups, wt)
     eye7 = torch.eye(7, dtype=dtype, device=device)
 
     q, s_, dT = quat, x[..., 3:], x[..., :3]
     for step in range(steps + REWEIGHT_STEPS if steps else 0):
         if step == steps:  # the residual variances at the refined estimate
-            wr, wt = _group_weights(M, groups, canonical_quaternion(q), torch.cat([dT, s_], -1), rotation_rows,
-                                    translation_rows, active)  # fmt: skip
-        H, g, dR, Jq, r, Mq = _system(M, *_weighted(groups, wt), q, s_, dT, wr)
+            costs = group_costs(M, groups, canonical_quaternion(q), torch.cat([dT, s_], -1))
+            wr, wt = _group_weights(M, groups, *costs, rotation_rows, translation_rows, active)
+            weighted = _weighted(groups, wt)
+        H, g, dR, Jq, r, Mq = _system(M, *weighted, q, s_, dT, wr)
         if step > 0:  # Newton: the second derivatives of m and q, contracted with the gradient
             D = (dR.mT @ r[..., 3:].unflatten(-1, (3, 3))).flatten(-2)  # dR^T R, R = gradient in s dR
             H = H + (s_ * D @ newton_s + D @ newton_1 - 0.25 * (Mq * q).sum(-1, keepdim=True) * newton_r).unflatten(
@@ -147,7 +150,6 @@ def joint_refine(
 
     q, xr = canonical_quaternion(q), torch.cat([dT, s_], -1)
     Er, Et = group_costs(M, groups, q, xr)
-    Er0, Et0 = group_costs(M, groups, quat, x)
     ok = active & (wr * Er + (wt * Et).sum(-1) <= wr * Er0 + (wt * Et0).sum(-1))
     ok = ok & q.isfinite().all(-1) & xr.isfinite().all(-1)
     return torch.where(ok[..., None], q, quat), torch.where(ok[..., None], xr, x), ok
@@ -169,10 +171,10 @@ def group_costs(M: Tensor, groups: tuple[Tensor, Tensor, Tensor], q: Tensor, x: 
     return Er[..., 0], Et
 
 
-def _group_weights(M, groups, q, x, rotation_rows, translation_rows, active) -> tuple[Tensor, Tensor]:
-    """The weights ``1 / sr^2`` (...) and ``1 / st_g^2`` (..., G) at ``(q, x)`` (0 for an empty group); 1 where not
-    ``active`` (harmless numbers: nothing non-finite reaches the gradient through the discarded branch)."""
-    Er, Et = group_costs(M, groups, q, x)
+def _group_weights(M, groups, Er, Et, rotation_rows, translation_rows, active) -> tuple[Tensor, Tensor]:
+    """The weights ``1 / sr^2`` (...) and ``1 / st_g^2`` (..., G) of the residuals ``Er``, ``Et`` of
+    :func:`group_costs` (0 for an empty group); 1 where not ``active`` (harmless numbers: nothing non-finite reaches
+    the gradient through the discarded branch)."""
     wr, wt = _weights(M, groups[2], Er, Et, rotation_rows, translation_rows.unsqueeze(-1))
     # A group without rows (the reverse rows of one-way pairs) weighs 0. A pair's rows in the two directions share its
     # noise: the groups' weights are halved (the weight of all rows as one group when both are alike).
@@ -196,7 +198,7 @@ def joint_covariance(
     has unit variance). Inf without degrees of freedom."""
     groups = row_groups(quadratic, reverse)
     active = torch.ones_like(rotation_rows, dtype=torch.bool)
-    wr, wt = _group_weights(M, groups, quat, x, rotation_rows, translation_rows, active)
+    wr, wt = _group_weights(M, groups, *group_costs(M, groups, quat, x), rotation_rows, translation_rows, active)
     H = _system(M, *_weighted(groups, wt), quat, x[..., 3:], x[..., :3], wr)[0]
     cov, info = torch.linalg.inv_ex(H)
     free = (2 * rotation_rows - 3 <= 0) | (3 * translation_rows - 4 <= 0) | (info != 0)

@@ -32,8 +32,6 @@ class Workspace(NamedTuple):
     y: np.ndarray  # (12,) (dT, vec(s dR))
     Py: np.ndarray  # (12,)
     r: np.ndarray  # (12,) the weighted gradient of E_t in y
-    C: np.ndarray  # (9, 4) d vec(s dR) / d(d, s)
-    K: np.ndarray  # (12, 7) P J_y
     H: np.ndarray  # (7, 7) the system
     g: np.ndarray  # (7,)
     d: np.ndarray  # (7,) the step
@@ -42,6 +40,7 @@ class Workspace(NamedTuple):
     MJ: np.ndarray  # (4, 3)
     Mq: np.ndarray  # (4,) wr M q
     D: np.ndarray  # (3, 3) dR^T times the gradient in s dR
+    W: np.ndarray  # (3, 3) dR^T times a row of P[:3, 3:]
     Pw: np.ndarray  # (12, 12) the translation quadratic, each group of rows weighted
     pw: np.ndarray  # (12,)
     wt: np.ndarray  # (2,) the weights of the groups
@@ -51,9 +50,9 @@ class Workspace(NamedTuple):
 @jit
 def workspace():
     return Workspace(np.empty((4, 4)), np.empty(4), np.empty(4), np.empty((3, 3)), np.empty(12), np.empty(12),
-                     np.empty(12), np.empty((9, 4)), np.empty((12, 7)), np.empty((7, 7)), np.empty(7), np.empty(7),
+                     np.empty(12), np.empty((7, 7)), np.empty(7), np.empty(7),
                      np.empty((4, 4)), np.empty((4, 3)), np.empty((4, 3)), np.empty(4), np.empty((3, 3)),
-                     np.empty((12, 12)), np.empty(12), np.empty(2), np.empty(2))  # fmt: skip
+                     np.empty((3, 3)), np.empty((12, 12)), np.empty(12), np.empty(2), np.empty(2))  # fmt: skip
 
 
 @jit
@@ -84,12 +83,13 @@ def joint_refine(M, quadratic, reverse, quat, x, rotation_rows, translation_rows
     """:func:`~ocalib.calib.refine.joint_refine` of one active entry: ``quat`` (4,) and ``x`` (4,) the closed form, the
     refined estimate where it is accepted (returned: whether)."""
     q, xr, H, g, d, Jq, wt, Et = work.q, work.x, work.H, work.g, work.d, work.Jq, work.wt, work.Et
-    wr = _weights(M, quadratic, reverse, quat, x, rotation_rows, translation_rows, work)
+    wr, Er0 = _weights(M, quadratic, reverse, quat, x, rotation_rows, translation_rows, work)
+    Et0_forward, Et0_reverse = Et[0], Et[1]  # the closed form's residuals
     q[:] = quat
     xr[:] = x
     for step in range(steps + REWEIGHT_STEPS):
         if step == steps:  # the residual variances at the refined estimate
-            wr = _weights(M, quadratic, reverse, _canonical(q), xr, rotation_rows, translation_rows, work)
+            wr = _weights(M, quadratic, reverse, _canonical(q), xr, rotation_rows, translation_rows, work)[0]
         _system(M, work.Pw, work.pw, q, xr, wr, work)
         if step > 0:
             _newton_terms(q, xr[3], work)
@@ -111,9 +111,7 @@ def joint_refine(M, quadratic, reverse, quat, x, rotation_rows, translation_rows
             xr[i] += d[4 + i]
     _canonical(q)
     Er = _group_costs(M, quadratic, reverse, q, xr, work)
-    cost = wr * Er + wt[0] * Et[0] + wt[1] * Et[1]
-    Er0 = _group_costs(M, quadratic, reverse, quat, x, work)
-    ok = cost <= wr * Er0 + wt[0] * Et[0] + wt[1] * Et[1]
+    ok = wr * Er + wt[0] * Et[0] + wt[1] * Et[1] <= wr * Er0 + wt[0] * Et0_forward + wt[1] * Et0_reverse
     for i in range(4):
         ok = ok and math.isfinite(q[i]) and math.isfinite(xr[i])
     if ok:
@@ -133,38 +131,9 @@ def _canonical(q):
 
 @jit_inline
 def _group_costs(M, quadratic, reverse, q, x, work):
-    """:func:`~ocalib.calib.refine.group_costs`: returns ``Er``; the forward and the reverse rows' translation residuals
-    in ``work.Et``."""
-    Er, Et = costs(M, quadratic, q, x, work)
-    work.Et[1] = costs(M, reverse, q, x, work)[1]
-    work.Et[0] = Et - work.Et[1]
-    return Er
-
-
-@jit_inline
-def _weights(M, quadratic, reverse, q, x, rotation_rows, translation_rows, work):
-    """:func:`~ocalib.calib.refine._group_weights` at ``(q, x)``: returns ``1 / sr^2``; writes each group's ``1 / st^2``
-    (0 for an empty group) into ``work.wt`` and the translation quadratic weighted by them into ``work.Pw``,
-    ``work.pw``."""
-    (P, p, c), (Pr, pr, cr), wt, Pw, pw = quadratic, reverse, work.wt, work.Pw, work.pw
-    Er = _group_costs(M, quadratic, reverse, q, x, work)
-    trace = M[0, 0] + M[1, 1] + M[2, 2] + M[3, 3]
-    dof = max(3.0 * translation_rows - 4.0, 1.0)
-    n = (1.0 if c - cr > 0 else 0.0) + (1.0 if cr > 0 else 0.0)  # groups with rows
-    wt[0] = dof / max(n * (work.Et[0] + _EPS2 * (c - cr)), 1e-300) if c - cr > 0 else 0.0
-    wt[1] = dof / max(n * (work.Et[1] + _EPS2 * cr), 1e-300) if cr > 0 else 0.0
-    for i in range(12):
-        pw[i] = wt[0] * p[i] + (wt[1] - wt[0]) * pr[i]
-        for j in range(12):
-            Pw[i, j] = wt[0] * P[i, j] + (wt[1] - wt[0]) * Pr[i, j]
-    return max(2.0 * rotation_rows - 3.0, 1.0) / max(Er + _EPS2 * trace, 1e-300)
-
-
-@jit_inline
-def costs(M, quadratic, q, x, work):
-    """:func:`~ocalib.calib.refine.costs`: ``(Er, Et)`` at ``(q, x)``."""
-    P, p, c = quadratic
-    R, y, Py = work.R, work.y, work.Py
+    """:func:`~ocalib.calib.refine.group_costs` at ``(q, x)``: returns the rotation residual ``q^T M q``; the forward
+    and the reverse rows' translation residuals in ``work.Et``."""
+    (P, p, c), (Pr, pr, cr), R, y, Py = quadratic, reverse, work.R, work.y, work.Py
     quaternion_to_rotation_matrix(q, R)
     for i in range(3):
         y[i] = x[i]
@@ -178,62 +147,76 @@ def costs(M, quadratic, q, x, work):
     Et = c
     for i in range(12):
         Et += y[i] * (Py[i] - 2.0 * p[i])
-    return Er, Et
+    apply_quadratic(Pr, y, Py)
+    Etr = cr
+    for i in range(12):
+        Etr += y[i] * (Py[i] - 2.0 * pr[i])
+    work.Et[0], work.Et[1] = Et - Etr, Etr
+    return Er
+
+
+@jit_inline
+def _weights(M, quadratic, reverse, q, x, rotation_rows, translation_rows, work):
+    """:func:`~ocalib.calib.refine._group_weights` at ``(q, x)``: returns ``1 / sr^2`` and the rotation residual; writes each group's ``1 / st^2``
+    (0 for an empty group) into ``work.wt`` and the translation quadratic weighted by them into ``work.Pw``,
+    ``work.pw``."""
+    (P, p, c), (Pr, pr, cr), wt, Pw, pw = quadratic, reverse, work.wt, work.Pw, work.pw
+    Er = _group_costs(M, quadratic, reverse, q, x, work)
+    trace = M[0, 0] + M[1, 1] + M[2, 2] + M[3, 3]
+    dof = max(3.0 * translation_rows - 4.0, 1.0)
+    n = (1.0 if c - cr > 0 else 0.0) + (1.0 if cr > 0 else 0.0)  # groups with rows
+    w0 = dof / max(n * (work.Et[0] + _EPS2 * (c - cr)), 1e-300) if c - cr > 0 else 0.0
+    w1 = dof / max(n * (work.Et[1] + _EPS2 * cr), 1e-300) if cr > 0 else 0.0
+    wt[0], wt[1] = w0, w1
+    for i in range(12):
+        pw[i] = w0 * p[i] + (w1 - w0) * pr[i]
+        for j in range(12):
+            Pw[i, j] = w0 * P[i, j] + (w1 - w0) * Pr[i, j]
+    return max(2.0 * rotation_rows - 3.0, 1.0) / max(Er + _EPS2 * trace, 1e-300), Er
 
 
 @jit_inline
 def _system(M, P, p, q, x, wr, work):
     """The Gauss-Newton system of :func:`~ocalib.calib.refine.joint_refine` at ``(q, x)``: ``work.H`` (7, 7) and
-    ``work.g`` (7,), and the pieces the Newton terms and the update reuse: ``R = dR``, ``Jq``, ``r``, ``Mq``."""
-    R, y, r, C, K, H, g, L, Jq, MJ, Mq = (
-        work.R,
-        work.y,
-        work.r,
-        work.C,
-        work.K,
-        work.H,
-        work.g,
-        work.L,
-        work.Jq,
-        work.MJ,
-        work.Mq,
-    )
+    ``work.g`` (7,), and the pieces the Newton terms and the update reuse: ``R = dR``, ``Jq``, ``r``, ``Mq``, ``D``.
+
+    From the blocks of ``P`` rather than the chain rule through ``vec(s dR)`` (the PyTorch stage's ``J_y^T P J_y``):
+    ``P``'s lower-right block is ``I (x) Z11`` (``Z11`` = ``P[3:6, 3:6]``), under which
+    ``<s dR G_k, s dR G_l Z11> = s^2 (tr(Z11) I - Z11)_kl``, ``<dR G_k, dR Z11> = 0`` and ``<dR, dR Z11> = tr(Z11)``
+    whatever ``dR`` (``G_k = [e_k]x``); a row ``i`` of ``P[:3, 3:]`` as a 3x3 ``B_i`` meets ``s dR G_k`` in the
+    skew part of ``dR^T B_i``, and the gradient in ``s dR`` (``R_g``) in that of ``D = dR^T R_g``."""
+    R, y, r, H, g, L, Jq, MJ, Mq, D, W = (work.R, work.y, work.r, work.H, work.g, work.L, work.Jq, work.MJ, work.Mq,
+                                          work.D, work.W)  # fmt: skip
     s = x[3]
     quaternion_to_rotation_matrix(q, R)
-    for i in range(3):  # C[:, k] = s vec(dR [e_k]x): dR [e_k]x = [0, R2, -R1], [-R2, 0, R0], [R1, -R0, 0]
-        C[3 * i, 0], C[3 * i + 1, 0], C[3 * i + 2, 0] = 0.0, s * R[i, 2], -s * R[i, 1]
-        C[3 * i, 1], C[3 * i + 1, 1], C[3 * i + 2, 1] = -s * R[i, 2], 0.0, s * R[i, 0]
-        C[3 * i, 2], C[3 * i + 1, 2], C[3 * i + 2, 2] = s * R[i, 1], -s * R[i, 0], 0.0
-    for i in range(9):
-        C[i, 3] = R[i // 3, i % 3]
-        y[3 + i] = s * R[i // 3, i % 3]
     for i in range(3):
         y[i] = x[i]
+    for i in range(9):
+        y[3 + i] = s * R[i // 3, i % 3]
     apply_quadratic(P, y, r)
     for i in range(12):
         r[i] = r[i] - p[i]
-    for i in range(12):  # K = P J_y: [P[:, 3:] C, P[:, :3]], P[3:, 3:] block diagonal
-        lo, hi = (0, 9) if i < 3 else (3 * ((i - 3) // 3), 3 * ((i - 3) // 3) + 3)
-        for j in range(4):
-            acc = 0.0
-            for k in range(lo, hi):
-                acc += P[i, 3 + k] * C[k, j]
-            K[i, j] = acc
-        for j in range(3):
-            K[i, 4 + j] = P[i, j]
-    for i in range(4):
-        for j in range(7):
-            acc = 0.0
-            for k in range(9):
-                acc += C[k, i] * K[3 + k, j]
-            H[i, j] = acc
-        acc = 0.0
-        for k in range(9):
-            acc += C[k, i] * r[3 + k]
-        g[i] = acc
+    _rotate_back(R, r, 3, D)  # D = dR^T R_g
+    g[0], g[1], g[2], g[3] = s * (D[2, 1] - D[1, 2]), s * (D[0, 2] - D[2, 0]), s * (D[1, 0] - D[0, 1]), (
+        D[0, 0] + D[1, 1] + D[2, 2])  # fmt: skip
+    trZ = P[3, 3] + P[4, 4] + P[5, 5]
+    for k in range(3):
+        for l in range(3):
+            H[k, l] = s * s * ((trZ if k == l else 0.0) - P[3 + k, 3 + l])
+        H[k, 3] = H[3, k] = 0.0
+    H[3, 3] = trZ
     for i in range(3):
-        for j in range(7):
-            H[4 + i, j] = K[i, j]
+        _rotate_back(R, P[i], 3, W)  # W = dR^T B_i
+        H[4 + i, 0], H[4 + i, 1], H[4 + i, 2] = (
+            s * (W[2, 1] - W[1, 2]),
+            s * (W[0, 2] - W[2, 0]),
+            s * (W[1, 0] - W[0, 1]),
+        )
+        H[4 + i, 3] = W[0, 0] + W[1, 1] + W[2, 2]
+        for j in range(4):
+            H[j, 4 + i] = H[4 + i, j]
+        for j in range(3):
+            H[4 + i, 4 + j] = P[i, j]
         g[4 + i] = r[i]
     left_product_matrix(q, L)
     for i in range(4):
@@ -250,13 +233,18 @@ def _system(M, P, p, q, x, wr, work):
 
 
 @jit_inline
+def _rotate_back(R, v, offset, out):
+    """``out = R^T B`` (3x3) with ``B[r, j] = v[offset + 3 r + j]``."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = R[0, i] * v[offset + j] + R[1, i] * v[offset + 3 + j] + R[2, i] * v[offset + 6 + j]
+
+
+@jit_inline
 def _newton_terms(q, s, work):
     """Add Newton's second-derivative terms to ``work.H``: those of ``m = vec(s dR)`` and of ``q``, contracted with the
     gradient (``_system``'s ``r`` and ``Mq``)."""
-    R, r, H, Mq, D = work.R, work.r, work.H, work.Mq, work.D
-    for i in range(3):  # D = dR^T R_g, R_g the gradient in s dR
-        for j in range(3):
-            D[i, j] = R[0, i] * r[3 + j] + R[1, i] * r[6 + j] + R[2, i] * r[9 + j]
+    H, Mq, D = work.H, work.Mq, work.D  # D = dR^T R_g, R_g the gradient in s dR (from _system)
     qMq = Mq[0] * q[0] + Mq[1] * q[1] + Mq[2] * q[2] + Mq[3] * q[3]
     trD = D[0, 0] + D[1, 1] + D[2, 2]
     for k in range(3):  # <D, (G_k G_l + G_l G_k) / 2> with G_k G_l = e_l e_k^T - delta_kl I
