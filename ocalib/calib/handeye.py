@@ -11,10 +11,11 @@ Convention: the unknown ``X = (dR, dT, s)`` is the pose of camera k in camera 0'
 * translation:  ``(I - R0) dT + s dR t1 = t0``, linear in ``x = (dT, s)``.
 
 The translation rows depend on ``dR``. To re-solve them with the latest ``dR`` at every frame in O(1)
-they are kept as the second moment of a 15-vector ``z = (vec(I - R0), t1, t0)`` (see
-:func:`translation_features`). The residual is linear in ``y = (dT, vec(s dR))``, so the moment gives
-the residual for any ``(dR, dT, s)`` as a quadratic in ``y`` (:func:`translation_quadratic`), from
-which :func:`normal_equations` assembles the normal equations for any rotation model.
+they are kept as sums of products of the 15 features ``z = (vec(I - R0), t1, t0)`` of each row (see
+:func:`translation_features`): the residual is linear in ``y = (dT, vec(s dR))``, so it is a quadratic in
+``y`` for any ``(dR, dT, s)`` (:func:`translation_quadratic`), and only the 58 sums that quadratic reads are
+kept (:func:`row_statistics`; the full second moment of ``z`` has 225). :func:`normal_equations` assembles
+the normal equations for any rotation model from the quadratic.
 
 Each motion pair can give its translation rows in both directions (:func:`pair_features`): the pair
 from frame a to b and its reverse, whose residual lives in frame b. Their rotation rows are the same
@@ -34,15 +35,16 @@ from torch import Tensor
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, right_product_matrix
 
 FEATURES = 15  # len(z): 9 entries of I - R0 (row-major), t1 (3), t0 (3)
+STATISTICS = 58  # the sums of products of z the quadratic reads (row_statistics)
 
 
 class TranslationMoment(NamedTuple):
-    """The weighted translation rows, kept as the second moment of their features (the field names are the head's
-    buffers')."""
+    """The weighted translation rows, kept as the sums of products of their features that their quadratic reads
+    (:func:`row_statistics`; the field names are the head's buffers')."""
 
-    Z: Tensor  # (..., 15, 15)
+    Z: Tensor  # (..., 58)
     translation_rows: Tensor  # (...) weighted number of motion pairs
-    Z_reverse: Tensor  # (..., 15, 15) the reverse rows' share of Z (zero with rows in one direction)
+    Z_reverse: Tensor  # (..., 58) the reverse rows' share of Z (zero with rows in one direction)
 
 
 def rotation_block(q0: Tensor, q1: Tensor) -> Tensor:
@@ -62,13 +64,25 @@ def rotation_blocks(quaternion: Tensor) -> Tensor:
 
 
 def translation_moment(motion: Tensor, ok: Tensor, symmetric: bool) -> tuple[Tensor, Tensor]:
-    """The moment ``sum z^T z`` (..., K, P, 15, 15) of the translation rows (:func:`pair_features`) of camera 0's
-    motions against camera k's, from every camera's motions (..., C, P, 4, 4), for the pairs ``ok`` (..., K, P), and
-    its reverse rows' share (zero unless ``symmetric``)."""
+    """The statistics (..., K, P, 58) of the translation rows (:func:`pair_features`, :func:`row_statistics`) of
+    camera 0's motions against camera k's, from every camera's motions (..., C, P, 4, 4), for the pairs ``ok``
+    (..., K, P), and their reverse rows' share (zero unless ``symmetric``)."""
     z = pair_features(motion[..., :1, :, :, :].expand_as(motion[..., 1:, :, :, :]), motion[..., 1:, :, :, :], symmetric)
-    z = z * ok[..., None, None]
-    back = z[..., -1, :] * symmetric
-    return z.mT @ z, back.unsqueeze(-1) * back.unsqueeze(-2)
+    stats = row_statistics(z) * ok[..., None, None]
+    return stats.sum(-2), stats[..., -1, :] * symmetric
+
+
+def row_statistics(z: Tensor) -> Tensor:
+    """The statistics (..., 58) of translation rows with features ``z`` (..., 15), one set per row (sum them over
+    rows): with ``E = I - R0``, ``sum_r E_r E_r^T`` (9), ``E[r, i] t1[j]`` at ``(i, 3 r + j)`` (27), ``t1 t1^T``
+    (9), ``E^T t0`` (3), ``t0[r] t1[j]`` at ``3 r + j`` (9) and ``|t0|^2`` (1): the blocks of the quadratic
+    (:func:`translation_quadratic`). Kernel twin: :func:`ocalib.calib.handeye_kernel.add_row_statistics`."""
+    E, t1, t0 = z[..., :9].unflatten(-1, (3, 3)), z[..., 9:12], z[..., 12:15]
+    cross = E.mT.unsqueeze(-1) * t1[..., None, None, :]  # E[r, i] t1[j] at (i, r, j)
+    parts = [(E.mT @ E).flatten(-2), cross.flatten(-3), (t1.unsqueeze(-1) * t1.unsqueeze(-2)).flatten(-2),
+             (E.mT @ t0.unsqueeze(-1)).squeeze(-1), (t0.unsqueeze(-1) * t1.unsqueeze(-2)).flatten(-2),
+             t0.square().sum(-1, keepdim=True)]  # fmt: skip
+    return torch.cat(parts, -1)
 
 
 def update_translation_moment(
@@ -107,19 +121,17 @@ def translation_quadratic(Z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """The weighted translation residual as a quadratic in ``y = (dT, vec(s dR))`` (row-major ``dR``):
     ``sum w |(I - R0) dT + s dR t1 - t0|^2 = y^T P y - 2 p.y + c``.
 
-    Z: (..., 15, 15) moment. Returns P (..., 12, 12), p (..., 12), c (...).
+    Z: (..., 58) the rows' statistics (:func:`row_statistics`). Returns P (..., 12, 12), p (..., 12), c (...).
 
-    Equation r of a pair reads ``z[3r:3r+3] . dT + z[9:12] . m_r = z[12+r]`` (``m_r`` row r of ``s dR``), so
-    P = [[sum_r Z_rr, [Z_r,t1]_r], [.., I (x) Z_t1t1]] and p = (sum_r Z_r,t0r, (Z_t1,t0r)_r), blocks of Z.
+    Equation r of a row reads ``E_r . dT + t1 . m_r = t0[r]`` (``E = I - R0``, ``m_r`` row r of ``s dR``), so
+    ``P = [[sum E^T E, cross], [cross^T, I (x) sum t1 t1^T]]`` with ``cross[i, 3 r + j] = sum E[r, i] t1[j]``, and
+    ``p = (sum E^T t0, sum t0[r] t1[j])``, ``c = sum |t0|^2``.
     """
-    A = Z[..., 0:3, 0:3] + Z[..., 3:6, 3:6] + Z[..., 6:9, 6:9]
-    cross = Z[..., 0:9, 9:12].unflatten(-2, (3, 3)).transpose(-3, -2).flatten(-2)  # (..., 3, 9): [Z_0t1 Z_1t1 Z_2t1]
+    A, cross, t1t1 = Z[..., :9].unflatten(-1, (3, 3)), Z[..., 9:36].unflatten(-1, (3, 9)), Z[..., 36:45]
     eye = torch.eye(3, dtype=Z.dtype, device=Z.device)
-    D = (eye[:, None, :, None] * Z[..., None, 9:12, None, 9:12]).flatten(-4, -3).flatten(-2)  # I (x) Z_t1t1
+    D = (eye[:, None, :, None] * t1t1.unflatten(-1, (3, 3))[..., None, :, None, :]).flatten(-4, -3).flatten(-2)
     P = torch.cat([torch.cat([A, cross], -1), torch.cat([cross.mT, D], -1)], -2)
-    p_dT = torch.diagonal(Z[..., 0:9, 12:15].unflatten(-2, (3, 3)), dim1=-3, dim2=-1).sum(-1)
-    p = torch.cat([p_dT, Z[..., 9:12, 12:15].mT.flatten(-2)], -1)
-    return P, p, torch.diagonal(Z[..., 12:15, 12:15], dim1=-2, dim2=-1).sum(-1)
+    return P, Z[..., 45:57], Z[..., 57]
 
 
 def translation_rows(R0: Tensor, t0: Tensor, t1: Tensor, dR: Tensor) -> tuple[Tensor, Tensor]:

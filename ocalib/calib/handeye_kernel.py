@@ -45,58 +45,60 @@ def pair_features(m0, mk, symmetric, z):
 @jit
 def update_translation_moment(moment, m0, mk, ok, forgetting, symmetric, z):
     """:func:`~ocalib.calib.handeye.update_translation_moment` of one rig and camera k, in place: ``moment`` a
-    :class:`~ocalib.calib.handeye.TranslationMoment` of each gap (``Z`` (P, 15, 15), ``translation_rows`` (P,),
-    ``Z_reverse`` (P, 15, 15)), the motions of camera 0 and camera k ``m0``, ``mk`` (P, 4, 4), the pairs ``ok`` (P,);
+    :class:`~ocalib.calib.handeye.TranslationMoment` of each gap (``Z`` (P, 58), ``translation_rows`` (P,),
+    ``Z_reverse`` (P, 58)), the motions of camera 0 and camera k ``m0``, ``mk`` (P, 4, 4), the pairs ``ok`` (P,);
     ``z`` (2, 15) scratch."""
     Z, rows, Z_reverse = moment
     for j in range(Z.shape[0]):
-        Zj, Zr = Z[j], Z_reverse[j]
         if forgetting != 1.0:
-            for i in range(15):
-                for l in range(15):
-                    Zj[i, l] *= forgetting
-                    Zr[i, l] *= forgetting
+            for i in range(Z.shape[1]):
+                Z[j, i] *= forgetting
+                Z_reverse[j, i] *= forgetting
         rows[j] = forgetting * rows[j] + (1.0 if ok[j] else 0.0)
         if not ok[j]:
             continue
         n = pair_features(m0[j], mk[j], symmetric, z)
-        for i in range(15):  # the moments are symmetric: their upper triangles, mirrored
-            for l in range(i, 15):
-                Zj[i, l] += z[0, i] * z[0, l]
-                if n == 2:
-                    Zr[i, l] += z[1, i] * z[1, l]
-                    Zj[i, l] += z[1, i] * z[1, l]
-                if l != i:
-                    Zj[l, i], Zr[l, i] = Zj[i, l], Zr[i, l]
+        add_row_statistics(z[0], Z[j])
+        if n == 2:
+            add_row_statistics(z[1], Z[j])
+            add_row_statistics(z[1], Z_reverse[j])
+
+
+@jit
+def add_row_statistics(z, out):
+    """``out += row_statistics(z)`` (:func:`~ocalib.calib.handeye.row_statistics`) for one row's features ``z``
+    (15,) into ``out`` (58,)."""
+    for i in range(3):
+        for j in range(3):
+            out[3 * i + j] += z[i] * z[j] + z[3 + i] * z[3 + j] + z[6 + i] * z[6 + j]  # E^T E
+            out[36 + 3 * i + j] += z[9 + i] * z[9 + j]  # t1 t1^T
+            out[48 + 3 * i + j] += z[12 + i] * z[9 + j]  # t0[r] t1[j]
+            for r in range(3):
+                out[9 + 9 * i + 3 * r + j] += z[3 * r + i] * z[9 + j]  # E[r, i] t1[j]
+        out[45 + i] += z[i] * z[12] + z[3 + i] * z[13] + z[6 + i] * z[14]  # E^T t0
+    out[57] += z[12] * z[12] + z[13] * z[13] + z[14] * z[14]
 
 
 @jit
 def translation_quadratic(Z, P, p):
-    """:func:`~ocalib.calib.handeye.translation_quadratic` of ``Z`` (15, 15): ``P`` (12, 12) and ``p`` (12,) written,
+    """:func:`~ocalib.calib.handeye.translation_quadratic` of ``Z`` (58,): ``P`` (12, 12) and ``p`` (12,) written,
     ``c`` returned."""
     for i in range(12):
         for j in range(12):
             P[i, j] = 0.0
     for i in range(3):
         for j in range(3):
-            P[i, j] = Z[i, j] + Z[3 + i, 3 + j] + Z[6 + i, 6 + j]
-        for r in range(3):
-            for j in range(3):
-                P[i, 3 + 3 * r + j] = Z[3 * r + i, 9 + j]
-                P[3 + 3 * r + j, i] = Z[3 * r + i, 9 + j]
+            P[i, j] = Z[3 * i + j]
+        for j in range(9):
+            P[i, 3 + j] = Z[9 + 9 * i + j]
+            P[3 + j, i] = Z[9 + 9 * i + j]
     for a in range(3):
         for b in range(3):
             for d in range(3):
-                P[3 + 3 * a + b, 3 + 3 * a + d] = Z[9 + b, 9 + d]
-    for i in range(3):
-        s = 0.0
-        for r in range(3):
-            s += Z[3 * r + i, 12 + r]
-        p[i] = s
-    for r in range(3):
-        for j in range(3):
-            p[3 + 3 * r + j] = Z[9 + j, 12 + r]
-    return Z[12, 12] + Z[13, 13] + Z[14, 14]
+                P[3 + 3 * a + b, 3 + 3 * a + d] = Z[36 + 3 * b + d]
+    for i in range(12):
+        p[i] = Z[45 + i]
+    return Z[57]
 
 
 @jit

@@ -55,7 +55,7 @@ from ocalib.calib import (
     solve_kernel,
     translation_kernel,
 )
-from ocalib.calib.handeye import TranslationMoment
+from ocalib.calib.handeye import STATISTICS, TranslationMoment
 from ocalib.calib.linalg_kernel import OPTIONS, jit, jit_inline
 from ocalib.calib.pairing import MotionPairs
 from ocalib.calib.refine import REFINE_STEPS
@@ -109,9 +109,9 @@ OUTPUTS = {"rotation": ((3, 3), np.float64), "quaternion": ((4,), np.float64), "
            "scale": ((), np.float64), "rotation_singular_values": ((4,), np.float64),
            "rotation_observable": ((), np.bool_), "planar_motion": ((), np.bool_), "planar_axis": ((3,), np.float64),
            "frames_used": ((), np.int64), "frames_rejected": ((), np.int64), "rotation_basis": ((4, 4), np.float64),
-           "rotation_rows": ((), np.float64), "translation_moment": ((15, 15), np.float64),
+           "rotation_rows": ((), np.float64), "translation_moment": ((STATISTICS,), np.float64),
            "translation_rows": ((), np.float64), "refined": ((), np.bool_),
-           "translation_moment_reverse": ((15, 15), np.float64)}  # fmt: skip
+           "translation_moment_reverse": ((STATISTICS,), np.float64)}  # fmt: skip
 Outputs = namedtuple("Outputs", list(OUTPUTS))
 
 

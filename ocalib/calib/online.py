@@ -15,7 +15,7 @@ from torch import Tensor, nn
 
 from ocalib.calib.gating import Gates, check_poses, rig_poses, rotation_weights, screw_gate
 from ocalib.calib.handeye import (
-    FEATURES,
+    STATISTICS,
     TranslationMoment,
     rotation_blocks,
     translation_quadratic,
@@ -135,9 +135,9 @@ class OnlineCalibrator(nn.Module):
             "gap_S2": torch.zeros(B, K, P, 4, **f),
             "gap_V": eye4.expand(B, K, P, 4, 4).clone(),
             "gap_rotation_rows": torch.zeros(B, K, P, **f),
-            "gap_Z": torch.zeros(B, K, P, FEATURES, FEATURES, **f),
+            "gap_Z": torch.zeros(B, K, P, STATISTICS, **f),
             "gap_translation_rows": torch.zeros(B, K, P, **f),
-            "gap_Z_reverse": torch.zeros(B, K, P, FEATURES, FEATURES, **f),
+            "gap_Z_reverse": torch.zeros(B, K, P, STATISTICS, **f),
             # the combined rotation system of the last frame (its estimate weighs the next frame's rows)
             "S2": torch.zeros(B, K, 4, **f),
             "V": eye4.expand(B, K, 4, 4).clone(),

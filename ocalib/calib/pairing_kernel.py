@@ -91,21 +91,21 @@ def combine_statistics(gaps, gap_moment, S2, V, Z, Z_reverse, work):
     """:func:`~ocalib.calib.pairing.combine_statistics` for one rig and camera k: ``gaps`` a
     :class:`~ocalib.calib.rotation.RotationSystem` and ``gap_moment`` a :class:`~ocalib.calib.handeye.TranslationMoment`
     of each gap ((P, *)); writes the combined rotation system's ``S2`` (4,) and ``V`` (4, 4) and the moment ``Z``
-    (15, 15) and its reverse rows' share ``Z_reverse``, returns their row counts. Unlike the PyTorch stage it takes
+    (58,) and its reverse rows' share ``Z_reverse``, returns their row counts. Unlike the PyTorch stage it takes
     each gap's ``(S2, V)`` for its Gram matrix; one gap is its own combination (PyTorch decomposes its Gram matrix
     again: the same to rounding). ``V`` comes in as the last frame's, the basis the combined Gram matrix is decomposed
     in (nearly diagonal there: fewer Jacobi sweeps). ``work``: :func:`workspace`."""
     gap_S2, gap_V, gap_rows = gaps
     gap_Z, gap_translation_rows, gap_Z_reverse = gap_moment
     if gap_rows.shape[0] == 1:
-        S2[:], V[:, :], Z[:, :], Z_reverse[:, :] = gap_S2[0], gap_V[0], gap_Z[0], gap_Z_reverse[0]
+        S2[:], V[:, :], Z[:], Z_reverse[:] = gap_S2[0], gap_V[0], gap_Z[0], gap_Z_reverse[0]
         return gap_rows[0], gap_translation_rows[0]
     w, M, gram = work.weights, work.M, work.gram
     gap_weights(gap_S2, gap_rows, w)
     rows, translation_rows = 0.0, 0.0
     M[:, :] = 0.0
-    Z[:, :] = 0.0
-    Z_reverse[:, :] = 0.0
+    Z[:] = 0.0
+    Z_reverse[:] = 0.0
     for j in range(gap_rows.shape[0]):
         rows += w[j] * gap_rows[j]
         translation_rows += w[j] * gap_translation_rows[j]
@@ -113,13 +113,9 @@ def combine_statistics(gaps, gap_moment, S2, V, Z, Z_reverse, work):
         for i in range(4):
             for m in range(4):
                 M[i, m] += w[j] * gram[i, m]
-        for i in range(15):
-            for m in range(i, 15):
-                Z[i, m] += w[j] * gap_Z[j, i, m]
-                Z_reverse[i, m] += w[j] * gap_Z_reverse[j, i, m]
-    for i in range(15):
-        for m in range(i):
-            Z[i, m], Z_reverse[i, m] = Z[m, i], Z_reverse[m, i]
+        for i in range(Z.shape[0]):
+            Z[i] += w[j] * gap_Z[j, i]
+            Z_reverse[i] += w[j] * gap_Z_reverse[j, i]
     for i in range(4):  # M in the basis V: V^T M V
         for m in range(4):
             gram[i, m] = M[i, 0] * V[0, m] + M[i, 1] * V[1, m] + M[i, 2] * V[2, m] + M[i, 3] * V[3, m]

@@ -25,6 +25,7 @@ from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.clock import estimate_time_offset, refine_time_offset
 from ocalib.calib.gating import Gates
+from ocalib.calib.handeye import row_statistics
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.options import HeadOptions
 from ocalib.calib.planar import planar_axis
@@ -326,8 +327,8 @@ def _batch(poses: torch.Tensor, valid: np.ndarray, motion: str, refine: bool) ->
         frames_rejected=(len(valid) - used)[None],
         rotation_basis=V[None],
         rotation_rows=rows[None],
-        translation_moment=(features.mT @ features)[None],
+        translation_moment=row_statistics(features).sum(-2)[None],
         translation_rows=rows[None],
         refined=out["refined"][None],
-        translation_moment_reverse=(features[:, 1::2].mT @ features[:, 1::2])[None],  # rows: (pair, direction)
+        translation_moment_reverse=row_statistics(features[:, 1::2]).sum(-2)[None],  # rows: (pair, direction)
     )

@@ -44,10 +44,10 @@ class Calibration:
     frames_rejected: Tensor  # (B, K) long
     rotation_basis: Tensor  # (B, K, 4, 4) right singular vectors of the rotation system
     rotation_rows: Tensor  # (B, K) weighted motion pairs in the rotation system
-    translation_moment: Tensor  # (B, K, 15, 15) see ocalib.calib.handeye
+    translation_moment: Tensor  # (B, K, 58) the translation rows' statistics, see ocalib.calib.handeye
     translation_rows: Tensor  # (B, K) weighted motion pairs in the translation system
     refined: Tensor | None = None  # (B, K) bool: the joint refinement was applied (None: nowhere)
-    translation_moment_reverse: Tensor | None = None  # (B, K, 15, 15) the reverse rows' share (None: not kept)
+    translation_moment_reverse: Tensor | None = None  # (B, K, 58) the reverse rows' share (None: not kept)
 
     @classmethod
     def from_statistics(

@@ -104,7 +104,7 @@ def _chunk(
     ok, st["screw_scale"], st["screw_count"] = screw_gate_sequence(
         pairs.angle, pairs.valid, st["screw_scale"], st["screw_count"], head.screw_gate, head.screw_gate_sigma
     )
-    Z, Z_reverse = translation_moment(pairs.motion, ok, head.symmetric)  # (L, B, K, P, 15, 15) each
+    Z, Z_reverse = translation_moment(pairs.motion, ok, head.symmetric)  # (L, B, K, P, 58) each
     gap_moment = TranslationMoment(
         _scan(Z, st["gap_Z"], lam), _scan(ok.to(M.dtype), st["gap_translation_rows"], lam),
         _scan(Z_reverse, st["gap_Z_reverse"], lam),

@@ -3,7 +3,7 @@
 import torch
 
 from ocalib.calib.gating import NO_GATES
-from ocalib.calib.handeye import TranslationMoment, translation_quadratic
+from ocalib.calib.handeye import TranslationMoment, row_statistics, translation_quadratic
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.rotation import RotationSystem
 from ocalib.geometry import make_pose
@@ -45,9 +45,9 @@ def random_orthonormal(generator, *shape, n=4):
 
 
 def random_moment(generator, *shape, rows=20):
-    """A random translation moment (*shape, 15, 15): the second moment of ``rows`` random feature vectors."""
+    """Random translation statistics (*shape, 58): those of ``rows`` random feature vectors."""
     z = torch.randn(*shape, rows, 15, generator=generator, dtype=torch.float64)
-    return z.mT @ z
+    return row_statistics(z).sum(-2)
 
 
 def stream_statistics(poses, **options):

@@ -9,6 +9,7 @@ from ocalib.calib.handeye import (
     normal_equations,
     rotation_block,
     rotation_blocks,
+    row_statistics,
     translation_features,
     translation_quadratic,
     translation_rows,
@@ -36,8 +37,7 @@ def test_normal_equations_equal_explicit_rows(generator):
     motion = invert_pose(poses[:-1]) @ poses[1:]
     R0, t0, t1 = motion[:, 0, :3, :3], motion[:, 0, :3, 3], motion[:, 1, :3, 3]
     w = torch.rand(len(motion), generator=generator, dtype=torch.float64)
-    z = translation_features(R0, t0, t1)
-    Z = (z * w[:, None]).T @ z
+    Z = (row_statistics(translation_features(R0, t0, t1)) * w[:, None]).sum(0)
     dR = X[0, :3, :3]
     H, g, tt = normal_equations(translation_quadratic(Z), dR[None])
     B, b = translation_rows(R0, t0, t1, dR)
@@ -46,6 +46,16 @@ def test_normal_equations_equal_explicit_rows(generator):
     torch.testing.assert_close(H, Bf.T @ Bf, atol=1e-10, rtol=1e-12)
     torch.testing.assert_close(g, Bf.T @ bf, atol=1e-10, rtol=1e-12)
     torch.testing.assert_close(tt, bf @ bf, atol=1e-10, rtol=1e-12)
+
+
+def test_translation_quadratic_equals_explicit_residual(generator):
+    """The 58 statistics give the rows' residual for any ``y = (dT, vec(s dR))``, not only at rotations."""
+    z = torch.randn(9, 15, generator=generator, dtype=torch.float64)
+    P, p, c = translation_quadratic(row_statistics(z).sum(0))
+    for y in torch.randn(5, 12, generator=generator, dtype=torch.float64):
+        E, t1, t0 = z[:, :9].unflatten(-1, (3, 3)), z[:, 9:12], z[:, 12:]
+        residual = E @ y[:3] + t1 @ y[3:].view(3, 3).T - t0  # rows r: E_r . dT + m_r . t1 - t0[r]
+        torch.testing.assert_close(y @ P @ y - 2 * p @ y + c, residual.square().sum(), rtol=1e-12, atol=1e-12)
 
 
 def test_rotation_blocks_twin(generator):

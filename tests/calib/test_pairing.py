@@ -6,7 +6,7 @@ from calib_helpers import lds_rig, random_moment, random_orthonormal, random_pos
 from ocalib.calib import pairing_kernel
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.gating import NO_GATES
-from ocalib.calib.handeye import TranslationMoment
+from ocalib.calib.handeye import STATISTICS, TranslationMoment
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.pairing import (
     GAP_PRIOR_DOF,
@@ -129,7 +129,7 @@ def test_combine_statistics_twin(generator, gaps):
     basis = random_orthonormal(generator, B)
     for b in range(B):
         S2_b, V_b, work = np.empty(4), basis[b].numpy().copy(), pairing_kernel.workspace(gaps)
-        Z_b, Z_reverse_b = np.empty((15, 15)), np.empty((15, 15))
+        Z_b, Z_reverse_b = np.empty(STATISTICS), np.empty(STATISTICS)
         got_rows, got_translation_rows = pairing_kernel.combine_statistics(
             RotationSystem(*(x[b].numpy() for x in gaps_)), TranslationMoment(*(x[b].numpy() for x in moment)), S2_b,
             V_b, Z_b, Z_reverse_b, work,
