@@ -69,6 +69,8 @@ def main() -> None:
     p.add_argument("--rigs", type=int, default=50)
     p.add_argument("--trajectories", nargs="+", default=["lds", "handheld"], choices=("lds", "handheld"))
     args = p.parse_args()
+    if args.rigs < 1:
+        p.error(f"--rigs {args.rigs}: need at least one rig")
     results = {}
     print(f"{'trajectory':<10} {'solve':<30} {'rot deg':>8} {'t rel':>8} {'(mean)':>8}   medians over {args.rigs} rigs")
     for trajectory in args.trajectories:

@@ -87,6 +87,8 @@ def main() -> None:
         return
     trees = {"this": str(Path(__file__).resolve().parents[1])}
     if args.against:
+        if not (Path(args.against) / "ocalib").is_dir():
+            parser.error(f"--against {args.against}: no ocalib checkout there (no ocalib/ folder)")
         trees = {"other": str(Path(args.against).resolve()), **trees}
     counts = {name: counts_of(tree, args.rigs) for name, tree in trees.items()}
     print(

@@ -174,6 +174,8 @@ def main() -> None:
         print(json.dumps(time_case(*json.loads(args.case))))
         return
     if args.against:
+        if not (Path(args.against) / "ocalib").is_dir():
+            parser.error(f"--against {args.against}: no ocalib checkout there (no ocalib/ folder)")
         return against(args.against, repeats, args.quick)
     data = {rigs: rig_sequence(n + 20, rigs) for rigs, n in FRAMES[args.quick].items()}
     sequences = {rigs: rig_sequence(n, rigs) for rigs, n in SEQUENCE_FRAMES[args.quick].items()}
