@@ -12,7 +12,9 @@ solves the same frame-0 motions
   radians and units on their difference), solved by Levenberg-Marquardt from the head's estimate with each kind of
   row weighed by its residual variance (two rounds),
 
-beside the reference's joint refinement and the head. Prints medians and means over the rigs and writes
+beside the reference's joint refinement and the head; and the head's rotation with its translation and scale
+mixed with ``A X = Y B``'s by the weight of the head's longest gap (``w`` of
+:func:`~ocalib.calib.pairing.gap_weights`: 0 under drift, 0.3-1 under independent noise). Prints medians and means over the rigs and writes
 ``bench/results/frame0_rows.json``.
 
     python bench/bench_frame0_rows.py [--rigs 50] [--trajectories lds handheld]
@@ -34,6 +36,7 @@ from scipy.spatial.transform import Rotation
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.handeye import translation_rows
 from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.pairing import gap_weights
 from ocalib.calib.translation import symmetric_scale
 
 OUT = Path(__file__).parent / "results" / "frame0_rows.json"
@@ -87,6 +90,7 @@ def run(trajectory: str, noise: str, sigma: float, rigs: int, prior: float) -> d
         for t in range(poses.shape[1]):
             out = head(poses[:, t])
     R, T, S = out.rotation[:, 0], out.translation[:, 0], out.scale[:, 0]
+    w = gap_weights(head.gap_S2, head.gap_rotation_rows)[:, 0, -1]  # the longest gap's: 0 under drift
     found = {"head": [errors(R, T, S, truth, 1.0)]}
     for b in range(rigs):
         rig = truth[b : b + 1]
@@ -100,6 +104,10 @@ def run(trajectory: str, noise: str, sigma: float, rigs: int, prior: float) -> d
         Rx, tx, s = nuisance_solve(poses[b].numpy(), R[b].numpy(), T[b].numpy(), float(S[b]), prior)
         found.setdefault("A X = Y B, frame 0's error", []).append(
             errors(torch.from_numpy(Rx)[None], torch.from_numpy(tx)[None], torch.tensor([s]), rig, 1.0)
+        )
+        mixed = w[b] * torch.from_numpy(tx) + (1 - w[b]) * T[b], w[b] * s + (1 - w[b]) * S[b]
+        found.setdefault("head + A X = Y B by gap weight", []).append(
+            errors(R[b : b + 1], mixed[0][None], mixed[1][None], rig, 1.0)
         )
     return {name: np.concatenate(e) for name, e in found.items()}
 
