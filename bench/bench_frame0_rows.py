@@ -14,8 +14,8 @@ solves the same frame-0 motions
 
 beside the reference's joint refinement and the head; and the head's rotation with its translation and scale
 mixed with ``A X = Y B``'s by the weight of the head's longest gap (``w`` of
-:func:`~ocalib.calib.pairing.gap_weights`: 0 under drift, 0.3-1 under independent noise). Prints medians and means over the rigs and writes
-``bench/results/frame0_rows.json``.
+:func:`~ocalib.calib.pairing.gap_weights`: 0 under drift, 0.3-1 under independent noise). Prints medians and
+means over the rigs and writes ``bench/results/frame0_rows.json``.
 
     python bench/bench_frame0_rows.py [--rigs 50] [--trajectories lds handheld]
         [--noise independent:0.01 drift:0.001] [--prior 0.02]
@@ -122,7 +122,8 @@ def main() -> None:
     if args.rigs < 1 or not args.prior > 0:
         p.error(f"--rigs {args.rigs} --prior {args.prior}: need at least one rig and a positive prior")
     for spec in args.noise:
-        if spec.count(":") != 1 or spec.split(":")[0] not in ("independent", "drift"):
+        model, _, sigma = spec.partition(":")
+        if model not in ("independent", "drift") or not sigma.replace(".", "", 1).isdigit():
             p.error(f"--noise {spec}: expected independent:SIGMA or drift:SIGMA")
     results = []
     print(f"{'setting':<28} {'solve':<30} {'rot deg':>8} {'t rel':>8} {'scale':>9} {'t mean':>8}  (medians)")
