@@ -34,7 +34,6 @@ from torch import Tensor
 
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, right_product_matrix
 
-FEATURES = 15  # len(z): 9 entries of I - R0 (row-major), t1 (3), t0 (3)
 STATISTICS = 58  # the sums of products of z the quadratic reads (row_statistics)
 
 

@@ -105,7 +105,8 @@ def translation_uncertainty(Z: Tensor, dR: Tensor, x: Tensor, rows: Tensor) -> d
     """Covariance and information of the translation estimate ``x = (dT, s)`` (..., 4).
 
     Args:
-        Z: (..., 58) the rows' statistics (:func:`~ocalib.calib.handeye.row_statistics`). dR: (..., 3, 3). rows: (...) weighted number of motion pairs in ``Z``.
+        Z: (..., 58) the rows' statistics (:func:`~ocalib.calib.handeye.row_statistics`). dR: (..., 3, 3).
+        rows: (...) weighted number of motion pairs in ``Z``.
 
     Returns ``covariance`` (..., 4, 4) (``sigma^2 H^+``, sigma from the residual; infinite with ``3 n <= 4``
     equations, where the residual says nothing), ``information`` (..., 3) with ``directions`` (..., 3, 3):
