@@ -28,30 +28,17 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from bench_head_accuracy import errors, make_setting
+from bench_head_accuracy import errors, make_setting, symmetric_fit
 from common import write_json
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.handeye import translation_rows
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.pairing import gap_weights
-from ocalib.calib.translation import symmetric_scale
 
 OUT = Path(__file__).parent / "results" / "frame0_rows.json"
 FRAMES, RATE, BASELINE = 128, 10.0, 0.13  # bench_head_accuracy's defaults
-
-
-def solve_at(features: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
-    """``(dT, s)`` (4,) of one camera's translation rows (``features`` (rows, 15): vec(I - R0), t1, t0) at
-    ``rotation`` (3, 3): least squares, the scale re-fitted symmetrically (the head's default)."""
-    eye = torch.eye(3, dtype=features.dtype)
-    R0 = eye - features[:, :9].unflatten(-1, (3, 3))
-    B, t0 = translation_rows(R0, features[:, 12:], features[:, 9:12], rotation)
-    B, t0 = B.flatten(0, 1), t0.flatten(0, 1)
-    H, g = B.mT @ B, B.mT @ t0
-    return symmetric_scale(H, g, t0.square().sum(), torch.linalg.solve(H, g))
 
 
 def nuisance_solve(poses: np.ndarray, R: np.ndarray, t: np.ndarray, s: float, prior: float) -> tuple:
@@ -99,7 +86,7 @@ def run(trajectory: str, noise: str, sigma: float, rigs: int, prior: float) -> d
             errors(ref["rotation"][:1], ref["translation"][:1], ref["scale"][:1], rig, 1.0)
         )
         for name, rotation in (("rows at the head's rotation", R[b]), ("rows at the true rotation", rig[0, :3, :3])):
-            x = solve_at(ref["features"][0], rotation)
+            x = symmetric_fit(ref["features"][0], rotation)
             found.setdefault(name, []).append(errors(rotation[None], x[None, :3], x[None, 3], rig, 1.0))
         Rx, tx, s = nuisance_solve(poses[b].numpy(), R[b].numpy(), T[b].numpy(), float(S[b]), prior)
         found.setdefault("A X = Y B, frame 0's error", []).append(

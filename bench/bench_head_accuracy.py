@@ -134,17 +134,23 @@ def run_batch(poses, rigs, scale: float, options: dict) -> tuple[np.ndarray, np.
     for b in range(poses.shape[0]):
         out = batch_calibrate(poses[b], scale_fit="regression", **options)
         x = torch.cat([out["translation"], out["scale"][:, None]], -1)
-        z = out["features"]  # (K, rows, 15): vec(I - R0), t1, t0
-        eye = torch.eye(3, dtype=z.dtype)
-        B, t0 = translation_rows(
-            eye - z[..., :9].unflatten(-1, (3, 3)), z[..., 12:], z[..., 9:12], out["rotation"][:, None]
-        )
-        B, t0 = B.flatten(1, 2), t0.flatten(1, 2)
-        sym = symmetric_scale(B.mT @ B, (B.mT @ t0[..., None])[..., 0], t0.square().sum(-1), x)
+        sym = symmetric_fit(out["features"], out["rotation"], x)
         truth = rigs[b : b + 1]
         regression.append(errors(out["rotation"][:1], x[:1, :3], x[:1, 3], truth, scale))
         symmetric.append(errors(out["rotation"][:1], sym[:1, :3], sym[:1, 3], truth, scale))
     return np.concatenate(regression), np.concatenate(symmetric)
+
+
+def symmetric_fit(features: torch.Tensor, rotation: torch.Tensor, x: torch.Tensor | None = None) -> torch.Tensor:
+    """``(dT, s)`` (..., 4) of translation rows with ``features`` (..., rows, 15: vec(I - R0), t1, t0, as
+    ``batch_calibrate`` returns them; every row weighs 1) at ``rotation`` (..., 3, 3): ``x`` (least squares' where
+    None) with its scale re-fitted symmetrically (what ``scale_fit="symmetric"`` does)."""
+    eye = torch.eye(3, dtype=features.dtype)
+    R0 = eye - features[..., :9].unflatten(-1, (3, 3))
+    B, t0 = translation_rows(R0, features[..., 12:], features[..., 9:12], rotation.unsqueeze(-3))
+    B, t0 = B.flatten(-3, -2), t0.flatten(-2)
+    H, g = B.mT @ B, (B.mT @ t0[..., None])[..., 0]
+    return symmetric_scale(H, g, t0.square().sum(-1), torch.linalg.solve(H, g) if x is None else x)
 
 
 def statistics(e: np.ndarray) -> dict:
