@@ -82,7 +82,9 @@ def main() -> None:
     parser.add_argument("--rigs", type=int, default=64, help="rigs in the batch (default 64)")
     parser.add_argument("--case", type=int, help=argparse.SUPPRESS)  # counts of this process's ocalib, printed
     args = parser.parse_args()
-    if args.case:
+    if args.rigs < 1:
+        parser.error(f"--rigs {args.rigs}: need at least one rig")
+    if args.case is not None:
         print(json.dumps({label: count(args.case, refine) for label, refine in (("refined", True), ("closed", False))}))
         return
     trees = {"this": str(Path(__file__).resolve().parents[1])}
