@@ -1,4 +1,7 @@
-"""Errors about the user's input. The command line prints them as one line and exits with code 2."""
+"""Errors about the user's input (the command line prints them as one line and exits with code 2), and Ctrl-C."""
+
+import contextlib
+import signal
 
 
 class InputError(ValueError):
@@ -24,3 +27,25 @@ def read_text(path, what: str = "text file") -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError as err:
         raise InputError(f"{path}: not a {what} (binary data at byte {err.start})") from None
+
+
+@contextlib.contextmanager
+def deferred_interrupts():
+    """Ctrl-C (SIGINT) inside the block takes effect when it ends: the handler in force then runs once. For work that
+    an interrupt would leave broken (numba's compiler), and for starting worker processes by fork: they inherit the
+    deferring handler and so leave Ctrl-C to the main process. Outside the main thread, a no-op."""
+    pressed: list[int] = []
+    try:
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum))
+    except ValueError:  # not the main thread, where signals cannot be set
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pressed:
+        if callable(previous):
+            previous(signal.SIGINT, None)
+        elif previous != signal.SIG_IGN:
+            raise KeyboardInterrupt

@@ -7,6 +7,7 @@ the output is ``T_cam0_camk`` for k = 1..C-1 and the scale of camera k's units i
 
 from __future__ import annotations
 
+import copy
 import importlib.util
 import math
 
@@ -28,6 +29,7 @@ from ocalib.calib.result import Calibration
 from ocalib.calib.rotation import RotationSystem, rotation_gram, update_rotation_system
 from ocalib.calib.solve import closed_form
 from ocalib.calib.translation import SCALE_FITS, fit_scale, rls_update
+from ocalib.errors import deferred_interrupts
 
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU kernel's compiler
 
@@ -236,6 +238,17 @@ class OnlineCalibrator(nn.Module):
         st["rls_C"] = torch.where(go, C, st["rls_C"])
         axis = est["planar_axis"]
         return {"translation": x[..., :3] - axis * (axis * x[..., :3]).sum(-1, keepdim=True), "scale": x[..., 3]}
+
+    def load_kernel(self) -> None:
+        """Compile the CPU kernel this head's frames run in, or load it from numba's cache, by running a copy of the
+        head on one frame of identity poses; a no-op where the kernel does not apply. A stream calls it before it
+        starts, so that no frame waits for the compiler (a minute on a first run) while the stream's workers run. Ctrl-C
+        takes effect once the compiler is done (numba's state breaks where an interrupt lands inside it)."""
+        device = self._buffers["S2"].device
+        poses = torch.eye(4, dtype=torch.float64, device=device).expand(self.batch_size, self.num_cameras, 4, 4)
+        if self._kernel_applies(poses, differentiable=False):
+            with deferred_interrupts():
+                copy.deepcopy(self)(poses)
 
     def _kernel_applies(self, poses: Tensor, differentiable: bool) -> bool:
         """Whether this frame runs in the compiled CPU kernel (see ``backend``)."""

@@ -31,7 +31,7 @@ from ocalib.calibnet.truth import extrinsic_errors
 from ocalib.data.layout import open_sequence
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import check_motion
-from ocalib.errors import InputError
+from ocalib.errors import InputError, deferred_interrupts
 from ocalib.frontend import FrontEndOptions, build_frontend
 from ocalib.io.jsonable import finite_or_null
 
@@ -113,6 +113,7 @@ def calibrate_images(
     front_end = build_frontend(sequence, frontend, device)
     C = len(sequence.cameras)
     net = OnlineCalibrationNet(front_end, OnlineCalibrator(C, **head.head_kwargs())).to(device)
+    net.head.load_kernel()
 
     final, trace, trajectory = _stream(net, front_end.frames(sequence), frames, progress, on_frame)
     times = sequence.times[:frames] if sequence.times is not None else np.arange(frames, dtype=np.float64)
@@ -148,7 +149,9 @@ def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame)
         torch.inference_mode(),
         tqdm(total=frames, unit="frame", disable=None if progress is None else not progress, desc="calibrating") as bar,
     ):
-        for t, frame in enumerate(loader):
+        with deferred_interrupts():  # the loader's worker leaves Ctrl-C to this process
+            loaded = iter(loader)
+        for t, frame in enumerate(loaded):
             out = net(frame)
             pending.append(out)
             trajectory.append(net.trajectory[0].clone())

@@ -8,7 +8,9 @@ Each module in :data:`COMMANDS` defines ``add_parser(subparsers, name)`` (return
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
 import time
 from pathlib import Path
@@ -59,19 +61,52 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 1
     start = time.time()
+    with _noting_interrupts() as interrupted:
+        try:
+            if getattr(args, "device", None) is not None:
+                check_device(args.device)
+            check_outputs(args)
+            return int(args._run(args) or 0)
+        except (InputError, OSError) as err:
+            if interrupted:
+                return _interrupted(args, start, KeyboardInterrupt())
+            print(f"ocalib {args.command}: error: {error_message(err)}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt as err:  # Ctrl-C; a command may say what it had written in the exception's message
+            return _interrupted(args, start, err)
+        except Exception:
+            if interrupted:  # an error that Ctrl-C caused, e.g. in a compiler it interrupted (numba's)
+                return _interrupted(args, start, KeyboardInterrupt())
+            raise
+
+
+def _interrupted(args: argparse.Namespace, start: float, err: KeyboardInterrupt) -> int:
+    """Say that ``args.command`` was interrupted and what it had written (or the message of ``err``) -> 130."""
+    written = written_since(args, start)
+    what = str(err) or (f"written so far (incomplete): {', '.join(written)}" if written else "nothing written")
+    print(f"\nocalib {args.command}: interrupted; {what}", file=sys.stderr)
+    return 130
+
+
+@contextlib.contextmanager
+def _noting_interrupts():
+    """Ctrl-C raises KeyboardInterrupt as usual, and is noted in the list yielded (non-empty once pressed), so that
+    an error it causes where the KeyboardInterrupt is caught or lost is still reported as the interruption."""
+    noted: list[int] = []
+
+    def handler(signum, frame):
+        noted.append(signum)
+        raise KeyboardInterrupt
+
     try:
-        if getattr(args, "device", None) is not None:
-            check_device(args.device)
-        check_outputs(args)
-        return int(args._run(args) or 0)
-    except (InputError, OSError) as err:
-        print(f"ocalib {args.command}: error: {error_message(err)}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as err:  # Ctrl-C; a command may say what it had written in the exception's message
-        written = written_since(args, start)
-        what = str(err) or (f"written so far (incomplete): {', '.join(written)}" if written else "nothing written")
-        print(f"\nocalib {args.command}: interrupted; {what}", file=sys.stderr)
-        return 130
+        previous = signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: signals cannot be set, Python's default stays
+        yield noted
+        return
+    try:
+        yield noted
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def check_device(device: str) -> None:

@@ -213,7 +213,8 @@ def _children(pid: int) -> list[str]:
 
 def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     """Run ``ocalib ARGS`` and press Ctrl-C (SIGINT to its process group, as a terminal does) once it has started
-    its worker processes (the image loader, the renderer's pool)."""
+    its worker processes (the image loader, which starts once the head's kernel is compiled: minutes on a loaded
+    machine with a cold numba cache; the renderer's pool)."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "ocalib", *args],
         cwd=cwd,
@@ -222,11 +223,10 @@ def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
         text=True,
         start_new_session=True,
     )
-    deadline = time.time() + 240
+    deadline = time.time() + 900  # a guard: the wait is for the state
     while not _children(proc.pid) and proc.poll() is None and time.time() < deadline:
         time.sleep(0.02)
     assert proc.poll() is None, "finished before it could be interrupted"
-    time.sleep(0.3)
     os.killpg(proc.pid, signal.SIGINT)
     out, err = proc.communicate(timeout=300)  # a loaded machine can take minutes to wind the loader down
     return subprocess.CompletedProcess(args, proc.returncode, out, err)
