@@ -8,12 +8,16 @@ cameras:
     height: 128
     K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]     # pixels, integer pixel centres
     T_cam0_cam: [[...4 rows of 4...]]            # optional: the true pose of this camera in camera 0's frame
+    change: {frame: F, T_cam0_cam: [[...]]}      # optional: the camera was moved; its true pose from frame F on
 ```
 
 Convention: ``T_cam0_cam`` maps points of this camera into camera 0 (``p_cam0 = R p_cam + t``); it is
 the identity for camera 0. A camera's pose in the world is camera 0's pose times ``T_cam0_cam``. It is the
 ground truth of a calibration, known for rendered or surveyed rigs only: a camera without it has none (None),
 and nothing is compared against it. Where another camera has one, camera 0's may be left out (the identity).
+``change`` records a camera knocked out of place mid-sequence: ``T_cam0_cam`` holds for frames ``0 .. F-1``
+and the change's ``T_cam0_cam`` for frames ``F ..``; it needs the camera's ``T_cam0_cam``, ``F >= 1``, and
+camera 0 (the rig frame) cannot have one.
 """
 
 from __future__ import annotations
@@ -27,13 +31,22 @@ import yaml
 from ocalib.errors import InputError, read_text
 
 
+@dataclass(frozen=True)
+class ExtrinsicChange:
+    """A camera moved on the rig: its true ``T_cam0_cam`` (4, 4) float64 from frame ``frame`` (>= 1) on."""
+
+    frame: int
+    T_cam0_cam: np.ndarray
+
+
 @dataclass
 class CameraSpec:
     name: str
     width: int
     height: int
     K: np.ndarray  # (3, 3) float64, pixels
-    T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, the true extrinsic where known
+    T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, the true extrinsic where known (at frame 0)
+    change: ExtrinsicChange | None = None  # the true extrinsic from a later frame on, where the camera moved
 
 
 @dataclass
@@ -59,10 +72,36 @@ def write_rig_yaml(path: str | Path, rig: RigSpec) -> None:
                 "K": np.asarray(c.K, dtype=float).tolist(),
             }
             | ({} if c.T_cam0_cam is None else {"T_cam0_cam": np.asarray(c.T_cam0_cam, dtype=float).tolist()})
+            | ({} if c.change is None else {"change": _change_dict(c.change)})
             for c in rig.cameras
         ],
     }
     Path(path).write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+
+
+def _change_dict(change: ExtrinsicChange) -> dict:
+    return {"frame": int(change.frame), "T_cam0_cam": np.asarray(change.T_cam0_cam, dtype=float).tolist()}
+
+
+def _read_change(data, first: bool, has_T: bool, where: str) -> ExtrinsicChange:
+    """The ``change`` entry ``{frame, T_cam0_cam}`` of a camera; :class:`InputError` naming ``where`` otherwise."""
+    if first:
+        raise InputError(f"{where}: change: camera 0 defines the rig frame and cannot change")
+    if not has_T:
+        raise InputError(f"{where}: change needs the camera's T_cam0_cam (its extrinsic before the change)")
+    if not isinstance(data, dict) or set(data) != {"frame", "T_cam0_cam"}:
+        got = f"keys {sorted(map(str, data))}" if isinstance(data, dict) else f"a {type(data).__name__}"
+        raise InputError(f"{where}: change must be a mapping with exactly frame and T_cam0_cam, got {got}")
+    frame = data["frame"]
+    if not isinstance(frame, int) or isinstance(frame, bool) or frame < 1:
+        raise InputError(f"{where}: change.frame must be an integer >= 1, got {frame!r}")
+    try:
+        T = np.asarray(data["T_cam0_cam"], dtype=np.float64)
+    except (TypeError, ValueError):
+        T = None
+    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputError(f"{where}: change.T_cam0_cam must be 4x4, all finite")
+    return ExtrinsicChange(frame, T)
 
 
 def read_rig_yaml(path: str | Path) -> RigSpec:
@@ -87,6 +126,8 @@ def read_rig_yaml(path: str | Path) -> RigSpec:
             raise InputError(f"{where}: K must be 3x3, all finite")
         if T is not None and (T.shape != (4, 4) or not np.isfinite(T).all()):
             raise InputError(f"{where}: T_cam0_cam must be 4x4, all finite")
+        if c.get("change") is not None:
+            cam.change = _read_change(c["change"], i == 0, T is not None, f"{where} ({cam.name})")
         cameras.append(cam)
     if cameras[0].T_cam0_cam is None and any(c.T_cam0_cam is not None for c in cameras[1:]):
         cameras[0].T_cam0_cam = np.eye(4)

@@ -3,7 +3,9 @@
 Convention: poses are camera-to-world 4x4 float64 (one world frame per sequence); ``T_cam0_cam`` is the
 pose of a camera in the frame of the sequence's first camera (``p_cam0 = R p_cam + t``), the identity
 for that camera; K (3, 3) float64 in pixels (integer pixel centres) at the image size ``size`` (H, W).
-Frame t of every camera is the same instant.
+Frame t of every camera is the same instant. A camera's ``change`` (:class:`~ocalib.data.rig.ExtrinsicChange`)
+is its true ``T_cam0_cam`` from frame ``change.frame`` on, where it was moved mid-sequence; ``T_cam0_cam``
+holds before that frame.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ocalib.data.rig import ExtrinsicChange
 from ocalib.errors import InputError
 
 
@@ -24,10 +27,11 @@ class Camera:
     images: list[Path]  # N files
     K: np.ndarray  # (3, 3) float64, pixels, at `size`
     size: tuple[int, int]  # (H, W)
-    T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, when the layout knows the extrinsics
+    T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, when the layout knows the extrinsics (at frame 0)
     poses: np.ndarray | None = None  # (N, 4, 4) float64 camera-to-world ground truth
     depth: list[Path] | None = None  # N uint16 PNGs, metres x depth_scale, 0 = no surface
     depth_scale: float = 256.0
+    change: ExtrinsicChange | None = None  # the true extrinsic from a later frame on, where the camera moved
 
     def __len__(self) -> int:
         return len(self.images)
@@ -71,16 +75,38 @@ class Sequence:
         raise InputError(f"{self.path}: no camera {name!r} (cameras: {', '.join(self.names)})")
 
     def select(self, names: list[str] | None) -> Sequence:
-        """The sequence with only the cameras ``names`` (in that order); extrinsics are re-referenced to
-        the first of them. ``None`` keeps all."""
+        """The sequence with only the cameras ``names`` (in that order); extrinsics (and changes) are
+        re-referenced to the first of them. ``None`` keeps all. Where the first camera and another change
+        at different frames, the other's extrinsic relative to the first changes twice: an :class:`InputError`."""
         if names is None:
             return self
         cameras = [self.camera(n) for n in names]
-        ref = cameras[0].T_cam0_cam
-        if ref is not None:
-            ref_inv = np.linalg.inv(ref)
-            cameras = [replace(c, T_cam0_cam=None if c.T_cam0_cam is None else ref_inv @ c.T_cam0_cam) for c in cameras]
+        ref = cameras[0]
+        if ref.T_cam0_cam is not None:
+            ref_inv = np.linalg.inv(ref.T_cam0_cam)
+            cameras = [replace(ref, T_cam0_cam=ref_inv @ ref.T_cam0_cam, change=None)] + [
+                replace(
+                    c,
+                    T_cam0_cam=None if c.T_cam0_cam is None else ref_inv @ c.T_cam0_cam,
+                    change=self._rereferenced_change(c, ref),
+                )
+                for c in cameras[1:]
+            ]
         return replace(self, cameras=cameras)
+
+    def _rereferenced_change(self, cam: Camera, ref: Camera) -> ExtrinsicChange | None:
+        """``cam``'s change of extrinsic relative to ``ref`` (None where neither changes or ``cam`` has no extrinsic)."""
+        if cam.T_cam0_cam is None or (cam.change is None and ref.change is None):
+            return cam.change
+        frames = {ch.frame for ch in (cam.change, ref.change) if ch is not None}
+        if len(frames) > 1:
+            raise InputError(
+                f"{self.path}: cameras {ref.name} and {cam.name} move at different frames ({ref.change.frame}, "
+                f"{cam.change.frame}): {ref.name} cannot be the extrinsics reference"
+            )
+        ref_after = ref.T_cam0_cam if ref.change is None else ref.change.T_cam0_cam
+        cam_after = cam.T_cam0_cam if cam.change is None else cam.change.T_cam0_cam
+        return ExtrinsicChange(frames.pop(), np.linalg.inv(ref_after) @ cam_after)
 
 
 def _count_mismatch(a: Camera, b: Camera) -> str:

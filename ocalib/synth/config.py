@@ -10,12 +10,17 @@ Convention: pixel centres are integer, so ``K = [[fx W, 0, cx W - 0.5], [0, fy H
 Extrinsics: ``position`` (metres) and ``rotation_deg: [rx, ry, rz]`` of the camera in camera 0's
 frame (x right, y down, z forward), ``R = Rz(rz) Ry(ry) Rx(rx)``: ``ry = -90`` looks left, ``90`` right,
 ``180`` backwards; ``rx > 0`` looks down. Camera 0 must have the identity.
+
+A camera other than camera 0 may be knocked out of place mid-sequence: ``change: {frame: F, rotation_deg:
+[rx, ry, rz], position: [x, y, z]}`` is its new mounting (absolute, same convention) from frame F on,
+``1 <= F <= frames - 1``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,6 +30,20 @@ import yaml
 from ocalib.errors import InputError, read_text
 
 TRAJECTORIES = ("drive", "handheld", "lds")  # see ocalib.synth.trajectory; options: speed (m/s), height (m)
+CHANGE_KEYS = ("frame", "rotation_deg", "position")
+
+
+def mounting(rotation_deg, position) -> np.ndarray:
+    """(4, 4) float64 pose of a camera in camera 0's frame: ``R = Rz(rz) Ry(ry) Rx(rx)``, ``t = position``."""
+    rx, ry, rz = np.radians(rotation_deg)
+    cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = Rz @ Ry @ Rx
+    T[:3, 3] = position
+    return T
 
 
 @dataclass
@@ -36,6 +55,7 @@ class CameraConfig:
     cy: float = 0.5
     position: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     rotation_deg: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    change: dict | None = None  # {frame: F, rotation_deg: [3], position: [3]}: the mounting from frame F on
 
     def K(self, height: int, width: int) -> np.ndarray:
         """(3, 3) float64 pixel intrinsics at this size (integer pixel centres)."""
@@ -43,16 +63,17 @@ class CameraConfig:
             [[self.fx * width, 0, self.cx * width - 0.5], [0, self.fy * height, self.cy * height - 0.5], [0, 0, 1]]
         )
 
-    def T_cam0_cam(self) -> np.ndarray:
-        """(4, 4) float64 pose of this camera in camera 0's frame."""
-        rx, ry, rz = np.radians(self.rotation_deg)
-        cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
-        Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-        Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-        Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-        T = np.eye(4)
-        T[:3, :3] = Rz @ Ry @ Rx
-        T[:3, 3] = self.position
+    def T_cam0_cam(self, frame: int = 0) -> np.ndarray:
+        """(4, 4) float64 pose of this camera in camera 0's frame at ``frame`` (the ``change`` from its frame on)."""
+        if self.change is not None and frame >= self.change["frame"]:
+            return mounting(self.change["rotation_deg"], self.change["position"])
+        return mounting(self.rotation_deg, self.position)
+
+    def extrinsics(self, frames: int) -> np.ndarray:
+        """(frames, 4, 4) float64 ``T_cam0_cam`` in force at each frame 0 .. frames - 1."""
+        T = np.repeat(self.T_cam0_cam()[None], frames, axis=0)
+        if self.change is not None:
+            T[self.change["frame"] :] = self.T_cam0_cam(self.change["frame"])
         return T
 
 
@@ -105,6 +126,11 @@ def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
     c0 = cfg.cameras[0]
     if any(c0.position) or any(c0.rotation_deg):
         raise InputError(f"{where}: camera 0 ({c0.name}) defines the rig frame: its position and rotation must be 0")
+    if c0.change is not None:
+        raise InputError(f"{where}: camera 0 ({c0.name}) defines the rig frame: it cannot have a change")
+    for c in cfg.cameras[1:]:
+        if c.change is not None:
+            _check_change(c, cfg.frames, where)
     traj = cfg.trajectory
     if traj.get("kind") not in TRAJECTORIES:
         raise InputError(f"{where}: trajectory.kind must be one of {', '.join(TRAJECTORIES)}")
@@ -118,6 +144,33 @@ def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (lo < value <= hi):
             raise InputError(f"{where}: trajectory.{name} must be a number in ({lo}, {hi}], got {value!r}")
     return cfg
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_change(c: CameraConfig, frames: int, where: str) -> None:
+    """Raise :class:`InputError` unless ``c.change`` is ``{frame: int in [1, frames-1], rotation_deg: [3], position: [3]}``."""
+    where = f"{where}: camera {c.name}: change"
+    change = c.change
+    if not isinstance(change, dict):
+        raise InputError(f"{where}: expected a mapping {{frame, rotation_deg, position}}, got {change!r}")
+    unknown = set(change) - set(CHANGE_KEYS)
+    if unknown:
+        raise InputError(
+            f"{where}: unknown key(s) {', '.join(sorted(map(str, unknown)))} (keys: {', '.join(CHANGE_KEYS)})"
+        )
+    missing = [k for k in CHANGE_KEYS if k not in change]
+    if missing:
+        raise InputError(f"{where}: missing {', '.join(missing)} (needs {', '.join(CHANGE_KEYS)})")
+    frame = change["frame"]
+    if not isinstance(frame, numbers.Integral) or isinstance(frame, bool) or not 1 <= frame <= frames - 1:
+        raise InputError(f"{where}: frame must be an integer in [1, {frames - 1}] (frames: {frames}), got {frame!r}")
+    for key in ("rotation_deg", "position"):
+        value = change[key]
+        if not isinstance(value, (list, tuple)) or len(value) != 3 or not all(map(_is_number, value)):
+            raise InputError(f"{where}: {key} needs 3 finite numbers, got {value!r}")
 
 
 def config_from_dict(data, where: str = "config") -> SynthConfig:
@@ -149,7 +202,15 @@ def config_from_dict(data, where: str = "config") -> SynthConfig:
             raise TypeError("trajectory must be a mapping")
     except (TypeError, ValueError) as err:
         raise InputError(f"{where}: malformed field ({err})") from None
-    return validate(cfg, where)
+    validate(cfg, where)
+    for c in cameras:
+        if c.change is not None:
+            c.change = {
+                "frame": int(c.change["frame"]),
+                "rotation_deg": [float(v) for v in c.change["rotation_deg"]],
+                "position": [float(v) for v in c.change["position"]],
+            }
+    return cfg
 
 
 def load_config(path: str | Path) -> SynthConfig:

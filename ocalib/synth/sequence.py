@@ -1,7 +1,8 @@
 """Render a whole synthetic rig sequence, in memory or to the native layout on disk.
 
-Convention: camera 0's poses come from the trajectory; every camera's world pose is computed as
-``pose_cam0 @ T_cam0_cam`` in float64, so the rig is exactly rigid. Poses are camera-to-world.
+Convention: camera 0's poses come from the trajectory; every camera's world pose at frame t is computed as
+``pose_cam0[t] @ T_cam0_cam(t)`` in float64 (the extrinsic in force at t: the rig is exactly rigid, except
+where a camera's ``change`` moves it). Poses are camera-to-world.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ocalib.data.rig import CameraSpec, RigSpec
+from ocalib.data.rig import CameraSpec, ExtrinsicChange, RigSpec
 from ocalib.errors import InputError
 from ocalib.synth.config import SynthConfig
 from ocalib.synth.photometric import Photometric
@@ -43,19 +44,29 @@ class SynthSequence:
 
 
 def rig_spec(cfg: SynthConfig) -> RigSpec:
-    """The rig.yaml description of a config at its resolution."""
-    cams = [CameraSpec(c.name, cfg.width, cfg.height, c.K(cfg.height, cfg.width), c.T_cam0_cam()) for c in cfg.cameras]
+    """The rig.yaml description of a config at its resolution (``T_cam0_cam`` at frame 0, and any change)."""
+    cams = [
+        CameraSpec(
+            c.name,
+            cfg.width,
+            cfg.height,
+            c.K(cfg.height, cfg.width),
+            c.T_cam0_cam(),
+            None if c.change is None else ExtrinsicChange(c.change["frame"], c.T_cam0_cam(c.change["frame"])),
+        )
+        for c in cfg.cameras
+    ]
     return RigSpec(cams, cfg.frame_rate)
 
 
 def camera_poses(cfg: SynthConfig) -> np.ndarray:
-    """World poses (K, N, 4, 4) float64 of every camera: ``pose_cam0 @ T_cam0_cam``."""
+    """World poses (K, N, 4, 4) float64 of every camera: ``pose_cam0[t] @ T_cam0_cam(t)``."""
     opts = {k: v for k, v in cfg.trajectory.items() if k != "kind"}
     unknown = set(opts) - {"speed", "height"}
     if unknown:
         raise InputError(f"trajectory: unknown option(s) {', '.join(sorted(unknown))} (options: speed, height)")
     cam0 = trajectory(cfg.trajectory["kind"], cfg.frames, cfg.frame_rate, cfg.seed, **opts)
-    return np.stack([cam0 @ c.T_cam0_cam() for c in cfg.cameras])
+    return np.stack([cam0 @ c.extrinsics(cfg.frames) for c in cfg.cameras])
 
 
 def world_for(cfg: SynthConfig, poses: np.ndarray) -> World:
