@@ -81,8 +81,9 @@ def extrinsic_uncertainty(rec: pycolmap.Reconstruction, camera_ids: list[int]) -
     return observations_uncertainty(_observations(rec, camera_ids))
 
 
-def observations_uncertainty(obs: Observations) -> list[ExtrinsicUncertainty]:
-    """The uncertainty of cameras 1..C-1 of the bundle-adjustment problem ``obs``."""
+def observations_uncertainty(obs: Observations, weak_share: float = WEAK_SHARE) -> list[ExtrinsicUncertainty]:
+    """The uncertainty of cameras 1..C-1 of the bundle-adjustment problem ``obs``; ``weak_share``: see
+    :data:`WEAK_SHARE` (0: a translation direction is unobservable only where its information vanishes)."""
     C, F = len(obs.sensor_from_rig), len(obs.rig_from_world)
     Je, Jf, Jp, r = _jacobians(obs)
     N = len(obs.camera)
@@ -118,21 +119,21 @@ def observations_uncertainty(obs: Observations) -> list[ExtrinsicUncertainty]:
     for k in range(1, C):
         block = info[6 * (k - 1) : 6 * k, 6 * (k - 1) : 6 * k] / sigma2
         E = np.linalg.inv(obs.sensor_from_rig[k])
-        out.append(_in_camera0(block, E[:3, :3], float(np.linalg.norm(E[:3, 3]))))
+        out.append(_in_camera0(block, E[:3, :3], weak_share * float(np.linalg.norm(E[:3, 3]))))
     return out
 
 
-def _in_camera0(info: np.ndarray, R: np.ndarray, length: float) -> ExtrinsicUncertainty:
+def _in_camera0(info: np.ndarray, R: np.ndarray, weak: float) -> ExtrinsicUncertainty:
     """Information of sensor_from_rig's left perturbation -> covariance of ``E = inverse`` in camera 0's axes, with
-    the translation directions the data do not pin marked unobservable (the covariance covers the others); ``length``:
-    the lever arm's, in the same units."""
+    the translation directions the data do not pin marked unobservable (the covariance covers the others); ``weak``:
+    the 1-sigma (in the translation's units) above which a direction counts as not pinned (0: none)."""
     A = np.zeros((6, 6))
     A[:3, :3] = A[3:, 3:] = -R  # E' = E exp(-dxi): rotation -R w, translation -R v (first order)
     info = A @ info @ A.T  # A is orthogonal up to sign: the information transforms as the covariance does
     I_rr, I_rt, I_tt = info[:3, :3], info[:3, 3:], info[3:, 3:]
     marginal_t = I_tt - I_rt.T @ np.linalg.solve(I_rr, I_rt)  # the translation's information, the rotation free
     lam, V = np.linalg.eigh((marginal_t + marginal_t.T) / 2)
-    weak = (lam < UNOBSERVABLE * max(lam.max(), 1e-300)) | (lam * (WEAK_SHARE * length) ** 2 < 1)
+    weak = (lam < UNOBSERVABLE * max(lam.max(), 1e-300)) | ((weak > 0) & (lam * weak**2 < 1))
     basis = np.zeros((6, 6))  # rotation axes, then the translation's eigen-directions
     basis[:3, :3], basis[3:, 3:] = np.eye(3), V
     sub = basis[:, np.concatenate([np.ones(3, bool), ~weak])]  # the inverse restricted to the observable directions

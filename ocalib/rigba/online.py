@@ -1,0 +1,246 @@
+"""The on-line rig estimator: the whole extrinsic of every camera, translation included, kept up to date as the
+stream goes, in memory that does not grow with the sequence, and a change of any camera's mounting noticed.
+
+Camera 0's metric trajectory (wheel odometry, GNSS, a stereo or visual-inertial system) is the rig's path, held as
+given (as CamOdoCal holds the odometry); what the images must give is each camera's extrinsic. Every
+``keyframe_step``-th frame, :meth:`OnlineRigEstimator.update`:
+
+1. extracts every camera's features (:mod:`ocalib.rigba.features`) and matches them to the same camera's
+   ``match_previous`` latest keyframes;
+2. checks the rig frame against the images (COLMAP's generalized absolute pose from every camera's 2-D-3-D
+   matches at once, each camera at its current ``sensor_from_rig``), keeping the matches that agree;
+3. continues the tracks the matches extend and triangulates new points;
+4. adjusts the points and every extrinsic over the last ``window`` keyframes (:mod:`ocalib.rigba.window`);
+5. fuses each camera's window estimate into its track and tests it for a change (:mod:`ocalib.rigba.change`).
+
+The estimator starts from the on-line head's rotations and zero lever arms; its translations are in metres.
+
+Convention: poses camera-to-world (4, 4); ``extrinsics`` (C, 4, 4) ``T_cam0_camk`` (``p_cam0 = R p_camk + t``);
+K (C, 3, 3) in ocalib's pixels (integer centres); images grayscale (H, W) uint8.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import pycolmap
+
+from ocalib.rigba.change import UNINFORMED, Change, ExtrinsicTrack, with_unobservable
+from ocalib.rigba.colmap import pinhole_params, to_rigid
+from ocalib.rigba.features import Features, SiftExtractor, match_features
+from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window
+
+MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
+MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
+
+
+@dataclass(frozen=True)
+class OnlineRigOptions:
+    """The on-line rig estimator's settings."""
+
+    keyframe_step: int = 2  # every K-th frame is a keyframe
+    window: int = 30  # keyframes adjusted together
+    match_previous: int = 3  # earlier keyframes each new one is matched to, per camera
+    max_features: int = 1024  # SIFT keypoints an image
+    min_inliers: int = 15  # 2-D-3-D inliers for a keyframe to count as registered
+    min_angle_deg: float = 1.0  # a new point's least triangulation angle
+    false_alarm: float = 1e-4  # a window's chance to look like a change on a steady rig
+    persistence: int = 2  # windows in a row that must disagree before a change is declared
+
+
+@dataclass
+class RigState:
+    """The estimate after one keyframe: the fused ``extrinsics`` (C, 4, 4) in metres, their 1-sigma ``std`` (C, 6)
+    (rotation rad, translation m; camera 0's axes; NaN where not yet known, inf where the data do not inform it), the
+    window's own ``window_extrinsics``, each camera's normalised change statistic ``chi2`` (C,), whether the
+    keyframe ``registered`` (its images agree with the rig's pose), the ``changes`` (camera, change) it completed,
+    and the ``seconds`` it took."""
+
+    frame: int
+    extrinsics: np.ndarray
+    std: np.ndarray
+    window_extrinsics: np.ndarray
+    chi2: np.ndarray
+    registered: bool
+    changes: list[tuple[int, Change]]
+    seconds: float
+
+
+class OnlineRigEstimator:
+    """See the module. K (C, 3, 3) and ``sizes`` (C,) of (height, width) are the cameras'; ``extrinsics`` (C, 4, 4)
+    the start (their rotations are used, the lever arms start at zero)."""
+
+    def __init__(
+        self,
+        K: np.ndarray,
+        sizes: list[tuple[int, int]],
+        extrinsics: np.ndarray,
+        options: OnlineRigOptions = OnlineRigOptions(),
+    ):
+        self.K, self.sizes, self.options = np.asarray(K, np.float64), list(sizes), options
+        self.extrinsics = np.array(extrinsics, dtype=np.float64)
+        self.extrinsics[:, :3, 3] = 0.0
+        self.extrinsics[0] = np.eye(4)
+        C = len(self.K)
+        self.tracks = [ExtrinsicTrack(options.window, options.false_alarm, options.persistence) for _ in range(C)]
+        self.keyframes: deque[Keyframe] = deque()
+        self.points: dict[int, np.ndarray] = {}
+        self._next_point = 0
+        self._extract = SiftExtractor(options.max_features)
+        self._cameras = [
+            pycolmap.Camera(model="PINHOLE", width=w, height=h, params=pinhole_params(k), camera_id=i + 1)
+            for i, (k, (h, w)) in enumerate(zip(self.K, self.sizes))
+        ]
+        self.frames_seen = 0
+        self.keyframes_unregistered = 0
+
+    def update(self, frame: int, images: list[np.ndarray], pose: np.ndarray) -> RigState | None:
+        """Consume frame ``frame``: ``images`` one per camera, ``pose`` (4, 4) camera 0's metric camera-to-world
+        pose. Returns the state after a keyframe, None for the frames between."""
+        self.frames_seen += 1
+        if (self.frames_seen - 1) % self.options.keyframe_step:
+            return None
+        start = time.perf_counter()
+        features = [self._extract(image) for image in images]
+        kf = Keyframe(frame, np.asarray(pose, np.float64).copy(), features, [np.full(len(f), -1) for f in features])
+        registered = False
+        if self.keyframes:
+            registered = self._register(kf)
+            self.keyframes_unregistered += not registered
+            self._triangulate(kf)
+        self.keyframes.append(kf)
+        self._evict()
+        window = None
+        if len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
+            window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes)
+        changes = self._track(frame, window)
+        return self._state(frame, registered, changes, time.perf_counter() - start)
+
+    def _register(self, kf: Keyframe) -> bool:
+        """Whether ``kf``'s cameras' 2-D-3-D matches agree with its pose (COLMAP's generalized absolute pose, at
+        least ``min_inliers`` inliers); the inliers' point ids are set."""
+        xy, xyz, camera, where = [], [], [], []
+        for k, features in enumerate(kf.features):
+            for previous in list(self.keyframes)[-self.options.match_previous :]:
+                matches = match_features(features.descriptors, previous.features[k].descriptors)
+                ids = previous.point_ids[k][matches[:, 1]]
+                for i, pid in zip(matches[:, 0], ids):
+                    if pid >= 0 and pid in self.points:
+                        xy.append(features.keypoints[i])
+                        xyz.append(self.points[pid])
+                        camera.append(k)
+                        where.append((k, i, pid))
+        if len(xy) < self.options.min_inliers:
+            return False
+        result = pycolmap.estimate_and_refine_generalized_absolute_pose(
+            np.asarray(xy) + 0.5,
+            np.asarray(xyz),
+            camera,
+            [to_rigid(np.linalg.inv(E)) for E in self.extrinsics],
+            self._cameras,
+            pycolmap.RANSACOptions(max_error=MAX_ERROR_PX, min_num_trials=100, random_seed=0),
+        )
+        if result is None or int(np.sum(result["inlier_mask"])) < self.options.min_inliers:
+            return False
+        for (k, i, pid), inlier in zip(where, result["inlier_mask"]):
+            if inlier:
+                kf.point_ids[k][i] = pid
+        return True
+
+    def _triangulate(self, kf: Keyframe) -> None:
+        """Extend the tracks the new keyframe's matches continue (where the point reprojects), and triangulate
+        new points from its matches with earlier keyframes."""
+        for k, features in enumerate(kf.features):
+            new_from_world = np.linalg.inv(kf.pose @ self.extrinsics[k])
+            for previous in reversed(list(self.keyframes)[-self.options.match_previous :]):
+                matches = match_features(features.descriptors, previous.features[k].descriptors)
+                matches = matches[kf.point_ids[k][matches[:, 0]] < 0]
+                old_from_world = np.linalg.inv(previous.pose @ self.extrinsics[k])
+                for i, j in matches:
+                    pid = previous.point_ids[k][j]
+                    if pid >= 0:
+                        if pid in self.points and self._error(new_from_world, k, self.points[pid], features, i):
+                            kf.point_ids[k][i] = pid
+                        continue
+                    X = self._point(old_from_world, new_from_world, k, previous.features[k], j, features, i)
+                    if X is not None:
+                        pid = self._next_point
+                        self._next_point += 1
+                        self.points[pid] = X
+                        kf.point_ids[k][i] = previous.point_ids[k][j] = pid
+
+    def _point(self, old_from_world, new_from_world, k, old: Features, j: int, new: Features, i: int):
+        """The 3-D point of keypoints ``j`` of ``old`` and ``i`` of ``new`` (camera k), or None where it is behind
+        a camera, seen under less than ``min_angle_deg``, or reprojects over ``MAX_ERROR_PX``."""
+        K_inv = np.linalg.inv(self.K[k])
+        rays = [K_inv @ np.array([*old.keypoints[j], 1.0]), K_inv @ np.array([*new.keypoints[i], 1.0])]
+        X = pycolmap.triangulate_point(old_from_world[:3], new_from_world[:3], rays[0][:2], rays[1][:2])
+        if X is None:
+            return None
+        X = np.asarray(X, dtype=np.float64).ravel()
+        centres = [np.linalg.inv(T)[:3, 3] for T in (old_from_world, new_from_world)]
+        a, b = X - centres[0], X - centres[1]
+        cosine = a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300)
+        if cosine > np.cos(np.radians(self.options.min_angle_deg)):
+            return None
+        if not (self._error(old_from_world, k, X, old, j) and self._error(new_from_world, k, X, new, i)):
+            return None
+        return X
+
+    def _error(self, cam_from_world: np.ndarray, k: int, X: np.ndarray, features: Features, i: int) -> bool:
+        """Whether ``X`` lies in front of camera k at ``cam_from_world`` and reprojects within ``MAX_ERROR_PX``."""
+        p = cam_from_world[:3, :3] @ X + cam_from_world[:3, 3]
+        if p[2] <= 1e-9:
+            return False
+        uv = self.K[k] @ p
+        return bool(np.linalg.norm(uv[:2] / uv[2] - features.keypoints[i]) < MAX_ERROR_PX)
+
+    def _evict(self) -> None:
+        """Keep the last ``window`` keyframes and the points they observe."""
+        while len(self.keyframes) > self.options.window:
+            self.keyframes.popleft()
+        seen = set()
+        for kf in self.keyframes:
+            for ids in kf.point_ids:
+                seen.update(ids[ids >= 0].tolist())
+        for pid in set(self.points) - seen:
+            del self.points[pid]
+
+    def _track(self, frame: int, window) -> list[tuple[int, Change]]:
+        """Fuse each camera's window estimate into its track -> the changes found."""
+        changes = []
+        if window is None:
+            return changes
+        for k, u in enumerate(window.uncertainty, start=1):
+            if u is None:
+                continue
+            change = self.tracks[k].update(frame, self.extrinsics[k], with_unobservable(u.covariance, u.unobservable))
+            if change is not None:
+                changes.append((k, change))
+                self._forget_before(k, change.frame)
+        return changes
+
+    def _forget_before(self, k: int, frame: int) -> None:
+        """Drop camera k's observations before ``frame``: they saw the camera where it no longer is."""
+        for kf in self.keyframes:
+            if kf.frame < frame:
+                kf.point_ids[k][:] = -1
+
+    def _state(self, frame: int, registered: bool, changes, seconds: float) -> RigState:
+        C = len(self.K)
+        extrinsics = np.tile(np.eye(4), (C, 1, 1))
+        std = np.full((C, 6), np.nan)
+        std[0] = 0.0
+        for k in range(1, C):
+            track = self.tracks[k]
+            if track.extrinsic is not None:
+                extrinsics[k] = track.extrinsic
+                variance = np.clip(np.diag(track.covariance), 0, None)
+                std[k] = np.where(variance < UNINFORMED / 10, np.sqrt(variance), np.inf)
+            else:
+                extrinsics[k] = self.extrinsics[k]
+        chi2 = np.array([t.chi2 for t in self.tracks])
+        return RigState(frame, extrinsics, std, self.extrinsics.copy(), chi2, registered, changes, seconds)

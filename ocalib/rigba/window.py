@@ -1,0 +1,203 @@
+"""The sliding window of the on-line rig estimator: its keyframes, their 3-D points, and one bundle adjustment of
+them on COLMAP, with every camera's ``sensor_from_rig`` free.
+
+A :class:`Keyframe` holds the rig's pose at one frame and each camera's features, with the 3-D point each keypoint
+observes (-1: none). :func:`adjust_window` builds a COLMAP reconstruction of the window (one rig, camera 0 its
+reference; intrinsics and the rig's metric poses held), solves for the points and the extrinsics with a robust
+loss, drops the observations that stay far off, and returns the extrinsics' uncertainty
+(:mod:`ocalib.rigba.covariance`).
+
+Convention: poses are the rig's (camera 0's) camera-to-world (4, 4); ``extrinsics`` (C, 4, 4) are ``T_cam0_camk``
+(``p_cam0 = R p_camk + t``), the identity for camera 0; keypoints and K in ocalib's pixels (integer centres),
+COLMAP's +0.5 added here, once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pycolmap
+
+from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
+from ocalib.rigba.covariance import ExtrinsicUncertainty, Observations, observations_uncertainty
+from ocalib.rigba.features import Features
+
+LOSS_SCALE_PX = 1.0  # the Cauchy loss's scale: residuals well above a pixel count less and less
+MAX_ERROR_PX = 4.0  # an observation reprojected farther than this after the adjustment is dropped
+MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts from the last window's solution)
+
+
+@dataclass
+class Keyframe:
+    """One frame of the window: ``frame`` index, the rig's ``pose`` (4, 4), per camera its ``features`` and
+    ``point_ids`` (N_k,) int64 (the 3-D point each keypoint observes, -1 for none)."""
+
+    frame: int
+    pose: np.ndarray
+    features: list[Features]
+    point_ids: list[np.ndarray]
+
+
+@dataclass
+class WindowResult:
+    """The adjustment's outcome: ``uncertainty`` per camera k >= 1 (None where it could not be computed),
+    ``reprojection_px`` the RMS error of the observations kept, ``observations`` their count, ``dropped`` the
+    count dropped as outliers."""
+
+    uncertainty: list[ExtrinsicUncertainty | None]
+    reprojection_px: float
+    observations: int
+    dropped: int
+
+
+def observations(keyframes: list[Keyframe], points: dict[int, np.ndarray]) -> dict[str, np.ndarray]:
+    """The window's observations of points seen at least twice, as arrays: ``camera``, ``frame`` (keyframe
+    index), ``keypoint``, ``point`` (index into ``ids``), ``xy`` (N, 2) pixels; ``ids`` (P,) the point ids."""
+    camera, frame, keypoint, pid = [], [], [], []
+    for i, kf in enumerate(keyframes):
+        for k, ids in enumerate(kf.point_ids):
+            seen = np.flatnonzero(ids >= 0)
+            camera.append(np.full(len(seen), k))
+            frame.append(np.full(len(seen), i))
+            keypoint.append(seen)
+            pid.append(ids[seen])
+    camera, frame, keypoint, pid = (np.concatenate(a).astype(np.int64) for a in (camera, frame, keypoint, pid))
+    ids, point, counts = np.unique(pid, return_inverse=True, return_counts=True)
+    keep = (counts[point] >= 2) & np.isin(pid, list(points))
+    xy = np.concatenate([kf.features[k].keypoints for kf in keyframes for k in range(len(kf.features))])
+    offsets = np.cumsum([0] + [len(f) for kf in keyframes for f in kf.features])[:-1].reshape(len(keyframes), -1)
+    xy = xy[offsets[frame, camera] + keypoint]
+    camera, frame, keypoint, pid, xy = camera[keep], frame[keep], keypoint[keep], pid[keep], xy[keep]
+    ids, point = np.unique(pid, return_inverse=True)
+    return {"camera": camera, "frame": frame, "keypoint": keypoint, "point": point, "xy": xy, "ids": ids}
+
+
+def reprojection_errors(
+    obs: dict[str, np.ndarray], poses: np.ndarray, extrinsics: np.ndarray, xyz: np.ndarray, K: np.ndarray
+) -> np.ndarray:
+    """(N,) pixel error of each observation of ``obs`` (see :func:`observations`); inf behind the camera.
+    poses (F, 4, 4), extrinsics (C, 4, 4), xyz (P, 3), K (C, 3, 3)."""
+    cam_from_world = np.linalg.inv(poses[obs["frame"]] @ extrinsics[obs["camera"]])
+    p = np.einsum("nij,nj->ni", cam_from_world[:, :3, :3], xyz[obs["point"]]) + cam_from_world[:, :3, 3]
+    uv = np.einsum("nij,nj->ni", K[obs["camera"]], p)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        error = np.linalg.norm(uv[:, :2] / uv[:, 2:] - obs["xy"], axis=1)
+    return np.where(p[:, 2] > 1e-9, error, np.inf)
+
+
+def adjust_window(
+    keyframes: list[Keyframe],
+    points: dict[int, np.ndarray],
+    extrinsics: np.ndarray,
+    K: np.ndarray,
+    sizes: list[tuple[int, int]],
+) -> WindowResult:
+    """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity),
+    the keyframes' poses held. K (C, 3, 3) and ``sizes`` (C,) of (height, width) per camera. Outlying observations
+    are dropped from the keyframes afterwards (their ``point_ids`` set to -1)."""
+    obs = observations(keyframes, points)
+    C = len(extrinsics)
+    rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs)
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.images:
+        config.add_image(image_id)
+    for k in range(C):
+        config.set_constant_cam_intrinsics(k + 1)
+    for i in range(len(keyframes)):
+        config.set_constant_rig_from_world_pose(i + 1)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
+    options.refine_sensor_from_rig = True
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = LOSS_SCALE_PX
+    options.ceres.solver_options.num_threads = 1
+    options.ceres.solver_options.max_num_iterations = MAX_ITERATIONS
+    pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    rig = rec.rig(1)
+    for k in range(1, C):
+        extrinsics[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
+    xyz = np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)]) if len(obs["ids"]) else None
+    if xyz is None:
+        return WindowResult([None] * (C - 1), float("nan"), 0, 0)
+    for pid, x in zip(obs["ids"], xyz):
+        points[int(pid)] = x
+    poses = np.stack([kf.pose for kf in keyframes])
+    error = reprojection_errors(obs, poses, extrinsics, xyz, K)
+    outlier = ~(error < MAX_ERROR_PX)
+    for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
+        keyframes[i].point_ids[k][j] = -1
+    inlier = ~outlier
+    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K)
+    rms = float(np.sqrt(np.mean(error[inlier] ** 2))) if inlier.any() else float("nan")
+    return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()))
+
+
+def _reconstruction(keyframes, points, extrinsics, K, sizes, obs) -> pycolmap.Reconstruction:
+    """The window as a COLMAP reconstruction: camera k has id k + 1, keyframe i frame id i + 1 and image ids
+    ``i C + k + 1``, point p (of ``obs["ids"]``) id p + 1."""
+    C = len(extrinsics)
+    rec = pycolmap.Reconstruction()
+    rig = pycolmap.Rig(rig_id=1)
+    for k in range(C):
+        height, width = sizes[k]
+        rec.add_camera(
+            pycolmap.Camera(model="PINHOLE", width=width, height=height, params=pinhole_params(K[k]), camera_id=k + 1)
+        )
+        if k == 0:
+            rig.add_ref_sensor(_sensor(0))
+        else:
+            rig.add_sensor(_sensor(k), to_rigid(np.linalg.inv(extrinsics[k])))
+    rec.add_rig(rig)
+    for i, kf in enumerate(keyframes):
+        frame = pycolmap.Frame(frame_id=i + 1, rig_id=1)
+        frame.rig_from_world = to_rigid(np.linalg.inv(kf.pose))
+        for k in range(C):
+            frame.add_data_id(pycolmap.data_t(_sensor(k), i * C + k + 1))
+        rec.add_frame(frame)
+        for k in range(C):
+            image = pycolmap.Image(
+                name=f"c{k}/{kf.frame:06d}",
+                keypoints=kf.features[k].keypoints + 0.5,
+                camera_id=k + 1,
+                image_id=i * C + k + 1,
+            )
+            image.frame_id = i + 1
+            rec.add_image(image)
+    order = np.argsort(obs["point"], kind="stable")
+    starts = np.searchsorted(obs["point"][order], np.arange(len(obs["ids"]) + 1))
+    image_ids = obs["frame"] * C + obs["camera"] + 1
+    for p, pid in enumerate(obs["ids"]):
+        members = order[starts[p] : starts[p + 1]]
+        track = pycolmap.Track([pycolmap.TrackElement(int(image_ids[m]), int(obs["keypoint"][m])) for m in members])
+        rec.add_point3D(points[int(pid)], track)
+    return rec
+
+
+def _uncertainty(obs, inlier, poses, extrinsics, xyz, K) -> list[ExtrinsicUncertainty | None]:
+    """The extrinsics' uncertainty from the inlying observations (see :mod:`ocalib.rigba.covariance`)."""
+    C = len(extrinsics)
+    used, point = np.unique(obs["point"][inlier], return_inverse=True)
+    frames, frame = np.unique(obs["frame"][inlier], return_inverse=True)
+    if len(frames) < 3 or len(used) < 10:
+        return [None] * (C - 1)
+    problem = Observations(
+        camera=obs["camera"][inlier],
+        frame=frame,
+        point=point,
+        xy=obs["xy"][inlier] + 0.5,
+        rig_from_world=np.linalg.inv(poses[frames]),
+        xyz=xyz[used],
+        sensor_from_rig=np.linalg.inv(extrinsics),
+        pinhole=np.array([pinhole_params(k) for k in K]),
+    )
+    try:
+        return observations_uncertainty(problem, weak_share=0.0)
+    except np.linalg.LinAlgError:
+        return [None] * (C - 1)
+
+
+def _sensor(k: int) -> pycolmap.sensor_t:
+    """Camera k's sensor (COLMAP camera id k + 1)."""
+    return pycolmap.sensor_t(pycolmap.SensorType.CAMERA, k + 1)
