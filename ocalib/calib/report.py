@@ -33,6 +33,8 @@ if TYPE_CHECKING:
 # network 26-49 % (81-98 % before alignment); the translations of the last two are 0.4-25 baselines off.
 TRANSLATION_RESIDUAL_WARNING = 0.15
 UNPAIRED_WARNING = 0.1  # camera-0 stamps left without a camera-k pose inside its span, as a share of the frames kept
+# Whose estimate an extrinsic of the result JSON is, by its "source" (none: the on-line head's)
+SOURCES = {"bundle_adjustment": "the rig bundle adjustment", "rig_estimator": "the on-line rig estimator"}
 # The per-camera keys of the result JSON, in their documented order (README).
 CAMERA_KEYS = (
     "camera", "rotation", "quaternion_wxyz", "translation", "scale", "time_offset", "frames_used",
@@ -90,6 +92,8 @@ class CalibrationRun:
             "rotation_std_deg": ["rotation_std_x_deg", "rotation_std_y_deg", "rotation_std_z_deg"],
             "translation_std": ["translation_std_x", "translation_std_y", "translation_std_z"],
             "bundle_quaternion": ["ba_qw", "ba_qx", "ba_qy", "ba_qz"], "bundle_translation": ["ba_tx", "ba_ty", "ba_tz"],
+            "rig_quaternion": ["rig_qw", "rig_qx", "rig_qy", "rig_qz"], "rig_translation": ["rig_tx", "rig_ty", "rig_tz"],
+            "rig_translation_std": ["rig_tx_std", "rig_ty_std", "rig_tz_std"],
         }  # fmt: skip
         header, columns = (
             ["frame", "time", "camera"],
@@ -266,8 +270,9 @@ def summary(doc: dict) -> str:
              bool(obs["unobservable_translation_directions"])),
         ) if on]  # fmt: skip
         offset = "" if e["time_offset"] is None else f", time offset {e['time_offset']:+.6f} s"
+        source = SOURCES.get(e.get("source"), "the on-line head")
         lines += [
-            f"{e['camera']}: {e['frames_used']} frames used, {e['frames_rejected']} rejected{offset}",
+            f"{e['camera']}: {e['frames_used']} frames used, {e['frames_rejected']} rejected{offset}; from {source}",
             "  rotation roll/pitch/yaw (deg, R = Rz Ry Rx): "
             + ", ".join(f"{v:+.3f}" for v in rpy_deg(q))
             + f"; axis-angle {angle:.3f} deg about [{', '.join(f'{v:+.4f}' for v in axis)}]"

@@ -37,6 +37,7 @@ from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
     from ocalib.rigba.adjust import RigAdjustment
+    from ocalib.rigba.stream import RigStream
 
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
@@ -44,38 +45,60 @@ TRACE_EVERY = 50  # frames gathered before their estimates are copied to the tra
 
 @dataclass
 class ImageCalibration:
-    """:func:`calibrate_images`'s outcome: the run (JSON, trace, warnings), the ground-truth errors, and where the
-    rig bundle adjustment ran (:func:`ocalib.rigba.stage.refine_calibration`) its result and errors."""
+    """:func:`calibrate_images`'s outcome: the run (JSON, trace, warnings), the ground-truth errors, where the
+    on-line rig estimator ran (:class:`ocalib.rigba.stream.RigStream`) its states and errors, and where the rig
+    bundle adjustment ran (:func:`ocalib.rigba.stage.refine_calibration`) its result and errors."""
 
     run: CalibrationRun
     errors: list[dict] | None  # per camera k >= 1, see :func:`ocalib.calibnet.truth.extrinsic_errors`
-    truth: np.ndarray | None = None  # (K, 4, 4) the true T_cam0_camk of cameras k >= 1, where the sequence has them
+    truth: np.ndarray | None = None  # (K, 4, 4) the true T_cam0_camk of cameras k >= 1 at frame 0, where known
     sequence: Sequence | None = None  # the sequence calibrated (its first settings["frames"] frames)
     bundle: RigAdjustment | None = None  # the rig bundle adjustment's result
     bundle_errors: list[dict] | None = (
         None  # its ground-truth errors, see :func:`ocalib.rigba.adjust.adjustment_errors`
     )
+    rig: RigStream | None = None  # the on-line rig estimator
+    rig_errors: list[dict] | None = None  # its final estimate's errors against the truth at the last frame
 
     def result_json(self) -> dict:
-        """The JSON of ``calibrate-poses``; with a bundle adjustment, ``extrinsics`` hold its result (the head's where
-        it is not trusted) and ``online_extrinsics`` the head's, ``bundle_adjustment`` its figures; ``units`` says what
-        the translations are in."""
+        """The JSON of ``calibrate-poses``. ``extrinsics`` hold the best final result per camera, its ``source``
+        saying whose: the bundle adjustment's where it is trusted and the camera did not move mid-run, else the
+        on-line rig estimator's, else the head's; ``online_extrinsics`` the head's, ``rig_estimator`` the on-line
+        estimator's final state and cost, ``changes`` the changes it found, ``bundle_adjustment`` the adjustment's
+        figures; ``units`` says what the translations are in."""
         doc = self.run.result_json()
         doc["units"] = "camera 0's front-end units"
+        online = doc["extrinsics"]
+        errors = self.errors
+        if self.bundle is not None or self.rig is not None:
+            doc["online_extrinsics"] = online
+            if self.errors is not None:
+                doc["online_ground_truth_errors"] = finite_or_null(self.errors)
+        if self.rig is not None:
+            doc["rig_estimator"] = finite_or_null(self.rig.result_json())
+            doc["changes"] = self.rig.changes_json()
+            doc["warnings"] = doc["warnings"] + self.rig.warnings
+            if self.rig_errors is not None:
+                doc["rig_estimator_ground_truth_errors"] = finite_or_null(self.rig_errors)
         if self.bundle is not None:
             from ocalib.rigba.adjust import camera_json
 
-            online = doc["extrinsics"]
             doc["extrinsics"] = [camera_json(self.bundle, k + 1, e) for k, e in enumerate(online)]
-            doc["online_extrinsics"] = online
             doc["units"] = self.bundle.units
             doc["bundle_adjustment"] = finite_or_null(self.bundle.stats)
             doc["warnings"] = doc["warnings"] + self.bundle.warnings
-        if self.errors is not None:
-            key = "online_ground_truth_errors" if self.bundle_errors is not None else "ground_truth_errors"
-            doc[key] = finite_or_null(self.errors)
-        if self.bundle_errors is not None:
-            doc["ground_truth_errors"] = finite_or_null(self.bundle_errors)
+            errors = self.bundle_errors
+        rig = doc.get("rig_estimator", {}).get("extrinsics", [])
+        moved = {c["camera"] for c in doc.get("changes", [])}
+        for k, estimate in enumerate(rig):
+            if doc["extrinsics"][k].get("source") != "bundle_adjustment" or estimate["camera"] in moved:
+                keys = ("rotation", "quaternion_wxyz", "translation", "rotation_std_deg", "translation_std", "source")
+                doc["extrinsics"][k] = online[k] | {key: estimate[key] for key in keys}
+                doc["units"] = "metres"
+                if errors is not None and self.rig_errors is not None:
+                    errors = [*errors[:k], self.rig_errors[k], *errors[k + 1 :]]
+        if errors is not None:
+            doc["ground_truth_errors"] = finite_or_null(errors)
         return doc
 
 

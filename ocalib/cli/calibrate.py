@@ -77,28 +77,43 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "translation is then in metres",
     )
     ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
+    ba.add_argument(
+        "--online-rig",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="with --metric-trajectory: run the on-line rig estimator as the stream goes (the whole extrinsic in "
+        "metres every keyframe, and a camera that moves mid-run noticed); default on",
+    )
     return p
 
 
 def run(args) -> int:
-    from ocalib.calib.report import errors_table, print_warnings, summary
+    from ocalib.calib.report import print_warnings, summary
     from ocalib.calibnet.run import calibrate_images
 
     frontend, head = frontend_options(args), head_options(args)
-    metric = _metric_trajectory(args)
+    metric, rig = _metric_trajectory(args)
     writer = None
     if args.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
 
         writer = SummaryWriter(args.tensorboard)
+
+    def on_frame(t, estimate):
+        state = rig(t, estimate) if rig is not None else None
+        if writer is not None:
+            log_frame(writer, t, estimate, state)
+
     try:
         result = calibrate_images(
             args.sequence, args.cameras, frontend, head, args.device, args.max_frames, args.intrinsics, progress=None,
-            on_frame=(lambda t, e: log_frame(writer, t, e)) if writer else None,
+            on_frame=on_frame if rig is not None or writer is not None else None,
         )  # fmt: skip
     finally:
         if writer:
             writer.close()
+    if rig is not None:
+        rig.attach(result)
     if args.bundle_adjust:
         from ocalib.rigba.options import FeatureOptions, MapperOptions
         from ocalib.rigba.stage import refine_calibration
@@ -126,36 +141,55 @@ def run(args) -> int:
         for c, name in enumerate(result.run.rig.files):
             write_kitti(Path(args.trajectories) / f"{name}.txt", result.run.rig.poses[:, c])
     print(summary(doc))
-    if result.errors and result.bundle_errors:
-        print(errors_table(result.errors, result.run.rig.files, "on-line head"))
-        print(errors_table(result.bundle_errors, result.run.rig.files, "after the rig bundle adjustment"))
-    elif result.errors:
-        print(errors_table(result.errors, result.run.rig.files))
+    print_errors(result)
     print_warnings(doc)
     return 0
 
 
 def _metric_trajectory(args):
     """The --metric-trajectory at the frames to calibrate, read before the on-line pass so that bad input costs no
-    work; None without it."""
+    work, and the on-line rig estimator that runs on it (None, None without it)."""
     if args.bundle_adjust_every is not None and args.bundle_adjust_every < 1:
         raise InputError(f"--bundle-adjust-every must be at least 1 frame, got {args.bundle_adjust_every}")
     if args.keyframe_step < 1:
         raise InputError(f"--keyframe-step must be at least 1, got {args.keyframe_step}")
     if not args.metric_trajectory:
-        return None
-    if not args.bundle_adjust:
-        raise InputError("--metric-trajectory scales the bundle adjustment's translation: drop --no-bundle-adjust")
+        return None, None
+    if not args.bundle_adjust and not args.online_rig:
+        raise InputError(
+            "--metric-trajectory is for the on-line rig estimator and the bundle adjustment: drop --no-online-rig "
+            "or --no-bundle-adjust"
+        )
     from ocalib.data.layout import open_sequence
+    from ocalib.rigba.online import OnlineRigOptions
     from ocalib.rigba.stage import read_metric_trajectory
+    from ocalib.rigba.stream import RigStream
 
     sequence = open_sequence(args.sequence, args.cameras, args.intrinsics)
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
-    return read_metric_trajectory(args.metric_trajectory, sequence, frames)
+    metric = read_metric_trajectory(args.metric_trajectory, sequence, frames)
+    rig = RigStream(sequence, metric, OnlineRigOptions(keyframe_step=args.keyframe_step)) if args.online_rig else None
+    return metric, rig
 
 
-def log_frame(writer, t: int, estimate) -> None:
-    """TensorBoard scalars of one frame's estimate, camera k of rig 0."""
+def print_errors(result) -> None:
+    """The ground-truth errors of each stage that ran, where the sequence has a truth."""
+    from ocalib.calib.report import errors_table
+
+    names = result.run.rig.files
+    stages = [
+        (result.errors, "on-line head"),
+        (result.rig_errors, "on-line rig estimator (final state)"),
+        (result.bundle_errors, "after the rig bundle adjustment"),
+    ]
+    ran = [(errors, what) for errors, what in stages if errors]
+    for errors, what in ran:
+        print(errors_table(errors, names, what if len(ran) > 1 else None))
+
+
+def log_frame(writer, t: int, estimate, state=None) -> None:
+    """TensorBoard scalars of one frame's estimate, camera k of rig 0, and of the on-line rig estimator's
+    ``state`` where a keyframe gave one."""
     for k in range(estimate.scale.shape[1]):
         q = estimate.quaternion[0, k].tolist()
         tag = f"camera{k + 1}"
@@ -165,3 +199,9 @@ def log_frame(writer, t: int, estimate) -> None:
         writer.add_scalar(f"{tag}/scale", float(estimate.scale[0, k]), t)
         for i, v in enumerate(estimate.rotation_singular_values[0, k].tolist()):
             writer.add_scalar(f"{tag}/rotation_sv{i}", v, t)
+        if state is not None:
+            for axis, v, sd in zip("xyz", state.extrinsics[k + 1, :3, 3], state.std[k + 1, 3:]):
+                writer.add_scalar(f"{tag}/rig_translation_{axis}_m", float(v), t)
+                if math.isfinite(sd):
+                    writer.add_scalar(f"{tag}/rig_translation_{axis}_std_m", float(sd), t)
+            writer.add_scalar(f"{tag}/rig_change_chi2", float(state.chi2[k + 1]), t)

@@ -28,6 +28,12 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     add_frontend_arguments(p, network_options=False)
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument(
+        "--change",
+        action="store_true",
+        help="knock camera 1 mid-run (2 deg about its y axis at half the frames; 5 cm sideways too on the cars): "
+        "the on-line rig estimator must notice it and follow the new mounting",
+    )
+    p.add_argument(
         "--bundle-adjust",
         action=argparse.BooleanOptionalAction,
         default=True,
@@ -40,40 +46,54 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 def run(args) -> int:
     from pathlib import Path
 
-    from ocalib.calib.report import errors_table, print_warnings, summary
+    from ocalib.calib.report import print_warnings, summary
     from ocalib.calibnet.run import calibrate_images
+    from ocalib.cli.calibrate import print_errors
+    from ocalib.data.layout import open_sequence
+    from ocalib.rigba.stream import RigStream
     from ocalib.synth import preset, render_sequence
     from ocalib.viz.calibration import plot_trace
 
     out, frontend = Path(args.out), frontend_options(args)
-    size = (None, None)  # the preset's 128x416: the bundle adjustment needs the detail (at 64x208, 124 keypoints an
-    if args.frontend == "network" and not args.bundle_adjust:  # image and a drifting reconstruction, measured)
-        from ocalib.models import load_model
-
-        model = load_model(args.checkpoint)  # without it, rendering at the network's size saves time
-        size = (model.height, model.width)
-    cfg = preset(args.preset).with_overrides(frames=args.frames, seed=args.seed, height=size[0], width=size[1])
+    cfg = preset(args.preset).with_overrides(frames=args.frames, seed=args.seed)
+    if args.change:
+        cfg = _knocked(cfg)
     sequence = out / "sequence"
     render_sequence(cfg, sequence, overwrite=True, workers=2)
-    result = calibrate_images(sequence, frontend=frontend, device=args.device)
+    metric = open_sequence(sequence).cameras[0].poses  # the rendered poses stand for wheel odometry
+    rig = RigStream(open_sequence(sequence), metric)
+    result = calibrate_images(sequence, frontend=frontend, device=args.device, on_frame=rig)
+    rig.attach(result)
     if args.bundle_adjust:
         from ocalib.rigba.stage import refine_calibration
 
-        refine_calibration(result, result.sequence.cameras[0].poses)  # the rendered poses stand for odometry
+        refine_calibration(result, metric)
     doc = result.result_json()
     (out / "result.json").write_text(json.dumps(doc, indent=2))
     result.run.write_trace(out / "trace.csv")
     plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png", truth=result.truth, units=doc["units"])
     print(summary(doc))
     print(truth_table(sequence, doc))
-    if result.bundle_errors is not None:
-        print(errors_table(result.errors, result.run.rig.files, "on-line head"))
-        print(errors_table(result.bundle_errors, result.run.rig.files, "after the rig bundle adjustment"))
-    else:
-        print(errors_table(result.errors, result.run.rig.files))
+    print_errors(result)
     print_warnings(doc)
     print(f"wrote {out / 'result.json'}, {out / 'trace.csv'} and {out / 'trace.png'}")
     return 0
+
+
+def _knocked(cfg):
+    """``cfg`` with camera 1 turned by 2 deg about its y axis from half the frames on (and moved 5 cm sideways on
+    the cars, whose lever arms are metres)."""
+    import dataclasses
+
+    camera = cfg.cameras[1]
+    shift = [0.05, 0.0, 0.0] if cfg.trajectory["kind"] == "drive" else [0.0, 0.0, 0.0]
+    change = {
+        "frame": cfg.frames // 2,
+        "rotation_deg": [camera.rotation_deg[0], camera.rotation_deg[1] + 2.0, camera.rotation_deg[2]],
+        "position": [p + d for p, d in zip(camera.position, shift)],
+    }
+    cameras = [*cfg.cameras[:1], dataclasses.replace(camera, change=change), *cfg.cameras[2:]]
+    return cfg.with_overrides(cameras=cameras)
 
 
 def truth_table(sequence, doc: dict) -> str:
@@ -89,7 +109,7 @@ def truth_table(sequence, doc: dict) -> str:
     ref = np.linalg.inv(cams[0].T_cam0_cam)
     lines = ["estimate vs truth (camera k in camera 0's frame):"]
     for cam, e in zip(cams[1:], doc["extrinsics"]):
-        T = ref @ cam.T_cam0_cam
+        T = ref @ (cam.T_cam0_cam if cam.change is None else cam.change.T_cam0_cam)  # at the last frame
         q_true = rotation_matrix_to_quaternion(torch.from_numpy(T[:3, :3])).numpy()
         t, t_true = np.array(e["translation"]), T[:3, 3]
         lines += [

@@ -1,13 +1,14 @@
-"""Change detection of one camera's extrinsic from a stream of window estimates with their covariances.
+"""One camera's extrinsic as the on-line rig estimator keeps it: the window estimates fused, and a change of the
+mounting told from noise.
 
-Each window of the on-line rig estimator gives an estimate ``E_w`` of ``T_cam0_camk`` with a covariance ``P_w``.
-:class:`ExtrinsicTrack` fuses them (information-weighted, each window's information divided by ``overlap``, the
-number of windows a keyframe appears in, since overlapping windows share their data) and tests each new one
-against the fused estimate: the innovation ``d`` (rotation vector and translation difference, camera 0's axes)
-gives ``chi2 = d^T (P_w + P) ^-1 d`` on the observable directions. Bundle-adjustment covariances are lower bounds,
-so ``chi2`` is divided by its own running median over the accepted windows (relative to the chi-square median of
-its degrees of freedom, and never below 1) before it is compared with the chi-square quantile at
-``false_alarm``. ``persistence`` windows in a row over it are a change: the track restarts from the newest window.
+:meth:`ExtrinsicTrack.fuse` adds a window estimate ``E_w`` with its covariance ``P_w``: information-weighted, each
+window's information divided by ``overlap`` (the number of windows a keyframe appears in: overlapping windows
+share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement of the extrinsic (camera
+k's pose resected from its 2-D-3-D matches, composed with the rig's pose) against the fused estimate: the
+innovation ``d`` (rotation vector and translation difference, camera 0's axes), less the mean of the recent
+accepted ones, gives ``chi2 = d^T S^-1 d`` with ``S`` their covariance (the spread the measurements show on a steady
+rig, which the covariances of a bundle adjustment understate). Over the chi-square quantile at ``false_alarm`` on
+``persistence`` keyframes in a row is a change: the track restarts from their mean.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_fused`` with ``d`` =
 (rotation rad, translation) in camera 0's axes.
@@ -22,14 +23,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_distribution
 
-HISTORY = 50  # normalised chi-square values the running median is taken over
+HISTORY = 30  # accepted innovations whose spread the test uses
+MIN_HISTORY = 10  # innovations needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 
 
 @dataclass
 class Change:
-    """A detected change: the first ``frame`` whose window disagreed, the ``detected`` frame, and the step from
-    the old fused extrinsic to the new (rotation deg, translation in the estimate's units)."""
+    """A detected change: the first ``frame`` that disagreed, the ``detected`` frame, and the step from the old
+    fused extrinsic to the mean of the disagreeing measurements (rotation deg, translation in metres)."""
 
     frame: int
     detected: int
@@ -40,11 +42,11 @@ class Change:
 @dataclass
 class ExtrinsicTrack:
     """The fused extrinsic of one camera: ``extrinsic`` (4, 4) and ``covariance`` (6, 6) (None before the first
-    window), the last window's ``chi2`` (normalised), the ``changes`` detected."""
+    window), the last keyframe's normalised change statistic ``chi2``, the ``changes`` detected."""
 
     overlap: float = 1.0
     false_alarm: float = 1e-4
-    persistence: int = 2
+    persistence: int = 3
     extrinsic: np.ndarray | None = None
     covariance: np.ndarray | None = None
     chi2: float = float("nan")
@@ -52,46 +54,44 @@ class ExtrinsicTrack:
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     _pending: list = field(default_factory=list)
 
-    def update(self, frame: int, extrinsic: np.ndarray, covariance: np.ndarray) -> Change | None:
-        """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) ending at ``frame``; returns
-        the change it completes, if any."""
+    def fuse(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
+        """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6)."""
+        info_new = _information(covariance * self.overlap)
         if self.extrinsic is None:
-            self._restart(extrinsic, covariance)
+            self.extrinsic, self.covariance = extrinsic.copy(), covariance * self.overlap
+            return
+        info = _information(self.covariance) + info_new
+        cov = np.linalg.pinv(info, hermitian=True)
+        self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
+        self.covariance = cov
+
+    def observe(self, frame: int, extrinsic: np.ndarray) -> Change | None:
+        """Test one keyframe's measurement ``extrinsic`` (4, 4) -> the change it completes, if any."""
+        if self.extrinsic is None:
             return None
         d = innovation(self.extrinsic, extrinsic)
-        value, dof = chi_square(d, covariance + self.covariance)
-        normalised = value / max(1.0, self._scale()) if dof else 0.0
-        self.chi2 = normalised
-        if dof and normalised > chi2_distribution.ppf(1 - self.false_alarm, dof):
-            self._pending.append((frame, extrinsic, covariance))
-            if len(self._pending) < self.persistence:
-                return None
-            change = Change(self._pending[0][0], frame, *_step(self.extrinsic, extrinsic))
-            self.changes.append(change)
-            self._restart(extrinsic, covariance)
-            return change
+        if len(self._history) < MIN_HISTORY:
+            self._history.append(d)
+            return None
+        history = np.stack(self._history)
+        spread = np.cov(history.T) + np.diag(np.maximum(history.var(0), 1e-12)) * 0.1  # shrunk toward its diagonal
+        z = d - history.mean(0)
+        self.chi2 = float(z @ np.linalg.solve(spread, z))
+        if self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 6):
+            self._pending.clear()
+            self._history.append(d)
+            return None
+        self._pending.append((frame, extrinsic))
+        if len(self._pending) < self.persistence:
+            return None
+        step = np.mean([innovation(self.extrinsic, E) for _, E in self._pending], axis=0)
+        new = perturbed(self.extrinsic, step)
+        change = Change(self._pending[0][0], frame, *_step(self.extrinsic, new))
+        self.changes.append(change)
+        self.extrinsic, self.covariance = new.copy(), np.eye(6) * UNINFORMED
+        self._history.clear()
         self._pending.clear()
-        if dof:
-            self._history.append(value / chi2_distribution.median(dof))
-        self._fuse(extrinsic, covariance)
-        return None
-
-    def _scale(self) -> float:
-        """The accepted windows' chi-square values over their chi-square medians, as a median (1 before 5)."""
-        return float(np.median(self._history)) if len(self._history) >= 5 else 1.0
-
-    def _restart(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
-        self.extrinsic, self.covariance = extrinsic.copy(), covariance * self.overlap
-        self._pending.clear()
-
-    def _fuse(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
-        """The information-weighted mean of the fused estimate and the window's (its information / overlap)."""
-        info_old, info_new = _information(self.covariance), _information(covariance * self.overlap)
-        info = info_old + info_new
-        cov = np.linalg.pinv(info, hermitian=True)
-        d = cov @ info_new @ innovation(self.extrinsic, extrinsic)
-        self.extrinsic = perturbed(self.extrinsic, d)
-        self.covariance = cov
+        return change
 
 
 def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:
@@ -114,14 +114,6 @@ def with_unobservable(covariance: np.ndarray, unobservable: np.ndarray) -> np.nd
     out = covariance.copy()
     out[3:, 3:] += UNINFORMED * unobservable.T @ unobservable
     return out
-
-
-def chi_square(d: np.ndarray, covariance: np.ndarray) -> tuple[float, int]:
-    """``d^T P^-1 d`` on the directions the covariance ``P`` (6, 6) informs, and their count."""
-    w, V = np.linalg.eigh(covariance)
-    ok = (w > max(w.max(), 1e-300) * 1e-12) & (w < UNINFORMED / 10)
-    z = V[:, ok].T @ d
-    return float(np.sum(z**2 / w[ok])), int(ok.sum())
 
 
 def _information(covariance: np.ndarray) -> np.ndarray:

@@ -7,11 +7,12 @@ given (as CamOdoCal holds the odometry); what the images must give is each camer
 
 1. extracts every camera's features (:mod:`ocalib.rigba.features`) and matches them to the same camera's
    ``match_previous`` latest keyframes;
-2. checks the rig frame against the images (COLMAP's generalized absolute pose from every camera's 2-D-3-D
-   matches at once, each camera at its current ``sensor_from_rig``), keeping the matches that agree;
+2. resects every camera from its 2-D-3-D matches (COLMAP's absolute pose), keeping the matches that agree: with the
+   rig's pose, each gives that keyframe's own measurement of the camera's extrinsic;
 3. continues the tracks the matches extend and triangulates new points;
 4. adjusts the points and every extrinsic over the last ``window`` keyframes (:mod:`ocalib.rigba.window`);
-5. fuses each camera's window estimate into its track and tests it for a change (:mod:`ocalib.rigba.change`).
+5. tests each measurement against the camera's track for a change, and fuses the window estimate into the track
+   (:mod:`ocalib.rigba.change`).
 
 The estimator starts from the on-line head's rotations and zero lever arms; its translations are in metres.
 
@@ -29,7 +30,7 @@ import numpy as np
 import pycolmap
 
 from ocalib.rigba.change import UNINFORMED, Change, ExtrinsicTrack, with_unobservable
-from ocalib.rigba.colmap import pinhole_params, to_rigid
+from ocalib.rigba.colmap import pinhole_params, to_matrix
 from ocalib.rigba.features import Features, SiftExtractor, match_features
 from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window
 
@@ -47,8 +48,8 @@ class OnlineRigOptions:
     max_features: int = 1024  # SIFT keypoints an image
     min_inliers: int = 15  # 2-D-3-D inliers for a keyframe to count as registered
     min_angle_deg: float = 1.0  # a new point's least triangulation angle
-    false_alarm: float = 1e-4  # a window's chance to look like a change on a steady rig
-    persistence: int = 2  # windows in a row that must disagree before a change is declared
+    false_alarm: float = 1e-4  # a keyframe's chance to look like a change on a steady rig
+    persistence: int = 3  # keyframes in a row that must disagree before a change is declared
 
 
 @dataclass
@@ -56,7 +57,7 @@ class RigState:
     """The estimate after one keyframe: the fused ``extrinsics`` (C, 4, 4) in metres, their 1-sigma ``std`` (C, 6)
     (rotation rad, translation m; camera 0's axes; NaN where not yet known, inf where the data do not inform it), the
     window's own ``window_extrinsics``, each camera's normalised change statistic ``chi2`` (C,), whether the
-    keyframe ``registered`` (its images agree with the rig's pose), the ``changes`` (camera, change) it completed,
+    keyframe ``registered`` (every camera resected from its matches), the ``changes`` (camera, change) it completed,
     and the ``seconds`` it took."""
 
     frame: int
@@ -106,49 +107,50 @@ class OnlineRigEstimator:
         start = time.perf_counter()
         features = [self._extract(image) for image in images]
         kf = Keyframe(frame, np.asarray(pose, np.float64).copy(), features, [np.full(len(f), -1) for f in features])
-        registered = False
+        measured = {}
         if self.keyframes:
-            registered = self._register(kf)
-            self.keyframes_unregistered += not registered
+            measured = self._resect(kf)
+            self.keyframes_unregistered += len(measured) < len(features)
             self._triangulate(kf)
         self.keyframes.append(kf)
+        changes = self._changes(frame, measured)
         self._evict()
-        window = None
         if len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes)
-        changes = self._track(frame, window)
+            for k, u in enumerate(window.uncertainty, start=1):
+                if u is not None:
+                    self.tracks[k].fuse(self.extrinsics[k], with_unobservable(u.covariance, u.unobservable))
+        registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)
 
-    def _register(self, kf: Keyframe) -> bool:
-        """Whether ``kf``'s cameras' 2-D-3-D matches agree with its pose (COLMAP's generalized absolute pose, at
-        least ``min_inliers`` inliers); the inliers' point ids are set."""
-        xy, xyz, camera, where = [], [], [], []
+    def _resect(self, kf: Keyframe) -> dict[int, np.ndarray]:
+        """Each camera's pose from its 2-D-3-D matches (COLMAP's absolute pose, at least ``min_inliers``
+        inliers), whose inliers' point ids are set -> per camera resected, its extrinsic as this keyframe measures
+        it (``inverse(rig pose) @ camera pose``)."""
+        options = pycolmap.AbsolutePoseEstimationOptions()
+        options.ransac.max_error, options.ransac.min_num_trials, options.ransac.random_seed = MAX_ERROR_PX, 100, 0
+        measured = {}
         for k, features in enumerate(kf.features):
+            xy, xyz, where = [], [], []
             for previous in list(self.keyframes)[-self.options.match_previous :]:
                 matches = match_features(features.descriptors, previous.features[k].descriptors)
-                ids = previous.point_ids[k][matches[:, 1]]
-                for i, pid in zip(matches[:, 0], ids):
-                    if pid >= 0 and pid in self.points:
+                for i, pid in zip(matches[:, 0], previous.point_ids[k][matches[:, 1]]):
+                    if pid >= 0 and pid in self.points and kf.point_ids[k][i] < 0:
                         xy.append(features.keypoints[i])
                         xyz.append(self.points[pid])
-                        camera.append(k)
-                        where.append((k, i, pid))
-        if len(xy) < self.options.min_inliers:
-            return False
-        result = pycolmap.estimate_and_refine_generalized_absolute_pose(
-            np.asarray(xy) + 0.5,
-            np.asarray(xyz),
-            camera,
-            [to_rigid(np.linalg.inv(E)) for E in self.extrinsics],
-            self._cameras,
-            pycolmap.RANSACOptions(max_error=MAX_ERROR_PX, min_num_trials=100, random_seed=0),
-        )
-        if result is None or int(np.sum(result["inlier_mask"])) < self.options.min_inliers:
-            return False
-        for (k, i, pid), inlier in zip(where, result["inlier_mask"]):
-            if inlier:
-                kf.point_ids[k][i] = pid
-        return True
+                        where.append((i, pid))
+            if len(xy) < self.options.min_inliers:
+                continue
+            result = pycolmap.estimate_and_refine_absolute_pose(
+                np.asarray(xy) + 0.5, np.asarray(xyz), self._cameras[k], options
+            )
+            if result is None or int(np.sum(result["inlier_mask"])) < self.options.min_inliers:
+                continue
+            for (i, pid), inlier in zip(where, result["inlier_mask"]):
+                if inlier:
+                    kf.point_ids[k][i] = pid
+            measured[k] = np.linalg.inv(kf.pose) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
+        return measured
 
     def _triangulate(self, kf: Keyframe) -> None:
         """Extend the tracks the new keyframe's matches continue (where the point reprojects), and triangulate
@@ -209,18 +211,16 @@ class OnlineRigEstimator:
         for pid in set(self.points) - seen:
             del self.points[pid]
 
-    def _track(self, frame: int, window) -> list[tuple[int, Change]]:
-        """Fuse each camera's window estimate into its track -> the changes found."""
+    def _changes(self, frame: int, measured: dict[int, np.ndarray]) -> list[tuple[int, Change]]:
+        """Test each camera's measured extrinsic against its track -> the changes found; a camera that moved loses
+        its observations from before, and starts again from the measurement."""
         changes = []
-        if window is None:
-            return changes
-        for k, u in enumerate(window.uncertainty, start=1):
-            if u is None:
-                continue
-            change = self.tracks[k].update(frame, self.extrinsics[k], with_unobservable(u.covariance, u.unobservable))
+        for k, extrinsic in measured.items():
+            change = self.tracks[k].observe(frame, extrinsic) if k > 0 else None
             if change is not None:
                 changes.append((k, change))
                 self._forget_before(k, change.frame)
+                self.extrinsics[k] = self.tracks[k].extrinsic.copy()
         return changes
 
     def _forget_before(self, k: int, frame: int) -> None:

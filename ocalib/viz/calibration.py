@@ -28,8 +28,9 @@ def plot_trace(
     truth: np.ndarray | None = None,
     units: str | None = None,
 ) -> None:
-    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values / residuals, and
-    where the trace holds the rig bundle adjustment's results (``bundle_*``, in ``units``) a row of those.
+    """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values / residuals, where
+    the trace holds the on-line rig estimator's (``rig_*``, metres) a row of those, and where it holds the rig bundle
+    adjustment's results (``bundle_*``, in ``units``) a row of those.
 
     truth: (K, 4, 4) the true ``T_cam0_camk``, or None. With it the rotation row shows each frame's error against
     the truth (with the reported 1-sigma band: an honest band covers zero about two times in three) and the
@@ -41,8 +42,9 @@ def plot_trace(
     import matplotlib.pyplot as plt
 
     frames, K = trace["frame"], trace["quaternion"].shape[1]
-    bundle = "bundle_translation" in trace
-    fig, axes = plt.subplots(5 + bundle, K, figsize=(6.5 * K, 13.5 + 2.7 * bundle), sharex=True, squeeze=False)
+    bundle, rig = "bundle_translation" in trace, "rig_translation" in trace
+    rows = 5 + rig + bundle
+    fig, axes = plt.subplots(rows, K, figsize=(6.5 * K, 2.7 * rows), sharex=True, squeeze=False)
     for k in range(K):
         true_k = None if truth is None else truth[k]
         _rotation_row(axes[0, k], frames, trace, k, Path(cameras[k]).name, true_k)
@@ -52,8 +54,10 @@ def plot_trace(
         axes[2, k].set_title("scale (camera-k units -> camera-0 units)", fontsize=9)
         _observability_row(axes[3, k], frames, trace, k)
         _residual_row(axes[4, k], frames, trace, k)
+        if rig:
+            _rig_row(axes[5, k], frames, trace, k, true_k)
         if bundle:
-            _bundle_row(axes[5, k], frames, trace, k, true_k, units)
+            _bundle_row(axes[5 + rig, k], frames, trace, k, true_k, units)
     for ax in axes.flat:
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0] and ax.get_legend() is None:
@@ -143,6 +147,30 @@ def _residual_row(ax, frames: np.ndarray, trace: dict, k: int) -> None:
             ax.set_yscale("log")
     ax.set_title("fit residuals, RMS over the motion pairs (absolute poses: frames) so far", fontsize=9)
     ax.set_xlabel("frame")
+
+
+def _rig_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | None) -> None:
+    """The on-line rig estimator's translation (metres) over the frames with its 1-sigma band, the truth at frame 0
+    dashed, and the changes it noticed as vertical lines at the first frame that disagreed."""
+    t, t_std = trace["rig_translation"][:, k], trace["rig_translation_std"][:, k]
+    started = np.isfinite(t[:, 0])
+    title = "on-line rig estimator: translation (m)"
+    if not started.any():
+        ax.text(0.5, 0.5, "not started (see the warnings)", transform=ax.transAxes, ha="center", color="red")
+        ax.set_title(title, fontsize=9)
+        return
+    labels = [f"t{a} = {v:+.4f}" + ("" if np.isfinite(sd) else " (unobservable)") for a, v, sd in
+              zip(AXES, t[started][-1], t_std[started][-1])]  # fmt: skip
+    if truth is not None:
+        for i in range(3):
+            ax.axhline(truth[i, 3], color=COLORS[i], lw=1, ls="--")
+        labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, truth[:3, 3])]
+        title += ", truth at frame 0 dashed"
+    _bands(ax, frames[started], t[started], t_std[started], labels, min_span=0.02)
+    for frame in trace.get("rig_change_frame", np.zeros((0, 0)))[:, k]:
+        if np.isfinite(frame):
+            ax.axvline(frame, color="red", lw=1.5, ls=":")
+    ax.set_title(title, fontsize=9)
 
 
 def _bundle_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | None, units: str | None) -> None:

@@ -1,0 +1,190 @@
+"""The on-line rig estimator (:mod:`ocalib.rigba.online`) as a stage of ``ocalib calibrate``'s stream: called
+after the head on every frame, it starts once the head's rotation of every camera is known, reads the frame's
+images at their own size, and keeps each keyframe's state for the trace, the plot, TensorBoard and the JSON.
+
+Convention: ``metric`` (T, 4, 4) is camera 0's camera-to-world trajectory in metres, re-referenced to its first
+frame; extrinsics ``T_cam0_camk`` (``p_cam0 = R p_camk + t``) in metres.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import torch
+
+from ocalib.calib.result import Calibration
+from ocalib.calibnet.truth import angle_deg
+from ocalib.data.sequence import Sequence
+from ocalib.errors import InputError
+from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
+from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions, RigState
+
+START_FRAME = 20  # the earliest frame the estimator starts at: the head's rotation needs some motion first
+
+
+class RigStream:
+    """Call with ``(t, estimate)`` after the head's frame t (estimate: its :class:`Calibration`, rig 0)."""
+
+    def __init__(self, sequence: Sequence, metric: np.ndarray, options: OnlineRigOptions = OnlineRigOptions()):
+        self.sequence, self.metric, self.options = sequence, np.linalg.inv(metric[:1]) @ metric, options
+        self.estimator: OnlineRigEstimator | None = None
+        self.start: int | None = None
+        self.states: list[RigState] = []
+        self.warnings: list[str] = []
+
+    def __call__(self, t: int, estimate: Calibration) -> RigState | None:
+        if self.estimator is None and not self._started(t, estimate):
+            return None
+        images = []
+        for cam in self.sequence.cameras:
+            image = cv2.imread(str(cam.images[t]), cv2.IMREAD_GRAYSCALE)
+            if image is None:
+                raise InputError(f"{cam.images[t]}: not an image OpenCV can read")
+            images.append(image)
+        state = self.estimator.update(t, images, self.metric[t])
+        if state is not None:
+            self.states.append(state)
+            for k, change in state.changes:
+                self.warnings.append(
+                    f"on-line rig estimator: {self.sequence.names[k]}: its extrinsic changed at frame {change.frame} "
+                    f"(noticed at frame {change.detected}): {change.rotation_change_deg:.2f} deg, "
+                    f"{change.translation_change:.3f} m; the estimate follows the new one"
+                )
+        return state
+
+    def _started(self, t: int, estimate: Calibration) -> bool:
+        """Start the estimator at the head's rotations once every camera's is known (observed, or planar)."""
+        known = (estimate.rotation_observable | estimate.planar_motion)[0]
+        if t < START_FRAME or not bool(known.all()):
+            return False
+        extrinsics = np.tile(np.eye(4), (len(self.sequence.cameras), 1, 1))
+        extrinsics[1:, :3, :3] = estimate.rotation[0].double().cpu().numpy()
+        K = np.stack([cam.K for cam in self.sequence.cameras])
+        sizes = [tuple(cam.size) for cam in self.sequence.cameras]
+        self.estimator, self.start = OnlineRigEstimator(K, sizes, extrinsics, self.options), t
+        return True
+
+    def attach(self, result) -> None:
+        """Put the estimator into ``result`` (an :class:`~ocalib.calibnet.run.ImageCalibration`): its columns into
+        the trace, itself, and its final errors against the truth at the last frame where the sequence has one."""
+        frames = len(result.run.trace["frame"])
+        result.run.trace.update(self.trace(frames))
+        result.rig = self
+        cameras = self.sequence.cameras
+        if self.final is None or any(cam.T_cam0_cam is None for cam in cameras):
+            return
+        truth = np.stack([cam.T_cam0_cam for cam in cameras])
+        for k, cam in enumerate(cameras):
+            if cam.change is not None and cam.change.frame < frames:
+                truth[k] = cam.change.T_cam0_cam
+        result.rig_errors = self.errors(np.linalg.inv(truth[:1]) @ truth)
+
+    @property
+    def final(self) -> RigState | None:
+        return self.states[-1] if self.states else None
+
+    def trace(self, frames: int) -> dict[str, np.ndarray]:
+        """Per frame (F = ``frames``), each camera k >= 1's latest estimate: ``rig_quaternion`` (F, K, 4),
+        ``rig_translation`` (F, K, 3), ``rig_translation_std`` (F, K, 3), ``rig_chi2`` (F, K); NaN before the
+        first keyframe's estimate; ``rig_change_frame`` (F, K): at the frame a change was noticed, the first frame
+        that disagreed (NaN elsewhere)."""
+        K = len(self.sequence.cameras) - 1
+        out = {
+            "rig_quaternion": np.full((frames, K, 4), np.nan),
+            "rig_translation": np.full((frames, K, 3), np.nan),
+            "rig_translation_std": np.full((frames, K, 3), np.nan),
+            "rig_chi2": np.full((frames, K), np.nan),
+            "rig_change_frame": np.full((frames, K), np.nan),
+        }
+        ends = [s.frame for s in self.states[1:]] + [frames]
+        for state, end in zip(self.states, ends):
+            rows = slice(state.frame, end)
+            out["rig_quaternion"][rows] = _quaternions(state.extrinsics[1:])
+            out["rig_translation"][rows] = state.extrinsics[1:, :3, 3]
+            out["rig_translation_std"][rows] = state.std[1:, 3:]
+            out["rig_chi2"][rows] = state.chi2[1:]
+            for k, change in state.changes:
+                out["rig_change_frame"][state.frame, k - 1] = change.frame
+        return out
+
+    def changes_json(self) -> list[dict]:
+        """The changes found: camera name, first disagreeing frame, frame noticed, size of the step."""
+        names = self.sequence.names
+        return [
+            {
+                "camera": names[k],
+                "frame": c.frame,
+                "detected_at": c.detected,
+                "rotation_change_deg": c.rotation_change_deg,
+                "translation_change": c.translation_change,
+            }
+            for s in self.states
+            for k, c in s.changes
+        ]
+
+    def result_json(self) -> dict:
+        """The estimator's final state and cost: per camera k >= 1 its extrinsic (metres) with 1-sigma, the
+        keyframes, the seconds per keyframe (median) and per frame."""
+        final, seconds = self.final, [s.seconds for s in self.states]
+        doc = {
+            "units": "metres",
+            "started_at_frame": self.start,
+            "keyframes": len(self.states),
+            "keyframes_unregistered": 0 if self.estimator is None else self.estimator.keyframes_unregistered,
+            "seconds_per_keyframe_median": float(np.median(seconds)) if seconds else None,
+            "seconds_per_frame": float(np.sum(seconds) / max(1, self.estimator.frames_seen)) if seconds else None,
+            "window_keyframes": self.options.window,
+            "keyframe_step": self.options.keyframe_step,
+            "extrinsics": [],
+        }
+        if final is None:
+            return doc
+        for k in range(1, len(final.extrinsics)):
+            E, std = final.extrinsics[k], final.std[k]
+            doc["extrinsics"].append(
+                {
+                    "camera": self.sequence.names[k],
+                    "rotation": E[:3, :3].tolist(),
+                    "quaternion_wxyz": _quaternions(E[None])[0].tolist(),
+                    "translation": E[:3, 3].tolist(),
+                    "rotation_std_deg": [_finite(math.degrees(v)) for v in std[:3]],
+                    "translation_std": [_finite(v) for v in std[3:]],
+                    "chi2": _finite(final.chi2[k]),
+                    "source": "rig_estimator",
+                }
+            )
+        return doc
+
+    def errors(self, truth: np.ndarray) -> list[dict]:
+        """Per camera k >= 1, the final estimate's errors against the true ``truth`` (C, 4, 4) ``T_cam0_camk``
+        (after any change), in the keys of :func:`ocalib.calib.report.errors_table`."""
+        out = []
+        for k in range(1, len(truth)):
+            E, T = self.final.extrinsics[k], truth[k]
+            baseline = float(np.linalg.norm(T[:3, 3]))
+            error = float(np.linalg.norm(E[:3, 3] - T[:3, 3]))
+            out.append(
+                {
+                    "camera": k,
+                    "rotation_error_deg": float(rotation_angle_deg(E[:3, :3].T @ T[:3, :3])),
+                    "translation_direction_error_deg": angle_deg(E[:3, 3], T[:3, 3]),
+                    "compared_in_plane": False,
+                    "metric_scale": 1.0,
+                    "translation_error": error,
+                    "translation_error_rel_baseline": error / baseline if baseline > 0 else math.nan,
+                }
+            )
+        return out
+
+
+def _quaternions(E: np.ndarray) -> np.ndarray:
+    """(N, 4) w >= 0 quaternions of the rotations of ``E`` (N, 4, 4)."""
+    q = rotation_matrix_to_quaternion(torch.from_numpy(np.ascontiguousarray(E[:, :3, :3]))).numpy()
+    return q * np.where(q[:, :1] < 0, -1.0, 1.0)
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
