@@ -1,0 +1,143 @@
+"""The on-line rig estimator: the window adjustment recovers an extrinsic from exact observations, the change
+test separates a step from noise, and on a rendered rig the estimator follows the extrinsic, notices a knocked
+camera at the right frame, keeps its state bounded, and says so where a camera registers nothing."""
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ocalib.data.layout import open_sequence
+from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.rigba.change import ExtrinsicTrack, innovation, perturbed
+from ocalib.rigba.features import Features
+from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
+from ocalib.rigba.window import Keyframe, adjust_window
+from ocalib.synth import preset, render_sequence
+
+K = np.array([[240.0, 0, 207.5], [0, 245.0, 63.5], [0, 0, 1]])
+
+
+def _mounting(rotation_deg, position) -> np.ndarray:
+    E = np.eye(4)
+    E[:3, :3] = Rotation.from_euler("xyz", rotation_deg, degrees=True).as_matrix()
+    E[:3, 3] = position
+    return E
+
+
+def test_the_window_recovers_an_extrinsic_from_exact_observations():
+    rng = np.random.default_rng(1)
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    poses = [_mounting(np.degrees([0.02 * i, 0.05 * i, 0.01 * i]), [0.1 * i, 0.02 * i, 0.2 * i]) for i in range(12)]
+    points, keyframes = {}, []
+    world = []
+    for k in range(2):  # points in front of each camera at frame 0, seen only by it
+        depth, uv = rng.uniform(3, 8, 150), rng.uniform([0, 0], [416, 128], (150, 2))
+        rays = (np.linalg.inv(K) @ np.c_[uv, np.ones(150)].T).T * depth[:, None]
+        cam = poses[0] @ truth[k]
+        world.append(rays @ cam[:3, :3].T + cam[:3, 3])
+        points.update({150 * k + j: X + rng.normal(0, 0.05, 3) for j, X in enumerate(world[k])})
+    for i, pose in enumerate(poses):
+        features, ids = [], []
+        for k in range(2):
+            T = np.linalg.inv(pose @ truth[k])
+            p = world[k] @ T[:3, :3].T + T[:3, 3]
+            uv = p @ K.T
+            xy = uv[:, :2] / uv[:, 2:] + rng.normal(0, 0.3, (150, 2))
+            inside = (p[:, 2] > 0) & (xy >= 0).all(1) & (xy < [416, 128]).all(1)
+            features.append(Features(xy, np.zeros((150, 128), np.float32)))
+            ids.append(np.where(inside, 150 * k + np.arange(150), -1))
+        keyframes.append(Keyframe(i, pose, features, ids))
+    start = truth.copy()
+    start[1, :3, 3] = 0.0
+    start[1, :3, :3] = Rotation.from_rotvec(np.radians([0.3, 0.2, -0.2])).as_matrix() @ truth[1, :3, :3]
+    for _ in range(3):  # as the stream solves it again at every keyframe, from the last solution
+        result = adjust_window(keyframes, points, start, np.stack([K, K]), [(128, 416)] * 2)
+    assert result.reprojection_px < 0.6
+    assert float(rotation_angle_deg(start[1, :3, :3].T @ truth[1, :3, :3])) < 0.2
+    std = np.sqrt(np.diag(result.uncertainty[0].covariance))
+    error = start[1, :3, 3] - truth[1, :3, 3]
+    assert np.all(np.abs(error) < 3 * std[3:]), (error, std)  # the reported 1-sigma covers the error
+    assert np.linalg.norm(error) < 0.25 * np.linalg.norm(truth[1, :3, 3])
+
+
+def _measurements(rng, truth, n, rotation_sigma=np.radians(0.1), translation_sigma=0.01):
+    return [perturbed(truth, np.r_[rng.normal(0, rotation_sigma, 3), rng.normal(0, translation_sigma, 3)]) for _ in
+            range(n)]  # fmt: skip
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_change_test_gives_no_alarm_on_a_steady_camera_and_finds_a_step(seed):
+    rng = np.random.default_rng(seed)
+    before, after = _mounting([0, 90, 0], [0.9, 0, 0]), _mounting([0, 92, 0], [0.95, 0, 0])
+    track = ExtrinsicTrack(overlap=10)
+    track.fuse(before, np.eye(6) * 1e-4)
+    for t, E in enumerate(_measurements(rng, before, 150)):
+        assert track.observe(t, E) is None, f"a false alarm at keyframe {t}"
+    changes = [track.observe(150 + t, E) for t, E in enumerate(_measurements(rng, after, 10))]
+    found = [c for c in changes if c is not None]
+    assert len(found) == 1 and found[0].frame == 150 and found[0].detected == 150 + track.persistence - 1
+    assert abs(found[0].rotation_change_deg - 2.0) < 0.3 and abs(found[0].translation_change - 0.05) < 0.02
+    assert np.degrees(np.linalg.norm(innovation(track.extrinsic, after)[:3])) < 0.3
+
+
+@pytest.fixture(scope="module")
+def knocked(tmp_path_factory):
+    """A hand-held rig, 120 frames at 128x416, camera 1 turned by 2 deg about its y axis at frame 70."""
+    cfg = preset("handheld").with_overrides(frames=120, height=128, width=416, seed=1017)
+    cam = cfg.cameras[1]
+    change = {"frame": 70, "rotation_deg": [cam.rotation_deg[0], cam.rotation_deg[1] + 2, cam.rotation_deg[2]],
+              "position": list(cam.position)}  # fmt: skip
+    cfg = cfg.with_overrides(cameras=[cfg.cameras[0], dataclasses.replace(cam, change=change)])
+    return open_sequence(render_sequence(cfg, tmp_path_factory.mktemp("knocked") / "rig", progress=False))
+
+
+def _run(sequence, frames, options=OnlineRigOptions()):
+    cams = sequence.cameras
+    truth = np.stack([np.linalg.inv(cams[0].T_cam0_cam) @ c.T_cam0_cam for c in cams])
+    start = truth.copy()
+    start[1, :3, :3] = Rotation.from_rotvec(np.radians([0.3, 0.2, -0.2])).as_matrix() @ truth[1, :3, :3]
+    estimator = OnlineRigEstimator(np.stack([c.K for c in cams]), [tuple(c.size) for c in cams], start, options)
+    poses = np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses
+    states = []
+    for t in frames:
+        images = [cv2.imread(str(c.images[t]), cv2.IMREAD_GRAYSCALE) for c in cams]
+        state = estimator.update(t, images, poses[t])
+        if state is not None:
+            states.append(state)
+            assert len(estimator.keyframes) <= options.window
+    return estimator, states, truth
+
+
+def test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed(knocked):
+    estimator, states, truth = _run(knocked, range(120))
+    steady = [s for s in states if s.frame < 70]
+    assert not any(s.changes for s in steady)
+    before = steady[-1].extrinsics[1]
+    assert float(rotation_angle_deg(before[:3, :3].T @ truth[1, :3, :3])) < 0.5
+    error, std = before[:3, 3] - truth[1, :3, 3], steady[-1].std[1, 3:]
+    assert np.all(np.abs(error) < 3 * std), (error, std)  # the reported 1-sigma covers the error
+    assert np.linalg.norm(error) < np.linalg.norm(truth[1, :3, 3])  # within a baseline after 35 keyframes
+    changes = [(s.frame, c) for s in states for k, c in s.changes]
+    assert len(changes) == 1, changes
+    detected, change = changes[0]
+    assert 70 <= change.frame <= 74 and detected <= 70 + 30
+    assert 1.0 < change.rotation_change_deg < 4.0  # the step, from three single-keyframe measurements
+    after = np.linalg.inv(knocked.cameras[0].T_cam0_cam) @ knocked.cameras[1].change.T_cam0_cam
+    final = states[-1].extrinsics[1]
+    assert float(rotation_angle_deg(final[:3, :3].T @ after[:3, :3])) < 0.5
+    assert len(estimator.points) < 40 * 1024  # the window's points only
+
+
+def test_a_textureless_stretch_is_counted_not_fatal(knocked):
+    blank = np.full((128, 416), 128, np.uint8)
+    cams = knocked.cameras
+    estimator = OnlineRigEstimator(np.stack([c.K for c in cams]), [tuple(c.size) for c in cams],
+                                   np.stack([np.eye(4), cams[1].T_cam0_cam]))  # fmt: skip
+    poses = np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses
+    for t in range(0, 20):
+        state = estimator.update(t, [blank, blank], poses[t])
+        assert state is None or (not state.registered and np.isnan(state.std[1]).all())
+    assert estimator.keyframes_unregistered == 9

@@ -1,0 +1,42 @@
+"""CI's check of the demo's figures (``.ci/readme.py``): within the README's tolerances it passes, outside them,
+with a NaN, or without the line it fails; and the README's quoted lines are what it can check."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("ci_readme", ROOT / ".ci" / "readme.py")
+readme = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(readme)
+
+QUOTED = "cam1: rotation 0.077±0.05 deg, direction * deg, scaled x0.112±5%, error ≤20% of the baseline, cam 2"
+
+
+@pytest.mark.parametrize(
+    "printed, ok",
+    [
+        ("cam1: rotation 0.077 deg, direction 18.19 deg, scaled x0.112, error 15.3% of the baseline, cam 2", True),
+        ("cam1: rotation 0.126 deg, direction 99.99 deg, scaled x0.1175, error 20.0% of the baseline, cam 2", True),
+        ("  cam1:  rotation 0.028 deg, direction 0.00 deg, scaled x0.1065, error 0.0% of the baseline,  cam 2", True),
+        ("cam1: rotation 0.128 deg, direction 18.19 deg, scaled x0.112, error 15.3% of the baseline, cam 2", False),
+        ("cam1: rotation 0.077 deg, direction 18.19 deg, scaled x0.118, error 15.3% of the baseline, cam 2", False),
+        ("cam1: rotation 0.077 deg, direction 18.19 deg, scaled x0.112, error 20.1% of the baseline, cam 2", False),
+        ("cam1: rotation 0.077 deg, direction nan deg, scaled x0.112, error 15.3% of the baseline, cam 2", False),
+        ("cam1: rotation 0.077 deg, direction 18.19 deg, scaled x0.112, error 15.3% of the baseline, cam 3", False),
+        ("cam1: rotation 0.077 deg, direction 18.19 deg, scaled x0.112, error 15.3% of the baseline", False),
+    ],
+)
+def test_a_figure_passes_within_its_tolerance_and_fails_outside(printed, ok):
+    problems = readme.demo_problems([QUOTED], ["a line before", printed, "a line after"])
+    assert (problems == []) == ok, problems
+
+
+def test_the_readme_quotes_demo_lines_with_tolerances():
+    quoted = readme.block("demo output")
+    assert quoted
+    for line in quoted:
+        pattern, checks = readme.line_check(line)
+        assert checks, f"no figure of {line!r} is checked"
+        assert all(spec == "*" or "±" in spec or "≤" in spec for spec, _ in checks)
