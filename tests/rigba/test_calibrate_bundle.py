@@ -87,7 +87,7 @@ def test_stereo_kitti_tree_recovers_its_baseline(stereo, tmp_path):
         (["--metric-trajectory", "short"], "poses for the 40 frames"),
         (["--metric-trajectory", "missing.txt"], "missing.txt"),
         (["--bundle-adjust-every", "0"], "--bundle-adjust-every must be at least 1"),
-        (["--no-bundle-adjust", "--metric-trajectory", "poses"], "drop --no-bundle-adjust"),
+        (["--no-bundle-adjust", "--no-online-rig", "--metric-trajectory", "poses"], "drop --no-online-rig"),
     ],
 )
 def test_clear_errors(stereo, tmp_path, capsys, extra, message):
