@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from bench_calibnet_accuracy import ensure
-from common import add_sequence_arguments, write_json
+from common import add_sequence_arguments, shown_path, write_json
 
 from ocalib.frontend import FRONTENDS
 
@@ -66,7 +66,7 @@ def main() -> None:
         row = " ".join(f"{m:10.1f} {args.frames / m:8.1f}" for m in medians.values())
         ratio = f"  {medians['this'] / medians['compare']:.2f}" if "compare" in medians else ""
         print(f"{case:28} {row}{ratio}")
-    trees_doc = {label: str(tree) for label, tree in trees.items()}
+    trees_doc = {label: shown_path(tree) for label, tree in trees.items()}
     write_json(args.out, {"frames": args.frames, "repeats": args.repeats, "trees": trees_doc, "results": results})
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 from bench_online import rig_sequence
-from common import write_json
+from common import shown_path, write_json
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from ocalib.calib.online import OnlineCalibrator
@@ -105,7 +105,8 @@ def main() -> None:
         print(f"{'total, ' + label:<32}" + "".join(f"{sum(c[label].values()):>10.0f}" for c in counts.values()))
     for m in modules:
         print(f"  {m:<30}" + "".join(f"{c['refined'].get(m, 0):>10.0f}" for c in counts.values()))
-    write_json(OUT, {"rigs": args.rigs, "trees": trees, "operations_per_frame": counts})
+    trees_doc = {name: shown_path(tree) for name, tree in trees.items()}
+    write_json(OUT, {"rigs": args.rigs, "trees": trees_doc, "operations_per_frame": counts})
 
 
 if __name__ == "__main__":

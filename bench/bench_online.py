@@ -38,7 +38,7 @@ import cv2
 import numba
 import numpy as np
 import torch
-from common import write_json
+from common import shown_path, write_json
 
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.online import OnlineCalibrator
@@ -156,7 +156,7 @@ def against(other: str, repeats: int, quick: bool) -> None:
         a, b = (statistics.median(samples[(case, tree)]) * 1e3 for tree in trees)
         rows.append({"case": name, "other_ms": a, "this_ms": b, "ratio": b / a, "n": len(samples[(case, "this")])})
         print(f"{name:<44} {a:>10.4f} {b:>10.4f} {b / a:>10.3f}", flush=True)
-    write_json(OUT_AGAINST, {"other": trees["other"], "this": trees["this"], "rows": rows})
+    write_json(OUT_AGAINST, {"other": shown_path(trees["other"]), "this": shown_path(trees["this"]), "rows": rows})
 
 
 def main() -> None:

@@ -11,14 +11,13 @@ so ``X = T_cam2gripper = T_cam0_cam1`` (p_cam0 = R p_cam1 + t): camera 0's camer
 ``T_gripper2base`` and camera 1's is ``T_target2cam^-1`` (camera 1's world is the target). OpenCV
 gets scale 1; ours estimates scale too.
 
-Usage: ``python bench/bench_opencv_accuracy.py`` -- prints tables, writes
-``bench/results/opencv_accuracy.json`` and the tables into ``docs/simulation.md``.
+Usage: ``python bench/bench_opencv_accuracy.py`` -- prints the tables (markdown) and writes
+``bench/results/opencv_accuracy.json``.
 """
 
 from __future__ import annotations
 
 import math
-import re
 import time
 from pathlib import Path
 
@@ -284,11 +283,6 @@ def main():
     write_json(ROOT / "bench/results/opencv_accuracy.json",
                {"setup": setup, "protocol": {k: drop_raw(v) for k, v in results.items()}, "large": drop_raw(large),
                 "planar": drop_raw(planar)})  # fmt: skip
-    doc = ROOT / "docs/simulation.md"
-    start, end = "<!-- opencv-accuracy:start -->", "<!-- opencv-accuracy:end -->"
-    text = doc.read_text() if doc.exists() else f"# Simulation\n\n## Against OpenCV\n\n{start}\n{end}\n"
-    text = re.sub(f"{start}.*?{end}", lambda _: f"{start}\n{table}\n{end}", text, flags=re.S)
-    doc.write_text(text)
 
 
 if __name__ == "__main__":

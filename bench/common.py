@@ -13,6 +13,8 @@ from pathlib import Path
 import cv2
 import torch
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 def machine() -> dict:
     """The machine a result was measured on: CPUs, platform, Python, torch, OpenCV, the CUDA device, the load average."""
@@ -35,6 +37,16 @@ def write_json(path: str | Path, doc: dict) -> Path:
     path.write_text(json.dumps(doc | {"machine": machine()}, indent=2) + "\n")
     print(f"wrote {path}")
     return path
+
+
+def shown_path(path: str | Path) -> str:
+    """``path`` as results record it: relative to the repository when inside it (``.`` for the repository itself),
+    else the last part of its name, so that no machine's absolute paths are written."""
+    path = Path(path).resolve()
+    try:
+        return path.relative_to(ROOT).as_posix()
+    except ValueError:
+        return path.name
 
 
 def add_sequence_arguments(p, default: list[str]) -> None:
