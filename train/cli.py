@@ -7,6 +7,7 @@ rate and writes the slim ``model.pt`` at the end: the weights of its best valida
 
 from __future__ import annotations
 
+import re
 import sys
 
 import torch
@@ -64,11 +65,16 @@ def trainer_defaults(export: ExportModel | None = None) -> dict:
 
 def main(args: list[str] | None = None, run: bool = True) -> EgoMotionCLI:
     """Run the CLI on ``args`` (None: ``sys.argv[1:]``). A command line the parser refuses, or a config file that is
-    missing, a folder or binary, is an :class:`InputError` (one line, where argparse would print the usage)."""
+    missing, a folder or binary, is an :class:`InputError` (one line, where argparse would print the usage); one
+    without the data (no ``--config``) says to give a config."""
     argv = sys.argv[1:] if args is None else args
-    for option, value in zip(argv, [*argv[1:], ""]):
-        if option == "--config" or option.startswith("--config="):
-            read_text(option.partition("=")[2] or value, "config file")
+    configs = [
+        option.partition("=")[2] or value
+        for option, value in zip(argv, [*argv[1:], ""])
+        if option == "--config" or option.startswith("--config=")
+    ]
+    for config in configs:
+        read_text(config, "config file")
     export = ExportModel()
     try:
         return EgoMotionCLI(
@@ -83,7 +89,11 @@ def main(args: list[str] | None = None, run: bool = True) -> EgoMotionCLI:
             parser_kwargs={"prog": "ocalib train", "exit_on_error": False},
         )
     except ArgumentError as err:
-        raise InputError(" ".join(str(err).split())) from None
+        message = " ".join(str(err).split())
+        missing = re.fullmatch(r"the following arguments are required: (\w+)\.data", message)
+        if missing and not configs:  # the data module is the one argument without a default
+            message = f"{missing[1]}: give a config, e.g. --config configs/train/quick.yaml"
+        raise InputError(message) from None
     except SystemExit:
         if export.interrupted is not None:  # Lightning turns Ctrl-C into exit code 1 after its shutdown
             raise KeyboardInterrupt(export.interrupted) from None

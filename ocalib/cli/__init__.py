@@ -133,7 +133,7 @@ def check_device(device: str) -> None:
 
 def check_outputs(args: argparse.Namespace) -> None:
     """An :class:`InputError` where an output file of :data:`FILE_OUTPUTS` names a folder, or a folder that is not
-    there (the commands that make their folders, ``--plot`` and ``evaluate --out``, excepted)."""
+    there (``evaluate --out`` excepted: it makes its folders)."""
     for option in FILE_OUTPUTS.get(args.command, ()):
         value = getattr(args, option, None)
         if not value:
@@ -141,7 +141,7 @@ def check_outputs(args: argparse.Namespace) -> None:
         path = Path(value)
         if path.is_dir():
             raise InputError(f"{path}: a folder; --{option} names the file to write")
-        if option != "plot" and args.command != "evaluate" and not path.resolve().parent.is_dir():
+        if args.command != "evaluate" and not path.resolve().parent.is_dir():
             raise InputError(f"{path}: no folder {path.parent} to write it in (--{option})")
 
 

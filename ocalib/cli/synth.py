@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import os
 
+# SynthConfig's defaults, which every preset keeps and a --config may set (a test keeps them equal): written out
+# here so that building the parser imports no numpy
+DEFAULTS = {"frames": 300, "seed": 0, "height": 128, "width": 416}
+
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -14,27 +18,30 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "(uint16, metres x 256) and KITTI poses for every camera, plus rig.yaml and times.txt.",
     )
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--preset", help="built-in rig: front-rear, front-left, handheld, stereo (default front-rear)")
+    src.add_argument("--preset", help="built-in rig: front-rear, front-left, handheld, stereo (default: front-rear)")
     src.add_argument("--config", help="a YAML config file (see configs/synth/)")
-    p.add_argument("--out", help="output folder (default data/synth/<name>)")
-    p.add_argument("--frames", type=int, help="number of frames")
-    p.add_argument("--seed", type=int, help="random seed (world, trajectory, photometric)")
-    p.add_argument("--height", type=int, help="image height in pixels")
-    p.add_argument("--width", type=int, help="image width in pixels")
+    p.add_argument("--out", help="output folder (default: data/synth/<name of the preset or config>)")
+    for option, text in [
+        ("frames", "number of frames"),
+        ("seed", "random seed of the world, the trajectory and the photometry"),
+        ("height", "image height in pixels"),
+        ("width", "image width in pixels"),
+    ]:
+        p.add_argument(f"--{option}", type=int, help=f"{text} (default: {DEFAULTS[option]}, or the --config file's)")
     p.add_argument(
         "--photometric",
         action="store_true",
         default=None,
-        help="add per-camera gain, exposure jitter, vignetting and noise",
+        help="add per-camera gain, exposure jitter, vignetting and noise (default: off, or the --config file's)",
     )
-    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    p.add_argument("--device", default="cpu", help="torch device: cpu, cuda (default: %(default)s)")
     p.add_argument(
         "--workers",
         type=int,
         default=min(4, os.cpu_count() or 1),
-        help="CPU processes rendering frames (default: CPUs, at most 4; output does not depend on it)",
+        help="CPU processes rendering frames (default: %(default)s: the CPUs, at most 4; the output does not depend on it)",
     )
-    p.add_argument("--overwrite", action="store_true", help="replace a sequence already in --out")
+    p.add_argument("--overwrite", action="store_true", help="replace a sequence already in --out (default: off)")
     return p
 
 

@@ -273,7 +273,7 @@ def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models:
     for k in range(1, len(names)):
         u = out.uncertainty[k]
         std = math.inf if u is None else float(np.degrees(u.rotation_std).max())
-        if std > MAX_ROTATION_STD_DEG or (u is not None and len(u.unobservable) == 3):
+        if not std <= MAX_ROTATION_STD_DEG or (u is not None and len(u.unobservable) == 3):  # NaN: not determined
             warnings.append(
                 f"bundle adjustment: {names[k]}: the reconstruction does not determine its extrinsic (rotation "
                 f"1-sigma {std:.2g} deg, {3 if u is None else len(u.unobservable)} of 3 translation directions "

@@ -51,7 +51,7 @@ class ExtrinsicUncertainty:
     def translation_std(self) -> np.ndarray:
         """(3,) along camera 0's axes; inf along an axis an unobservable direction has a share of (over
         ``UNOBSERVABLE_AXIS_SHARE``)."""
-        std = np.sqrt(np.diag(self.covariance)[3:])
+        std = np.sqrt(np.clip(np.diag(self.covariance)[3:], 0, None))  # an unobservable axis: 0 up to rounding
         touched = (
             (np.abs(self.unobservable) > UNOBSERVABLE_AXIS_SHARE).any(0)
             if len(self.unobservable)

@@ -1,10 +1,18 @@
 """The extrinsics' uncertainty: analytic Jacobians and Schur complements against a dense finite-difference solve."""
 
+import warnings
+
 import cv2
 import numpy as np
 import pytest
 
-from ocalib.rigba.covariance import Observations, _gauge_columns, _jacobians, observations_uncertainty
+from ocalib.rigba.covariance import (
+    ExtrinsicUncertainty,
+    Observations,
+    _gauge_columns,
+    _jacobians,
+    observations_uncertainty,
+)
 
 K = (300.0, 300.0, 208.0, 64.0)
 
@@ -124,3 +132,14 @@ def test_planar_motion_leaves_the_height_unobservable():
     std = u.translation_std
     assert np.isinf(std[1]) and np.all(np.isfinite(std[[0, 2]]))
     assert np.all(np.isfinite(u.rotation_std))
+
+
+def test_a_translation_variance_rounded_below_zero_gives_no_warning():
+    """Along an unobservable direction the covariance's variance is 0 up to rounding, which may fall below 0: the
+    axis it touches reports inf and the others their standard deviation, without a warning of a square root."""
+    cov = np.diag([1e-6, 1e-6, 1e-6, 4e-4, -2e-16, 9e-4])
+    u = ExtrinsicUncertainty(cov, np.array([[0.0, 1.0, 0.0]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_allclose(u.translation_std, [0.02, np.inf, 0.03])
+        assert ExtrinsicUncertainty(cov, np.zeros((0, 3))).translation_std[1] == 0

@@ -147,3 +147,22 @@ def test_config_round_trip(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(cfg.to_dict()))
     assert load_config(path) == cfg
+
+
+def test_cli_help_shows_the_defaults(capsys):
+    """``ocalib synth --help`` gives each option's default, the numbers those of :class:`SynthConfig` (the presets')."""
+    import dataclasses
+
+    from ocalib.cli.synth import DEFAULTS
+    from ocalib.synth import SynthConfig
+
+    fields = {f.name: f.default for f in dataclasses.fields(SynthConfig)}
+    assert DEFAULTS == {name: fields[name] for name in DEFAULTS}
+    assert all(preset(name).frames == fields["frames"] for name in PRESETS)
+    with pytest.raises(SystemExit):
+        main(["synth", "--help"])
+    options = capsys.readouterr().out.split("\noptions:\n")[1]
+    entries = {e.split()[0]: " ".join(e.split()) for e in options.split("\n  -") if e.strip()}
+    assert all("(default: " in entry for name, entry in entries.items() if name not in ("-h,", "-config"))
+    for option, value in [*DEFAULTS.items(), ("preset", "front-rear"), ("device", "cpu"), ("photometric", "off")]:
+        assert f"(default: {value}" in entries[f"-{option}"], entries[f"-{option}"]
