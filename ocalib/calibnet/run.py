@@ -12,6 +12,8 @@ the scale that multiplies camera k's front-end units into camera 0's.
 
 from __future__ import annotations
 
+import sys
+import time
 import typing
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -119,7 +121,8 @@ def calibrate_images(
     (``refine`` defaults to ``"unobservable"``: a monocular front end's translation directions must not move an
     observable rotation, see :data:`~ocalib.calib.solve.REFINE_MODES`). max_frames: use only the first frames.
     intrinsics: a file for layouts without them. on_frame(t, estimate): called after every frame (e.g. TensorBoard).
-    progress: a tqdm bar with the current estimate (None: on a terminal).
+    progress: a tqdm bar with the current estimate (None: on a terminal; elsewhere a line on stderr every
+    ``TRACE_EVERY`` frames).
     """
     frontend, head = frontend.resolved(), head.checked(solvers=("exact", "rls"))
     if head.motion not in MOTION_CHOICES:
@@ -168,6 +171,7 @@ def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame)
         torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1, prefetch_factor=4
     )
     chunks, pending, trajectory = [], [], []
+    start = time.perf_counter()
     with (
         torch.inference_mode(),
         tqdm(total=frames, unit="frame", disable=None if progress is None else not progress, desc="calibrating") as bar,
@@ -185,6 +189,9 @@ def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame)
                 bar.update(len(pending))
                 last, pending = pending[-1], []
                 bar.set_postfix_str(progress_text(last), refresh=False)
+                if bar.disable and progress is None:  # not a terminal: a line now and then, for a log
+                    rate = bar.n / max(time.perf_counter() - start, 1e-9)
+                    print(f"calibrating: {bar.n}/{frames} frames ({rate:.1f} frame/s)", file=sys.stderr, flush=True)
     trace = {k: torch.cat([c[k] for c in chunks]).double().numpy() for k in chunks[0]}
     values = {f.name: getattr(last, f.name) for f in fields(Calibration)}
     last = Calibration(**{k: None if v is None else v.cpu() for k, v in values.items()})

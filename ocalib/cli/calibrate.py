@@ -143,6 +143,9 @@ def run(args) -> int:
     print(summary(doc))
     print_errors(result)
     print_warnings(doc)
+    written = [v for v in (args.out, args.trace, args.plot, args.tensorboard, args.trajectories) if v]
+    if written:
+        print(f"wrote {', '.join(written)}")
     return 0
 
 

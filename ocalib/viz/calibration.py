@@ -167,6 +167,11 @@ def _rig_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | No
         labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, truth[:3, 3])]
         title += ", truth at frame 0 dashed"
     _bands(ax, frames[started], t[started], t_std[started], labels, min_span=0.02)
+    settled = t[started][len(t[started]) // 2 :]  # the axis fits the settled estimate, not a restart's wide band
+    reference = settled if truth is None else np.vstack([settled, truth[None, :3, 3]])
+    low, high = np.nanmin(reference), np.nanmax(reference)
+    pad = max(0.02, 0.25 * (high - low))
+    ax.set_ylim(low - pad, high + pad)
     for frame in trace.get("rig_change_frame", np.zeros((0, 0)))[:, k]:
         if np.isfinite(frame):
             ax.axvline(frame, color="red", lw=1.5, ls=":")

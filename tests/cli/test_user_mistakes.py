@@ -211,10 +211,10 @@ def _children(pid: int) -> list[str]:
         return []
 
 
-def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+def interrupt(args: list[str], cwd: Path, started=None) -> subprocess.CompletedProcess:
     """Run ``ocalib ARGS`` and press Ctrl-C (SIGINT to its process group, as a terminal does) once it has started
     its worker processes (the image loader, which starts once the head's kernel is compiled: minutes on a loaded
-    machine with a cold numba cache; the renderer's pool)."""
+    machine with a cold numba cache) and ``started()`` holds, where given."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "ocalib", *args],
         cwd=cwd,
@@ -224,7 +224,8 @@ def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
         start_new_session=True,
     )
     deadline = time.time() + 900  # a guard: the wait is for the state
-    while not _children(proc.pid) and proc.poll() is None and time.time() < deadline:
+    while not (_children(proc.pid) and (started is None or started())) and proc.poll() is None:
+        assert time.time() < deadline, "the command never reached the state to interrupt it in"
         time.sleep(0.02)
     assert proc.poll() is None, "finished before it could be interrupted"
     os.killpg(proc.pid, signal.SIGINT)
@@ -236,10 +237,27 @@ def interrupt(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
 def test_ctrl_c_during_calibrate_and_demo(rig, tmp_path):
     seq, model, user = rig
     done = interrupt(["calibrate", "--sequence", str(user), "--checkpoint", str(model), "--out", "r.json"], tmp_path)
-    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    lines = [line for line in done.stderr.splitlines() if line.strip() and "frame/s" not in line]
     assert done.returncode == 130 and lines == ["ocalib calibrate: interrupted; nothing written"], done.stderr
     assert not (tmp_path / "r.json").exists()
 
-    done = interrupt(["demo", "--out", "d", "--frames", "3000", "--checkpoint", str(model)], tmp_path)
+    rendering = lambda: any((tmp_path / "d").rglob("*.png"))  # noqa: E731  (the renderer's pool at work)
+    done = interrupt(["demo", "--out", "d", "--frames", "3000", "--checkpoint", str(model)], tmp_path, rendering)
     lines = [line for line in done.stderr.splitlines() if line.strip() and "frame/s" not in line]
     assert done.returncode == 130 and lines == ["ocalib demo: interrupted; written so far (incomplete): d"], done.stderr
+
+
+@pytest.mark.parametrize("command", [["calibrate", "--sequence", "S"], ["calibrate-poses", "A", "B"]])
+def test_a_plot_in_a_missing_folder_is_refused_like_the_result(tmp_path, command, capsys, monkeypatch):
+    """``--plot`` names a file, as ``--out`` does: a folder that is not there is a mistake, not one to make."""
+    monkeypatch.chdir(tmp_path)
+    assert main([*command, "--out", "r.json", "--plot", "nodir/x.png"]) == 2
+    assert error_line(capsys, command[0]).endswith("nodir/x.png: no folder nodir to write it in (--plot)")
+    assert not (tmp_path / "nodir").exists()
+
+
+def test_training_without_a_config_says_to_give_one(capsys):
+    assert main(["train", "fit"]) == 2
+    assert (
+        error_line(capsys, "train") == "ocalib train: error: fit: give a config, e.g. --config configs/train/quick.yaml"
+    )
