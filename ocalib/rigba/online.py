@@ -109,9 +109,12 @@ class OnlineRigEstimator:
         kf = Keyframe(frame, np.asarray(pose, np.float64).copy(), features, [np.full(len(f), -1) for f in features])
         measured = {}
         if self.keyframes:
-            measured = self._resect(kf)
+            recent = list(self.keyframes)[-self.options.match_previous :]
+            matches = [[match_features(f.descriptors, p.features[k].descriptors) for p in recent] for k, f in
+                       enumerate(features)]  # fmt: skip
+            measured = self._resect(kf, recent, matches)
             self.keyframes_unregistered += len(measured) < len(features)
-            self._triangulate(kf)
+            self._triangulate(kf, recent, matches)
         self.keyframes.append(kf)
         changes = self._changes(frame, measured)
         self._evict()
@@ -123,18 +126,17 @@ class OnlineRigEstimator:
         registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)
 
-    def _resect(self, kf: Keyframe) -> dict[int, np.ndarray]:
-        """Each camera's pose from its 2-D-3-D matches (COLMAP's absolute pose, at least ``min_inliers``
-        inliers), whose inliers' point ids are set -> per camera resected, its extrinsic as this keyframe measures
-        it (``inverse(rig pose) @ camera pose``)."""
+    def _resect(self, kf: Keyframe, recent: list[Keyframe], matches) -> dict[int, np.ndarray]:
+        """Each camera's pose from its 2-D-3-D matches with the ``recent`` keyframes (``matches[k][j]``: camera k's
+        with keyframe j; COLMAP's absolute pose, at least ``min_inliers`` inliers), whose inliers' point ids are set
+        -> per camera resected, its extrinsic as this keyframe measures it (``inverse(rig pose) @ camera pose``)."""
         options = pycolmap.AbsolutePoseEstimationOptions()
         options.ransac.max_error, options.ransac.min_num_trials, options.ransac.random_seed = MAX_ERROR_PX, 100, 0
         measured = {}
         for k, features in enumerate(kf.features):
             xy, xyz, where = [], [], []
-            for previous in list(self.keyframes)[-self.options.match_previous :]:
-                matches = match_features(features.descriptors, previous.features[k].descriptors)
-                for i, pid in zip(matches[:, 0], previous.point_ids[k][matches[:, 1]]):
+            for previous, pairs in zip(recent, matches[k]):
+                for i, pid in zip(pairs[:, 0], previous.point_ids[k][pairs[:, 1]]):
                     if pid >= 0 and pid in self.points and kf.point_ids[k][i] < 0:
                         xy.append(features.keypoints[i])
                         xyz.append(self.points[pid])
@@ -152,19 +154,17 @@ class OnlineRigEstimator:
             measured[k] = np.linalg.inv(kf.pose) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
         return measured
 
-    def _triangulate(self, kf: Keyframe) -> None:
-        """Extend the tracks the new keyframe's matches continue (where the point reprojects), and triangulate
-        new points from its matches with earlier keyframes."""
+    def _triangulate(self, kf: Keyframe, recent: list[Keyframe], matches) -> None:
+        """Extend the tracks the new keyframe's matches with the ``recent`` keyframes continue (where the point
+        reprojects), and triangulate new points from the others, the latest keyframe first."""
         for k, features in enumerate(kf.features):
             new_from_world = np.linalg.inv(kf.pose @ self.extrinsics[k])
-            for previous in reversed(list(self.keyframes)[-self.options.match_previous :]):
-                matches = match_features(features.descriptors, previous.features[k].descriptors)
-                matches = matches[kf.point_ids[k][matches[:, 0]] < 0]
+            for previous, pairs in reversed(list(zip(recent, matches[k]))):
                 old_from_world = np.linalg.inv(previous.pose @ self.extrinsics[k])
-                for i, j in matches:
+                for i, j in pairs[kf.point_ids[k][pairs[:, 0]] < 0]:
                     pid = previous.point_ids[k][j]
                     if pid >= 0:
-                        if pid in self.points and self._error(new_from_world, k, self.points[pid], features, i):
+                        if pid in self.points and self._reprojects(new_from_world, k, self.points[pid], features, i):
                             kf.point_ids[k][i] = pid
                         continue
                     X = self._point(old_from_world, new_from_world, k, previous.features[k], j, features, i)
@@ -188,11 +188,11 @@ class OnlineRigEstimator:
         cosine = a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300)
         if cosine > np.cos(np.radians(self.options.min_angle_deg)):
             return None
-        if not (self._error(old_from_world, k, X, old, j) and self._error(new_from_world, k, X, new, i)):
+        if not (self._reprojects(old_from_world, k, X, old, j) and self._reprojects(new_from_world, k, X, new, i)):
             return None
         return X
 
-    def _error(self, cam_from_world: np.ndarray, k: int, X: np.ndarray, features: Features, i: int) -> bool:
+    def _reprojects(self, cam_from_world: np.ndarray, k: int, X: np.ndarray, features: Features, i: int) -> bool:
         """Whether ``X`` lies in front of camera k at ``cam_from_world`` and reprojects within ``MAX_ERROR_PX``."""
         p = cam_from_world[:3, :3] @ X + cam_from_world[:3, 3]
         if p[2] <= 1e-9:
