@@ -190,8 +190,8 @@ def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame)
                 last, pending = pending[-1], []
                 bar.set_postfix_str(progress_text(last), refresh=False)
                 if bar.disable and progress is None:  # not a terminal: a line now and then, for a log
-                    rate = bar.n / max(time.perf_counter() - start, 1e-9)
-                    print(f"calibrating: {bar.n}/{frames} frames ({rate:.1f} frame/s)", file=sys.stderr, flush=True)
+                    rate = (t + 1) / max(time.perf_counter() - start, 1e-9)
+                    print(f"calibrating: {t + 1}/{frames} frames ({rate:.1f} frame/s)", file=sys.stderr, flush=True)
     trace = {k: torch.cat([c[k] for c in chunks]).double().numpy() for k in chunks[0]}
     values = {f.name: getattr(last, f.name) for f in fields(Calibration)}
     last = Calibration(**{k: None if v is None else v.cpu() for k, v in values.items()})
