@@ -3,15 +3,12 @@ mounting told from noise.
 
 :meth:`ExtrinsicTrack.fuse` adds a window estimate ``E_w`` with its covariance ``P_w``: information-weighted, each
 window's information divided by ``overlap`` (the number of windows a keyframe appears in: overlapping windows
-share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement of the extrinsic (camera k's pose resected
-from its 2-D-3-D matches, composed with the rig's pose) against the fused estimate: the rotation part of the
-innovation ``d`` (rotation vector, camera 0's axes) gives ``chi2 = d^T (S + P)^-1 d`` with ``S`` the measurement's
-covariance and ``P`` the fused estimate's, divided by the running median of the accepted values over the
-chi-square median (never below 1: these covariances are lower bounds, and the division keeps the test's level on
-any rig). Over the chi-square quantile at ``false_alarm`` on ``persistence`` keyframes in a row, whose measurements
-agree with their mean (a bad resection disagrees with the fused estimate too, but not in one consistent way), is a
-change: the track restarts from that mean. The rotation alone, since one keyframe's resected position
-is too noisy to tell a knock from noise; a knock that only shifts a camera goes unnoticed.
+share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement of the extrinsic (camera
+k's pose resected from its 2-D-3-D matches, composed with the rig's pose) against the fused estimate: the
+innovation ``d`` (rotation vector and translation difference, camera 0's axes), less the mean of the recent
+accepted ones, gives ``chi2 = d^T S^-1 d`` with ``S`` their covariance (the spread the measurements show on a steady
+rig, which the covariances of a bundle adjustment understate). Over the chi-square quantile at ``false_alarm`` on
+``persistence`` keyframes in a row is a change: the track restarts from their mean.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_fused`` with ``d`` =
 (rotation rad, translation) in camera 0's axes.
@@ -26,9 +23,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_distribution
 
-HISTORY = 50  # accepted chi-square values whose median normalises the test
-MIN_HISTORY = 10  # values needed before the test runs
-AGREEMENT = 0.01  # the disagreeing measurements must agree with their mean at this level to be one new mounting
+HISTORY = 30  # accepted innovations whose spread the test uses
+MIN_HISTORY = 10  # innovations needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 
 
@@ -69,28 +65,26 @@ class ExtrinsicTrack:
         self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
         self.covariance = cov
 
-    def observe(self, frame: int, extrinsic: np.ndarray, rotation_covariance: np.ndarray) -> Change | None:
-        """Test one keyframe's measurement ``extrinsic`` (4, 4), its rotation's covariance (3, 3) (rad^2, camera 0's
-        axes) -> the change it completes, if any."""
+    def observe(self, frame: int, extrinsic: np.ndarray) -> Change | None:
+        """Test one keyframe's measurement ``extrinsic`` (4, 4) -> the change it completes, if any."""
         if self.extrinsic is None:
             return None
         d = innovation(self.extrinsic, extrinsic)
-        value = float(d[:3] @ np.linalg.solve(rotation_covariance + self.covariance[:3, :3], d[:3]))
-        self.chi2 = value / self._scale()
-        if len(self._history) < MIN_HISTORY or self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 3):
-            self._pending.clear()
-            self._history.append(value)
+        if len(self._history) < MIN_HISTORY:
+            self._history.append(d)
             return None
-        self._pending.append((frame, extrinsic, rotation_covariance))
+        history = np.stack(self._history)
+        spread = np.cov(history.T) + np.diag(np.maximum(history.var(0), 1e-12)) * 0.1  # shrunk toward its diagonal
+        z = d - history.mean(0)
+        self.chi2 = float(z @ np.linalg.solve(spread, z))
+        if self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 6):
+            self._pending.clear()
+            self._history.append(d)
+            return None
+        self._pending.append((frame, extrinsic))
         if len(self._pending) < self.persistence:
             return None
-        steps = np.stack([innovation(self.extrinsic, E) for _, E, _ in self._pending])
-        step = steps.mean(0)
-        agree = [float((d[:3] - step[:3]) @ np.linalg.solve(S, d[:3] - step[:3])) / self._scale() for d, (_, _, S) in
-                 zip(steps, self._pending)]  # fmt: skip
-        if max(agree) > chi2_distribution.ppf(1 - AGREEMENT, 3):  # outliers, not one new mounting: slide on
-            self._pending.pop(0)
-            return None
+        step = np.mean([innovation(self.extrinsic, E) for _, E in self._pending], axis=0)
         new = perturbed(self.extrinsic, step)
         change = Change(self._pending[0][0], frame, *_step(self.extrinsic, new))
         self.changes.append(change)
@@ -98,13 +92,6 @@ class ExtrinsicTrack:
         self._history.clear()
         self._pending.clear()
         return change
-
-    def _scale(self) -> float:
-        """How many times the chi-square median (3 degrees of freedom) the accepted values are, as a median; at
-        least 1 (the covariances are lower bounds, never upper ones)."""
-        if len(self._history) < MIN_HISTORY:
-            return 1.0
-        return max(1.0, float(np.median(self._history)) / chi2_distribution.median(3))
 
 
 def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:

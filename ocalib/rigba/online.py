@@ -126,11 +126,10 @@ class OnlineRigEstimator:
         registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)
 
-    def _resect(self, kf: Keyframe, recent: list[Keyframe], matches) -> dict:
+    def _resect(self, kf: Keyframe, recent: list[Keyframe], matches) -> dict[int, np.ndarray]:
         """Each camera's pose from its 2-D-3-D matches with the ``recent`` keyframes (``matches[k][j]``: camera k's
         with keyframe j; COLMAP's absolute pose, at least ``min_inliers`` inliers), whose inliers' point ids are set
-        -> per camera resected, its extrinsic as this keyframe measures it (``inverse(rig pose) @ camera pose``) and
-        the covariance (3, 3) of its rotation (camera 0's axes)."""
+        -> per camera resected, its extrinsic as this keyframe measures it (``inverse(rig pose) @ camera pose``)."""
         options = pycolmap.AbsolutePoseEstimationOptions()
         options.ransac.max_error, options.ransac.min_num_trials, options.ransac.random_seed = MAX_ERROR_PX, 100, 0
         measured = {}
@@ -145,16 +144,14 @@ class OnlineRigEstimator:
             if len(xy) < self.options.min_inliers:
                 continue
             result = pycolmap.estimate_and_refine_absolute_pose(
-                np.asarray(xy) + 0.5, np.asarray(xyz), self._cameras[k], options, return_covariance=True
+                np.asarray(xy) + 0.5, np.asarray(xyz), self._cameras[k], options
             )
             if result is None or int(np.sum(result["inlier_mask"])) < self.options.min_inliers:
                 continue
             for (i, pid), inlier in zip(where, result["inlier_mask"]):
                 if inlier:
                     kf.point_ids[k][i] = pid
-            E = np.linalg.inv(kf.pose) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
-            R = E[:3, :3]  # cam_from_world's rotation perturbed on the left, in camera k's axes -> camera 0's
-            measured[k] = (E, R @ result["covariance"][:3, :3] @ R.T)
+            measured[k] = np.linalg.inv(kf.pose) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
         return measured
 
     def _triangulate(self, kf: Keyframe, recent: list[Keyframe], matches) -> None:
@@ -214,12 +211,12 @@ class OnlineRigEstimator:
         for pid in set(self.points) - seen:
             del self.points[pid]
 
-    def _changes(self, frame: int, measured: dict) -> list[tuple[int, Change]]:
+    def _changes(self, frame: int, measured: dict[int, np.ndarray]) -> list[tuple[int, Change]]:
         """Test each camera's measured extrinsic against its track -> the changes found; a camera that moved loses
         its observations from before, and starts again from the measurement."""
         changes = []
-        for k, (extrinsic, covariance) in measured.items():
-            change = self.tracks[k].observe(frame, extrinsic, covariance) if k > 0 else None
+        for k, extrinsic in measured.items():
+            change = self.tracks[k].observe(frame, extrinsic) if k > 0 else None
             if change is not None:
                 changes.append((k, change))
                 self._forget_before(k, change.frame)
