@@ -73,6 +73,11 @@ class RigStream:
         frames = len(result.run.trace["frame"])
         result.run.trace.update(self.trace(frames))
         result.rig = self
+        if self.final is None:
+            self.warnings.append(
+                "on-line rig estimator: never started (the on-line head's rotation of every camera was not observed "
+                f"from frame {START_FRAME} on); the translation comes from the bundle adjustment alone"
+            )
         cameras = self.sequence.cameras
         if self.final is None or any(cam.T_cam0_cam is None for cam in cameras):
             return
