@@ -101,7 +101,22 @@ class ImageCalibration:
                     errors = [*errors[:k], self.rig_errors[k], *errors[k + 1 :]]
         if errors is not None:
             doc["ground_truth_errors"] = finite_or_null(errors)
+        doc["warnings"] = _replaced_said(doc["warnings"], doc["extrinsics"])
         return doc
+
+
+def _replaced_said(warnings: list[str], extrinsics: list[dict]) -> list[str]:
+    """The head's warnings that its translation is not supported, said as the head's where a later stage's result
+    replaced it."""
+    from ocalib.calib.report import SOURCES
+
+    out = []
+    for w in warnings:
+        e = next((e for e in extrinsics if w.startswith(f"{e['camera']}: the translation equations")), None)
+        if e is not None and e.get("source") in SOURCES:
+            w = f"on-line head: {w}; its translation is replaced by {SOURCES[e['source']]}'s"
+        out.append(w)
+    return out
 
 
 def calibrate_images(
