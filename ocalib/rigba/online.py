@@ -55,15 +55,14 @@ class OnlineRigOptions:
 @dataclass
 class RigState:
     """The estimate after one keyframe: the fused ``extrinsics`` (C, 4, 4) in metres, their 1-sigma ``std`` (C, 6)
-    (rotation rad, translation m; camera 0's axes; NaN where not yet known, inf where the data do not inform it), the
-    window's own ``window_extrinsics``, each camera's normalised change statistic ``chi2`` (C,), whether the
+    (rotation rad, translation m; camera 0's axes; NaN where not yet known, inf where the data do not inform it), each
+    camera's normalised change statistic ``chi2`` (C,), whether the
     keyframe ``registered`` (every camera resected from its matches), the ``changes`` (camera, change) it completed,
     and the ``seconds`` it took."""
 
     frame: int
     extrinsics: np.ndarray
     std: np.ndarray
-    window_extrinsics: np.ndarray
     chi2: np.ndarray
     registered: bool
     changes: list[tuple[int, Change]]
@@ -243,4 +242,4 @@ class OnlineRigEstimator:
             else:
                 extrinsics[k] = self.extrinsics[k]
         chi2 = np.array([t.chi2 for t in self.tracks])
-        return RigState(frame, extrinsics, std, self.extrinsics.copy(), chi2, registered, changes, seconds)
+        return RigState(frame, extrinsics, std, chi2, registered, changes, seconds)

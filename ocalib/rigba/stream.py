@@ -186,9 +186,8 @@ class RigStream:
 
 
 def _quaternions(E: np.ndarray) -> np.ndarray:
-    """(N, 4) w >= 0 quaternions of the rotations of ``E`` (N, 4, 4)."""
-    q = rotation_matrix_to_quaternion(torch.from_numpy(np.ascontiguousarray(E[:, :3, :3]))).numpy()
-    return q * np.where(q[:, :1] < 0, -1.0, 1.0)
+    """(N, 4) quaternions (w >= 0) of the rotations of ``E`` (N, 4, 4)."""
+    return rotation_matrix_to_quaternion(torch.from_numpy(np.ascontiguousarray(E[:, :3, :3]))).numpy()
 
 
 def _finite(v: float) -> float | None:
