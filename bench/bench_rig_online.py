@@ -37,6 +37,7 @@ from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.synth import preset, render_sequence
+from ocalib.synth.presets import knocked
 
 DEFAULT = ["handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001", "front-left-1002"]
 TARGETS = {"car": (0.5, 5.0, 0.1), "handheld": (0.5, 10.0, 0.25)}  # rotation deg, direction deg, translation / baseline
@@ -51,11 +52,7 @@ def ensure_knocked(root: Path, name: str, frames: int) -> Path:
     kind, seed = name.rsplit("-", 1)[0], int(name.rsplit("-", 1)[1])
     cfg = preset(kind).with_overrides(frames=frames, seed=seed, height=base.cameras[0].size[0],
                                       width=base.cameras[0].size[1])  # fmt: skip
-    cam = cfg.cameras[1]
-    shift = [0.05, 0.0, 0.0] if cfg.trajectory["kind"] == "drive" else [0.0, 0.0, 0.0]
-    change = {"frame": frames // 2, "rotation_deg": [cam.rotation_deg[0], cam.rotation_deg[1] + 2, cam.rotation_deg[2]],
-              "position": [p + d for p, d in zip(cam.position, shift)]}  # fmt: skip
-    cfg = cfg.with_overrides(cameras=[cfg.cameras[0], dataclasses.replace(cam, change=change), *cfg.cameras[2:]])
+    cfg = knocked(cfg, frames // 2)
     partial = path.with_name(path.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     render_sequence(cfg, partial, workers=2)

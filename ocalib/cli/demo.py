@@ -52,12 +52,13 @@ def run(args) -> int:
     from ocalib.data.layout import open_sequence
     from ocalib.rigba.stream import RigStream
     from ocalib.synth import preset, render_sequence
+    from ocalib.synth.presets import knocked
     from ocalib.viz.calibration import plot_trace
 
     out, frontend = Path(args.out), frontend_options(args)
     cfg = preset(args.preset).with_overrides(frames=args.frames, seed=args.seed)
     if args.change:
-        cfg = _knocked(cfg)
+        cfg = knocked(cfg, cfg.frames // 2)
     sequence = out / "sequence"
     render_sequence(cfg, sequence, overwrite=True, workers=2)
     metric = open_sequence(sequence).cameras[0].poses  # the rendered poses stand for wheel odometry
@@ -78,22 +79,6 @@ def run(args) -> int:
     print_warnings(doc)
     print(f"wrote {out / 'result.json'}, {out / 'trace.csv'} and {out / 'trace.png'}")
     return 0
-
-
-def _knocked(cfg):
-    """``cfg`` with camera 1 turned by 2 deg about its y axis from half the frames on (and moved 5 cm sideways on
-    the cars, whose lever arms are metres)."""
-    import dataclasses
-
-    camera = cfg.cameras[1]
-    shift = [0.05, 0.0, 0.0] if cfg.trajectory["kind"] == "drive" else [0.0, 0.0, 0.0]
-    change = {
-        "frame": cfg.frames // 2,
-        "rotation_deg": [camera.rotation_deg[0], camera.rotation_deg[1] + 2.0, camera.rotation_deg[2]],
-        "position": [p + d for p, d in zip(camera.position, shift)],
-    }
-    cameras = [*cfg.cameras[:1], dataclasses.replace(camera, change=change), *cfg.cameras[2:]]
-    return cfg.with_overrides(cameras=cameras)
 
 
 def truth_table(sequence, doc: dict) -> str:

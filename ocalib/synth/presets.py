@@ -6,6 +6,7 @@ All cameras default to KITTI-like normalised intrinsics (``fx = 0.58 W``, ``fy =
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 from ocalib.errors import InputError
 from ocalib.synth.config import SynthConfig, config_from_dict
@@ -51,3 +52,16 @@ def preset(name: str) -> SynthConfig:
     if name not in PRESETS:
         raise InputError(f"unknown preset {name!r} (presets: {', '.join(PRESETS)})")
     return config_from_dict(copy.deepcopy(PRESETS[name]), f"preset {name}")
+
+
+def knocked(cfg: SynthConfig, frame: int) -> SynthConfig:
+    """``cfg`` with camera 1 knocked from ``frame`` on: turned by 2 deg about its y axis, and on a drive (the cars,
+    whose lever arms are metres) also moved 5 cm along camera 0's x axis."""
+    cam = cfg.cameras[1]
+    shift = [0.05, 0.0, 0.0] if cfg.trajectory["kind"] == "drive" else [0.0, 0.0, 0.0]
+    change = {
+        "frame": frame,
+        "rotation_deg": [cam.rotation_deg[0], cam.rotation_deg[1] + 2.0, cam.rotation_deg[2]],
+        "position": [p + d for p, d in zip(cam.position, shift)],
+    }
+    return cfg.with_overrides(cameras=[cfg.cameras[0], dataclasses.replace(cam, change=change), *cfg.cameras[2:]])

@@ -2,8 +2,6 @@
 test separates a step from noise, and on a rendered rig the estimator follows the extrinsic, notices a knocked
 camera at the right frame, keeps its state bounded, and says so where a camera registers nothing."""
 
-import dataclasses
-
 import cv2
 import numpy as np
 import pytest
@@ -16,6 +14,7 @@ from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.rigba.window import Keyframe, adjust_window
 from ocalib.synth import preset, render_sequence
+from ocalib.synth.presets import knocked
 
 K = np.array([[240.0, 0, 207.5], [0, 245.0, 63.5], [0, 0, 1]])
 
@@ -84,13 +83,9 @@ def test_the_change_test_gives_no_alarm_on_a_steady_camera_and_finds_a_step(seed
 
 
 @pytest.fixture(scope="module")
-def knocked(tmp_path_factory):
+def knocked_rig(tmp_path_factory):
     """A hand-held rig, 120 frames at 128x416, camera 1 turned by 2 deg about its y axis at frame 70."""
-    cfg = preset("handheld").with_overrides(frames=120, height=128, width=416, seed=1017)
-    cam = cfg.cameras[1]
-    change = {"frame": 70, "rotation_deg": [cam.rotation_deg[0], cam.rotation_deg[1] + 2, cam.rotation_deg[2]],
-              "position": list(cam.position)}  # fmt: skip
-    cfg = cfg.with_overrides(cameras=[cfg.cameras[0], dataclasses.replace(cam, change=change)])
+    cfg = knocked(preset("handheld").with_overrides(frames=120, height=128, width=416, seed=1017), 70)
     return open_sequence(render_sequence(cfg, tmp_path_factory.mktemp("knocked") / "rig", progress=False))
 
 
@@ -111,8 +106,8 @@ def _run(sequence, frames, options=OnlineRigOptions()):
     return estimator, states, truth
 
 
-def test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed(knocked):
-    estimator, states, truth = _run(knocked, range(120))
+def test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed(knocked_rig):
+    estimator, states, truth = _run(knocked_rig, range(120))
     steady = [s for s in states if s.frame < 70]
     assert not any(s.changes for s in steady)
     before = steady[-1].extrinsics[1]
@@ -125,15 +120,15 @@ def test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed(knocked):
     detected, change = changes[0]
     assert 70 <= change.frame <= 74 and detected <= 70 + 30
     assert 1.0 < change.rotation_change_deg < 4.0  # the step, from three single-keyframe measurements
-    after = np.linalg.inv(knocked.cameras[0].T_cam0_cam) @ knocked.cameras[1].change.T_cam0_cam
+    after = np.linalg.inv(knocked_rig.cameras[0].T_cam0_cam) @ knocked_rig.cameras[1].change.T_cam0_cam
     final = states[-1].extrinsics[1]
     assert float(rotation_angle_deg(final[:3, :3].T @ after[:3, :3])) < 0.5
     assert len(estimator.points) < 40 * 1024  # the window's points only
 
 
-def test_a_textureless_stretch_is_counted_not_fatal(knocked):
+def test_a_textureless_stretch_is_counted_not_fatal(knocked_rig):
     blank = np.full((128, 416), 128, np.uint8)
-    cams = knocked.cameras
+    cams = knocked_rig.cameras
     estimator = OnlineRigEstimator(np.stack([c.K for c in cams]), [tuple(c.size) for c in cams],
                                    np.stack([np.eye(4), cams[1].T_cam0_cam]))  # fmt: skip
     poses = np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses
