@@ -1,5 +1,6 @@
 """CI's check of the demo's figures (``.ci/readme.py``): within the README's tolerances it passes, outside them,
-with a NaN, or without the line it fails; and the README's quoted lines are what it can check."""
+with a NaN, or without the line it fails; the README's quoted lines are what it can check; the README installs with
+constraints.txt, which pins every dependency within pyproject's bounds."""
 
 import importlib.util
 from pathlib import Path
@@ -36,3 +37,22 @@ def test_a_figure_passes_within_its_tolerance_and_fails_outside(printed, ok):
 def test_the_readme_quotes_demo_lines_with_tolerances():
     figures = [spec for line in readme.block("demo output") for spec, _ in readme.line_check(line)[1]]
     assert len([spec for spec in figures if spec != "*"]) >= 6, figures
+
+
+def test_the_readme_installs_with_the_constraints_and_they_pin_every_dependency_within_pyproject():
+    import tomllib
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    assert readme.block("install")[1:] == ['pip install -e ".[dev]" -c constraints.txt']
+    pins = {}
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        if line.strip() and not line.startswith("#"):
+            name, version = line.split("==")
+            pins[canonicalize_name(name)] = version
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    for spec in project["dependencies"] + project["optional-dependencies"]["dev"]:
+        requirement = Requirement(spec)
+        pinned = pins.get(canonicalize_name(requirement.name))
+        assert pinned is not None, f"{requirement.name} is not pinned in constraints.txt"
+        assert requirement.specifier.contains(pinned, prereleases=True), f"{requirement.name}=={pinned} vs {spec}"
