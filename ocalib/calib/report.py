@@ -295,23 +295,38 @@ def print_warnings(doc: dict) -> None:
         print(f"warning: {w}", file=sys.stderr)
 
 
+def _finite(value, spec: str, undefined: str) -> str:
+    """``value`` formatted by ``spec``, or ``undefined`` where it is not a finite number (no NaN is printed)."""
+    return format(value, spec) if value is not None and math.isfinite(value) else undefined
+
+
 def errors_table(errors: list[dict], cameras: list[str], what: str | None = None) -> str:
-    """The ground-truth errors, one line per camera (``what``: whose, e.g. the on-line head's)."""
+    """The ground-truth errors, one line per camera (``what``: whose, e.g. the on-line head's). A figure the
+    estimate does not define (a translation direction with fewer than two observable components, a baseline of
+    zero) is said as ``n/a`` with the reason, never as a NaN."""
     lines = ["errors against the ground truth" + (f", {what}:" if what else ":")]
     for e in errors:
-        text = (
-            f"  {cameras[e['camera']]}: rotation {e['rotation_error_deg']:.3f} deg, translation direction "
-            f"{e['translation_direction_error_deg']:.2f} deg" + (" (in the plane)" if e["compared_in_plane"] else "")
-        )
+        direction = e["translation_direction_error_deg"]
+        if direction is not None and math.isfinite(direction):
+            direction_text = f"{direction:.2f} deg" + (" (in the plane)" if e["compared_in_plane"] else "")
+        elif e["compared_in_plane"]:
+            direction_text = "n/a (fewer than two of its components observable)"
+        else:
+            direction_text = "n/a (a zero translation has no direction)"
+        rotation = _finite(e["rotation_error_deg"], ".3f", "n/a (no estimate)")
+        text = f"  {cameras[e['camera']]}: rotation {rotation}{' deg' * rotation[0].isdigit()}, translation direction "
+        text += direction_text
         if "translation_error_rel_baseline" in e:
-            text += (
-                f", translation {e['translation_error']:.3f} m = {e['translation_error_rel_baseline']:.1%} of the "
-                f"baseline"
-                + ("" if e["metric_scale"] == 1 else f" (camera 0 scaled to metres x{e['metric_scale']:.3g})")
+            relative = _finite(e["translation_error_rel_baseline"], ".1%", "n/a")
+            relative += " of the baseline" if relative[0].isdigit() else " (no observable baseline)"
+            text += f", translation {_finite(e['translation_error'], '.3f', 'n/a')} m = {relative}" + (
+                ""
+                if e["metric_scale"] == 1
+                else f" (camera 0 scaled to metres x{_finite(e['metric_scale'], '.3g', 'n/a')})"
             )
         if "scale_true" in e:  # the on-line head's: what the front end's motions held
-            text += f", scale {e['scale']:.3f} (true {e['scale_true']:.3f})"
-            gains = lambda g: "/".join(f"{x:.2f}" for x in g)  # noqa: E731
+            text += f", scale {_finite(e['scale'], '.3f', 'n/a')} (true {_finite(e['scale_true'], '.3f', 'n/a')})"
+            gains = lambda g: "/".join(_finite(x, ".2f", "n/a") for x in g)  # noqa: E731
             text += (
                 f"\n    front-end rotation gain x/y/z (1: unbiased): {cameras[0]} {gains(e['rotation_gain_reference'])}, "
                 f"{cameras[e['camera']]} {gains(e['rotation_gain'])}"

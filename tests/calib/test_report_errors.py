@@ -1,0 +1,87 @@
+"""The ground-truth error lines: a figure the estimate does not define (a straight drive's translation direction,
+a zero baseline, a front end's rotation gain about an axis it never turned) is printed as n/a with its reason,
+never as a NaN; defined figures are printed as computed."""
+
+import math
+
+import numpy as np
+
+from ocalib.calib.report import errors_table
+from ocalib.rigba.adjust import RigAdjustment, adjustment_errors
+from ocalib.rigba.covariance import ExtrinsicUncertainty
+
+
+def _adjustment(t_estimate: np.ndarray, unobservable: np.ndarray) -> RigAdjustment:
+    """A metric adjustment of a two-camera rig: camera 1 at ``t_estimate``, those translation directions unobservable."""
+    extrinsics = np.tile(np.eye(4), (2, 1, 1))
+    extrinsics[1, :3, 3] = t_estimate
+    return RigAdjustment(
+        extrinsics,
+        np.ones(2, bool),
+        [None, ExtrinsicUncertainty(np.eye(6) * 1e-8, unobservable)],
+        np.ones(2),
+        np.arange(5),
+        np.tile(np.eye(4), (5, 1, 1)),
+        np.ones((5, 2), bool),
+        "metres",
+    )
+
+
+def _truth(t_true: np.ndarray):
+    """True extrinsics (2, 4, 4) with camera 1 at ``t_true``, and a straight drive's poses (5, 2, 4, 4) along z."""
+    extrinsics = np.tile(np.eye(4), (2, 1, 1))
+    extrinsics[1, :3, 3] = t_true
+    poses = np.tile(np.eye(4), (5, 2, 1, 1))
+    poses[:, :, 2, 3] = np.arange(5.0)[:, None]
+    return extrinsics, poses
+
+
+def test_a_straight_drive_prints_no_nan_but_says_the_direction_is_undefined():
+    t_true = np.array([0.5, 0.1, 0.2])
+    extrinsics, poses = _truth(t_true)
+    # only the drive's axis observed: two translation directions unobservable, so no direction to compare
+    errors = adjustment_errors(_adjustment(t_true + 0.01, np.array([[1.0, 0, 0], [0, 1.0, 0]])), extrinsics, poses)
+    assert math.isnan(errors[0]["translation_direction_error_deg"])
+    text = errors_table(errors, ["cam0", "cam1"], "after the rig bundle adjustment")
+    assert "nan" not in text.lower()
+    assert "translation direction n/a (fewer than two of its components observable)" in text
+    # the translation along the observable axis is still a figure: 0.01 m of a 0.2 m baseline component
+    assert "translation 0.010 m = 5.0% of the baseline" in text
+
+
+def test_all_directions_unobservable_says_no_baseline_instead_of_nan():
+    t_true = np.array([0.5, 0.1, 0.2])
+    extrinsics, poses = _truth(t_true)
+    errors = adjustment_errors(_adjustment(t_true, np.eye(3)), extrinsics, poses)
+    text = errors_table(errors, ["cam0", "cam1"])
+    assert "nan" not in text.lower()
+    assert "= n/a (no observable baseline)" in text
+
+
+def test_defined_figures_print_as_computed_and_undefined_head_figures_as_n_a():
+    a, b = np.array([1.0, 0.0, 0.0]), np.array([1.0, 1.0, 0.0])
+    error = {
+        "camera": 1,
+        "rotation_error_deg": 0.1234,
+        "translation_direction_error_deg": math.degrees(math.acos(a @ b / np.linalg.norm(b))),  # 45 deg
+        "compared_in_plane": False,
+        "metric_scale": math.nan,
+        "translation_error": 0.02,
+        "translation_error_rel_baseline": 0.1,
+        "scale": 0.98,
+        "scale_true": math.nan,
+        "rotation_gain_reference": [1.0, math.nan, 0.99],
+        "rotation_gain": [math.nan, 1.01, 1.0],
+        "scale_wander": math.nan,
+        "lever_arm_signal": math.nan,
+        "wander_window": 20,
+    }
+    text = errors_table([error], ["cam0", "cam1"])
+    assert "nan" not in text.lower()
+    assert "rotation 0.123 deg, translation direction 45.00 deg, translation 0.020 m = 10.0% of the baseline" in text
+    assert "(camera 0 scaled to metres xn/a), scale 0.980 (true n/a)" in text
+    assert "cam0 1.00/n/a/0.99, cam1 n/a/1.01/1.00" in text
+    nan_direction = dict(error, translation_direction_error_deg=math.nan)
+    assert "translation direction n/a (a zero translation has no direction)" in errors_table(
+        [nan_direction], ["a", "b"]
+    )
