@@ -215,8 +215,8 @@ def run_warnings(run: CalibrationRun) -> list[str]:
         rejected = int(e.frames_rejected[0, k])
         if rejected:
             out.append(
-                f"{f}: {rejected} of {frames} frames rejected (an invalid pose of camera 0 or this camera, "
-                "or motions failing the screw-congruence gate)"
+                f"{f}: {rejected} of {frames} frames rejected by the on-line head (an invalid pose of camera 0 or "
+                "this camera, or motions failing the screw-congruence gate)"
             )
     if run.settings["motion"] == "first":
         out.append(
@@ -254,7 +254,7 @@ def summary(doc: dict) -> str:
         obs = e["observability"]
         if None in e["quaternion_wxyz"]:  # absolute poses, rotation unobservable: no estimate
             lines += [
-                f"{e['camera']}: {e['frames_used']} frames used, {e['frames_rejected']} rejected",
+                f"{e['camera']}: {_frames_text(e)}",
                 "  no estimate: ROTATION UNOBSERVABLE (see the warnings)",
             ]
             continue
@@ -272,7 +272,7 @@ def summary(doc: dict) -> str:
         offset = "" if e["time_offset"] is None else f", time offset {e['time_offset']:+.6f} s"
         source = SOURCES.get(e.get("source"), "the on-line head")
         lines += [
-            f"{e['camera']}: {e['frames_used']} frames used, {e['frames_rejected']} rejected{offset}; from {source}",
+            f"{e['camera']}: from {source}; {_frames_text(e)}{offset}",
             "  rotation roll/pitch/yaw (deg, R = Rz Ry Rx): "
             + ", ".join(f"{v:+.3f}" for v in rpy_deg(q))
             + f"; axis-angle {angle:.3f} deg about [{', '.join(f'{v:+.4f}' for v in axis)}]"
@@ -287,6 +287,15 @@ def summary(doc: dict) -> str:
             f"  flags: {', '.join(flags) if flags else 'none'}",
         ]
     return "\n".join(lines)
+
+
+def _frames_text(e: dict) -> str:
+    """What ``frames_used`` / ``frames_rejected`` of camera JSON ``e`` count, said as such: the bundle adjustment's
+    keyframes (registered or not) where it gave the result, else the on-line head's frames (used or rejected)."""
+    if e.get("source") == "bundle_adjustment":
+        total = e["frames_used"] + e["frames_rejected"]
+        return f"{e['frames_used']} of {total} keyframes registered in the bundle adjustment"
+    return f"the on-line head used {e['frames_used']} frames and rejected {e['frames_rejected']}"
 
 
 def print_warnings(doc: dict) -> None:

@@ -1,6 +1,6 @@
 """The ground-truth error lines: a figure the estimate does not define (a straight drive's translation direction,
 a zero baseline, a front end's rotation gain about an axis it never turned) is printed as n/a with its reason,
-never as a NaN; defined figures are printed as computed."""
+never as a NaN; defined figures are printed as computed. The summary's frame counts say whose they are."""
 
 import math
 
@@ -85,3 +85,40 @@ def test_defined_figures_print_as_computed_and_undefined_head_figures_as_n_a():
     assert "translation direction n/a (a zero translation has no direction)" in errors_table(
         [nan_direction], ["a", "b"]
     )
+
+
+def _camera(source: str | None, used: int, rejected: int) -> dict:
+    """A camera's result JSON as ``calibrate`` writes it, from ``source`` (None: the on-line head)."""
+    e = {
+        "camera": "cam1",
+        "quaternion_wxyz": [1.0, 0.0, 0.0, 0.0],
+        "translation": [0.1, 0.0, 0.0],
+        "translation_std": [0.01, 0.01, 0.01],
+        "rotation_std_deg": [0.1, 0.1, 0.1],
+        "scale": 1.0,
+        "scale_std": 0.01,
+        "time_offset": None,
+        "frames_used": used,
+        "frames_rejected": rejected,
+        "observability": {
+            "rotation_observable": True,
+            "planar_motion": False,
+            "unobservable_translation_directions": [],
+        },
+        "residuals": {"rotation_deg": 0.1, "translation_relative": 0.01},
+    }
+    if source is not None:
+        e["source"] = source
+    return e
+
+
+def test_the_summary_says_what_its_frame_counts_count():
+    from ocalib.calib.report import summary
+
+    settings = {"frames": 300, "solver": "exact", "motion": "multi"}
+    doc = {"reference": "cam0", "settings": settings, "extrinsics": [_camera("bundle_adjustment", 148, 2)]}
+    first = summary(doc).splitlines()[1]
+    assert first == "cam1: from the rig bundle adjustment; 148 of 150 keyframes registered in the bundle adjustment"
+    doc["extrinsics"] = [_camera(None, 297, 3)]
+    first = summary(doc).splitlines()[1]
+    assert first == "cam1: from the on-line head; the on-line head used 297 frames and rejected 3"
