@@ -1,8 +1,36 @@
-"""``ocalib train``: the Lightning training application (``train/``); all arguments go to its LightningCLI."""
+"""``ocalib train``: the Lightning training application (``train/``); all arguments go to its LightningCLI.
+
+``ocalib train`` alone or with ``--help`` prints the application's overview from here, without importing
+Lightning (several seconds, more on a first run); a sub-command's ``--help`` (``ocalib train fit --help``) is the
+LightningCLI's own, which lists every option of the trainer, the model and the data.
+"""
 
 from __future__ import annotations
 
 import argparse
+
+# The LightningCLI's sub-commands (LightningCLI.subcommands(); a test keeps the two the same).
+SUBCOMMANDS = {
+    "fit": "train, validating as it goes; resume with --ckpt_path runs/NAME/version_N/checkpoints/last.ckpt",
+    "validate": "one evaluation epoch over the validation set",
+    "test": "one evaluation epoch over the test set",
+    "predict": "run the model over the predict set",
+}
+HELP = """usage: ocalib train [-c CONFIG] {{fit,validate,test,predict}} ...
+
+Train the depth and pose networks: the LightningCLI of ocalib.train (also python -m ocalib.train).
+
+subcommands:
+{subcommands}
+
+e.g. ocalib train fit --config configs/train/quick.yaml (a run of minutes) or configs/train/synthetic-cpu.yaml
+(the shipped checkpoint's recipe). Every option of a subcommand (trainer, model, data, --print_config):
+ocalib train fit --help (it imports Lightning first: several seconds)."""
+
+
+def help_text() -> str:
+    """The overview ``ocalib train --help`` prints."""
+    return HELP.format(subcommands="\n".join(f"  {name:<10} {text}" for name, text in SUBCOMMANDS.items()))
 
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
@@ -18,6 +46,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
+    if args.args in ([], ["-h"], ["--help"]):  # without a sub-command: the overview (1, as ocalib alone)
+        print(help_text())
+        return 0 if args.args else 1
     import sys
 
     from ocalib.train.cli import main
