@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 # SynthConfig's defaults, which every preset keeps and a --config may set (a test keeps them equal): written out
 # here so that building the parser imports no numpy
@@ -49,12 +50,22 @@ def run(args) -> int:
     from pathlib import Path
 
     from ocalib.synth import load_config, preset, render_sequence
+    from ocalib.synth.sequence import camera_poses
+    from ocalib.synth.trajectory import STRAIGHT_DEG, turned_deg
 
     cfg = load_config(args.config) if args.config else preset(args.preset or "front-rear")
     cfg = cfg.with_overrides(
         frames=args.frames, seed=args.seed, height=args.height, width=args.width, photometric=args.photometric
     )
     out = Path(args.out) if args.out else Path("data") / "synth" / cfg.name
+    turned = turned_deg(camera_poses(cfg)[0])
+    if turned < STRAIGHT_DEG:
+        print(
+            f"ocalib synth: note: camera 0 turns at most {turned:.1f} deg in these {cfg.frames} frames (a straight "
+            "route): the rotation between the cameras will not be observable from this motion; another --seed or "
+            "more --frames gives a route with turns",
+            file=sys.stderr,
+        )
     render_sequence(cfg, out, device=args.device, overwrite=args.overwrite, workers=args.workers)
     print(f"wrote {cfg.frames} frames x {len(cfg.cameras)} cameras ({cfg.height}x{cfg.width}) to {out}")
     return 0

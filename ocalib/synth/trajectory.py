@@ -29,6 +29,9 @@ from ocalib.errors import InputError
 from ocalib.synth.world import PITCH, ROAD
 
 TURN_RADIUS = 9.0
+# A trajectory whose camera 0 turns less than this (deg) from its first orientation is all but straight: the
+# rotation between the cameras is not observable from its motion (the hand-eye constraint needs rotations)
+STRAIGHT_DEG = 5.0
 R_RIG_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera axes in the rig frame
 _DIRS = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])  # E, N, W, S
 
@@ -166,3 +169,10 @@ def trajectory(
     fwd = np.stack([np.cos(h), np.sin(h)], 1)
     pos = np.stack([x, y], 1) + lat[:, None] * left + np.clip(out[:, 2], -1, 1)[:, None] * fwd
     return _pose(pos, z, h + out[:, 5], out[:, 4], out[:, 3])
+
+
+def turned_deg(poses: np.ndarray) -> float:
+    """The largest rotation (deg) of the poses (N, 4, 4) from the first one's orientation: how far the camera turns."""
+    R = poses[0, :3, :3].T @ poses[:, :3, :3]
+    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos)).max())
