@@ -22,7 +22,7 @@ from ocalib.io.timing import INTERPOLATION_MAX_DT_PERIODS, increasing, interpola
 
 # estimate_time_offset: lags overlapping less than MIN_OVERLAP of the shorter recording are not
 # considered (short overlaps give spurious peaks). The answer is an error rather than a guess when its
-# normalised correlation is below MIN_CORRELATION, or when another lag (outside the peak's lobe) comes
+# normalised correlation is below MIN_CORRELATION, or when another lag (outside the peak: see _runner_up) comes
 # close: 1 - runner_up < max(MIN_DISTINCTNESS * (1 - correlation), MIN_SEPARATION). The floor matters for clean,
 # repetitive motion: two lags can both correlate to within 1e-5 of perfect, and the better of them by a hair need
 # not be the right one (measured: a smooth test motion whose rotation vector repeats with a sign flip every 31.4 s;
@@ -223,12 +223,21 @@ def _normalised_xcorr(x: np.ndarray, y: np.ndarray):
 
 
 def _runner_up(ncc: np.ndarray, best: int) -> tuple[float, int]:
-    """Highest score and its index outside the main lobe (from ``best`` downhill to the first valley each side)."""
-    d = np.diff(np.maximum(ncc, -2.0))
-    up_right = np.flatnonzero(d[best:] > 0)
-    down_left = np.flatnonzero(d[:best] < 0)
-    hi = best + up_right[0] if len(up_right) else len(ncc)
-    lo = down_left[-1] + 1 if len(down_left) else 0
+    """Highest score and its index outside the main peak. The peak spans, each side of ``best``, the lags down to
+    the first valley and all lags on to where the correlation first falls below half the peak's: pose noise
+    ripples the top of one broad peak into local maxima a few samples apart, which are that peak, not a repeat (a
+    repeating motion's second peak lies beyond a dip below half)."""
+    scores = np.maximum(ncc, -2.0)
+    right, left = scores[best:], scores[best::-1]  # from the peak outwards
+
+    def extent(side: np.ndarray) -> int:
+        """Samples from the peak to the farther of its first valley and its first score below half the peak's."""
+        rising = np.flatnonzero(np.diff(side) > 0)
+        below = np.flatnonzero(side < side[0] / 2)
+        end = len(side) - 1  # the last lag: the peak runs to the end of the lags
+        return max(rising[0] if len(rising) else end, below[0] if len(below) else end)
+
+    hi, lo = best + extent(right), best - extent(left)
     outside = np.r_[ncc[:lo], ncc[hi + 1 :]]
     if not len(outside):
         return -np.inf, best

@@ -1,13 +1,15 @@
 """Clock offsets from motion: the angular-speed correlation and its refinement by the rig's rotation constraint,
 against rigs whose offset is known by construction."""
 
+import re
+
 import cv2
 import numpy as np
 import pytest
 import torch
 from timed_rigs import make_rig
 
-from ocalib.calib.clock import angular_speed, estimate_time_offset, refine_time_offset
+from ocalib.calib.clock import _runner_up, angular_speed, estimate_time_offset, refine_time_offset
 from ocalib.errors import InputError
 from ocalib.io.poses import read_poses, write_tum
 from ocalib.io.timing import associate
@@ -61,21 +63,58 @@ def test_offset_barely_overlapping_recordings_is_an_error(rig):
         estimate_time_offset(t0[keep0], p0[keep0], t1[keep1], p1[keep1])
 
 
-def test_offset_of_a_repeating_motion_is_ambiguous():
-    """A motion whose rotation vector repeats with a flipped sign every 10 pi s has the same angular speed there:
-    two lags correlate to within 1e-5 of perfect, and the answer is an error, not the better of the two by a hair."""
+def _repeating(t: np.ndarray) -> np.ndarray:
+    """Poses (N, 4, 4) whose rotation vector repeats with a flipped sign every 10 pi s (the same angular speed)."""
+    T = np.tile(np.eye(4), (len(t), 1, 1))
+    for P, s in zip(T, t):
+        P[:3, :3] = cv2.Rodrigues(
+            np.array([0.6 * np.sin(1.1 * s), 0.5 * np.sin(0.7 * s + 1), 0.4 * np.sin(0.9 * s + 2)])
+        )[0]
+    return T
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.002])
+def test_offset_of_a_repeating_motion_is_ambiguous(noise):
+    """A motion whose angular speed repeats every 10 pi s: two lags correlate alike (to within 1e-5 of perfect
+    without noise), and the answer is an error, not the better of the two by a hair; pose noise, which broadens
+    each peak, does not hide the repeat."""
+    g = torch.Generator().manual_seed(0)
     t0, t1 = np.arange(0, 60, 1 / 20), np.arange(0.007, 60, 1 / 30)
+    p0 = add_noise(torch.from_numpy(_repeating(t0))[:, None], noise, g)[:, 0].numpy()
+    p1 = add_noise(torch.from_numpy(_repeating(t1))[:, None], noise, g)[:, 0].numpy()
+    with pytest.raises(InputError, match="ambiguous time offset") as err:
+        estimate_time_offset(t0, p0, t1 - 1234.5678, p1)
+    found, other = (float(x) for x in re.findall(r"at offset ([-+\d.]+) s", str(err.value))[:2])
+    repeats = abs(found - other) / (10 * np.pi)  # the two peaks lie a whole number of repeats apart
+    assert round(repeats) >= 1 and abs(repeats - round(repeats)) < 0.02
 
-    def poses(t):
-        T = np.tile(np.eye(4), (len(t), 1, 1))
-        for P, s in zip(T, t):
-            P[:3, :3] = cv2.Rodrigues(
-                np.array([0.6 * np.sin(1.1 * s), 0.5 * np.sin(0.7 * s + 1), 0.4 * np.sin(0.9 * s + 2)])
-            )[0]
-        return T
 
-    with pytest.raises(InputError, match="ambiguous time offset"):
-        estimate_time_offset(t0, poses(t0), t1 - 1234.5678, poses(t1))
+@pytest.mark.parametrize("seed", [12, 15, 17])
+def test_one_peak_broadened_by_pose_noise_is_not_ambiguous(seed):
+    """Pose noise 0.002 rad ripples the top of the correlation's one peak into local maxima 0.04-0.08 s apart (on
+    these seeds they came within the ambiguity margin): they are one peak, and the offset is found within a
+    frame of camera 0 (what the angular speeds give at this noise; refine_time_offset takes it further)."""
+    g = torch.Generator().manual_seed(seed)
+    X = random_rig(g).numpy()
+    t0, t1, offset = np.arange(0, 40, 1 / 20), np.arange(0.007, 40, 1 / 30), 1234.5678
+    p0 = add_noise(torch.from_numpy(wobble(t0))[:, None], 0.002, g)[:, 0].numpy()
+    p1 = add_noise(torch.from_numpy(wobble(t1, X))[:, None], 0.002, g)[:, 0].numpy()
+    found, quality = estimate_time_offset(t0, p0, t1 - offset, p1)
+    assert abs(found - offset) < 1 / 20
+    assert quality.runner_up < quality.correlation - 0.1  # what lies outside the peak is another lobe of the motion
+
+
+def test_the_runner_up_lies_outside_the_main_peak():
+    """On a correlation curve made by hand: a broad peak with ripples on its top has no runner-up of its own; a
+    second peak beyond a dip below half is the runner-up, at its own index."""
+    lags = np.arange(2000.0)
+    broad = 0.95 * np.exp(-0.5 * ((lags - 600) / 80) ** 2) + 0.01 * np.sin(lags / 3)  # local maxima every ~19 lags
+    best = int(np.argmax(broad))
+    value, _ = _runner_up(broad, best)
+    assert value < 0.95 / 2 + 0.02
+    repeated = broad + 0.9 * np.exp(-0.5 * ((lags - 1400) / 80) ** 2)
+    value, index = _runner_up(repeated, best)
+    assert abs(index - 1400) <= 10 and abs(value - repeated[1400]) < 0.02
 
 
 def test_offset_flat_angular_speed(rig):
