@@ -129,9 +129,12 @@ def run(args) -> int:
     if args.trace:
         result.run.write_trace(args.trace)
     if args.plot:
-        from ocalib.viz.calibration import plot_trace
+        from ocalib.viz.calibration import bundle_unobservable, plot_trace
 
-        plot_trace(result.run.trace, result.run.rig.files[1:], args.plot, truth=result.truth, units=doc["units"])
+        files, unobservable = result.run.rig.files[1:], bundle_unobservable(doc)
+        plot_trace(
+            result.run.trace, files, args.plot, truth=result.truth, units=doc["units"], unobservable=unobservable
+        )
     if args.trajectories:
         from pathlib import Path
 

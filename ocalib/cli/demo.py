@@ -53,7 +53,7 @@ def run(args) -> int:
     from ocalib.rigba.stream import RigStream
     from ocalib.synth import preset, render_sequence
     from ocalib.synth.presets import knocked
-    from ocalib.viz.calibration import plot_trace
+    from ocalib.viz.calibration import bundle_unobservable, plot_trace
 
     out, frontend = Path(args.out), frontend_options(args)
     cfg = preset(args.preset).with_overrides(frames=args.frames, seed=args.seed)
@@ -72,7 +72,14 @@ def run(args) -> int:
     doc = result.result_json()
     (out / "result.json").write_text(json.dumps(doc, indent=2))
     result.run.write_trace(out / "trace.csv")
-    plot_trace(result.run.trace, result.run.rig.files[1:], out / "trace.png", truth=result.truth, units=doc["units"])
+    plot_trace(
+        result.run.trace,
+        result.run.rig.files[1:],
+        out / "trace.png",
+        truth=result.truth,
+        units=doc["units"],
+        unobservable=bundle_unobservable(doc),
+    )
     print(summary(doc))
     print(truth_table(sequence, doc))
     print_errors(result)

@@ -27,6 +27,7 @@ def plot_trace(
     path: str | Path,
     truth: np.ndarray | None = None,
     units: str | None = None,
+    unobservable: list | None = None,
 ) -> None:
     """Write a PNG: one column per camera k, rows rotation / translation / scale / singular values / residuals, where
     the trace holds the on-line rig estimator's (``rig_*``, metres) a row of those, and where it holds the rig bundle
@@ -35,6 +36,10 @@ def plot_trace(
     truth: (K, 4, 4) the true ``T_cam0_camk``, or None. With it the rotation row shows each frame's error against
     the truth (with the reported 1-sigma band: an honest band covers zero about two times in three) and the
     translation row's title the angle between the final translation and the true one.
+
+    unobservable: per camera k (as ``cameras``), the rig bundle adjustment's unobservable translation directions
+    (n, 3) in camera 0's frame (:func:`bundle_unobservable` reads them from the result JSON), or None: marked on its
+    row. Every panel's axis fits the settled estimate (the second half of the frames), not an early transient.
     """
     import matplotlib
 
@@ -57,7 +62,8 @@ def plot_trace(
         if rig:
             _rig_row(axes[5, k], frames, trace, k, true_k)
         if bundle:
-            _bundle_row(axes[5 + rig, k], frames, trace, k, true_k, units)
+            directions = None if unobservable is None else np.asarray(unobservable[k], dtype=float).reshape(-1, 3)
+            _bundle_row(axes[5 + rig, k], frames, trace, k, true_k, units, directions)
     for ax in axes.flat:
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0] and ax.get_legend() is None:
@@ -113,7 +119,10 @@ def _translation_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndar
             f"\ntruth (dashed): the true direction at the final length; final "
             f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
         )
-    _bands(ax, frames, t, t_std, labels, min_span=1e-3 * max(np.abs(t[-1]).max(), 1e-3))
+        include = direction * np.linalg.norm(t[-1])
+    else:
+        include = ()
+    _bands(ax, frames, t, t_std, labels, min_span=1e-3 * max(np.abs(t[-1]).max(), 1e-3), include=include)
     ax.set_title(title, fontsize=9)
 
 
@@ -166,37 +175,58 @@ def _rig_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | No
             ax.axhline(truth[i, 3], color=COLORS[i], lw=1, ls="--")
         labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, truth[:3, 3])]
         title += ", truth at frame 0 dashed"
-    _bands(ax, frames[started], t[started], t_std[started], labels, min_span=0.02)
-    settled = t[started][len(t[started]) // 2 :]  # the axis fits the settled estimate, not a restart's wide band
-    reference = settled if truth is None else np.vstack([settled, truth[None, :3, 3]])
-    low, high = np.nanmin(reference), np.nanmax(reference)
-    pad = max(0.02, 0.25 * (high - low))
-    ax.set_ylim(low - pad, high + pad)
+    include = () if truth is None else truth[:3, 3]
+    _bands(ax, frames[started], t[started], t_std[started], labels, min_span=0.05, include=include)
     for frame in trace.get("rig_change_frame", np.zeros((0, 0)))[:, k]:
         if np.isfinite(frame):
             ax.axvline(frame, color="red", lw=1.5, ls=":")
     ax.set_title(title, fontsize=9)
 
 
-def _bundle_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray | None, units: str | None) -> None:
+def _bundle_row(
+    ax,
+    frames: np.ndarray,
+    trace: dict,
+    k: int,
+    truth: np.ndarray | None,
+    units: str | None,
+    unobservable: np.ndarray | None = None,
+) -> None:
     """The rig bundle adjustment's translation at the frames where it ran (markers), the truth dashed (when in
-    metres), and its rotation's error against the truth in the title."""
+    metres), and its rotation's error against the truth in the title. Its ``unobservable`` translation directions
+    (n, 3) are named in the panel, and the axes they have a share in (over ``UNOBSERVABLE_AXIS_SHARE``, as the
+    result's 1-sigma counts them) are labelled unobservable and drawn faint: their values are not measurements."""
+    from ocalib.rigba.covariance import UNOBSERVABLE_AXIS_SHARE
+
     t, q = trace["bundle_translation"][:, k], trace["bundle_quaternion"][:, k]
     ran = np.isfinite(t[:, 0])
     title = f"rig bundle adjustment: translation ({units or 'its units'})"
     metric_truth = truth is not None and units == "metres"
+    unobservable = np.zeros((0, 3)) if unobservable is None else unobservable
+    loose = (np.abs(unobservable) > UNOBSERVABLE_AXIS_SHARE).any(0) if len(unobservable) else np.zeros(3, bool)
     for i in range(3):
-        label = f"t{AXES[i]}" + (f" = {t[ran][-1, i]:+.4f}" if ran.any() else "")
+        label = (
+            f"t{AXES[i]}" + (f" = {t[ran][-1, i]:+.4f}" if ran.any() else "") + (" (unobservable)" if loose[i] else "")
+        )
         ax.plot(
             frames[ran],
             t[ran, i],
             marker="o",
             color=COLORS[i],
             lw=1,
+            ls=":" if loose[i] else "-",
+            alpha=0.4 if loose[i] else 1.0,
             label=label + (f", truth {truth[i, 3]:+.4f}" if metric_truth else ""),
         )
         if metric_truth:
             ax.axhline(truth[i, 3], color=COLORS[i], lw=1, ls="--")
+    if ran.any():
+        scale = max(np.abs(t[ran]).max(), 1e-3)
+        _settled_limits(ax, t[ran], min_span=0.2 * scale, include=truth[:3, 3] if metric_truth else ())
+    if len(unobservable) and ran.any():
+        ax.text(0.99, 0.03, "unobservable along " + ", ".join("[" + ", ".join(f"{v:+.2f}" for v in d) + "]"
+                for d in unobservable) + " (camera 0's frame): not a measurement there", transform=ax.transAxes,
+                ha="right", va="bottom", color="red", fontsize=8)  # fmt: skip
     if truth is not None and ran.any():
         q_true = rotation_matrix_to_quaternion(torch.from_numpy(truth[:3, :3])).numpy()
         error = np.linalg.norm(rotation_error_deg(q[ran][-1:], q_true)[-1])
@@ -217,19 +247,50 @@ def _bundle_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndarray |
     ax.legend(fontsize=8, loc="upper left")
 
 
-def _bands(ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str], min_span: float = 0.0) -> None:
-    """Lines y (F, n) with +-1 sigma bands (infinite sigma: no band); y-limits from the last 90% of frames, at least
-    ``min_span`` apart (so that a constant line is not drawn on an axis of 1e-7 steps)."""
+def _bands(
+    ax, x: np.ndarray, y: np.ndarray, std: np.ndarray, labels: list[str], min_span: float = 0.0, include=()
+) -> None:
+    """Lines y (F, n) with +-1 sigma bands (infinite sigma: no band), the axis scaled to the settled estimate (see
+    :func:`_settled_limits`; ``include``: values to keep in view too, such as the truth)."""
     for i, label in enumerate(labels):
         color = COLORS[i] if y.shape[1] > 1 else "black"
         ax.plot(x, y[:, i], color=color, lw=1, label=label)
         s = np.where(np.isfinite(std[:, i]), std[:, i], np.nan)
         ax.fill_between(x, y[:, i] - s, y[:, i] + s, color=color, alpha=0.2, lw=0)
-    tail = slice(len(x) // 10, None)
-    s = np.where(np.isfinite(std[tail]), std[tail], 0.0)
-    lo, hi = np.nanmin(y[tail] - s), np.nanmax(y[tail] + s)
-    if np.isfinite(lo) and np.isfinite(hi):
-        if hi - lo < min_span:
-            lo, hi = (lo + hi - min_span) / 2, (lo + hi + min_span) / 2
-        pad = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), 1.0)) * 0.15
-        ax.set_ylim(lo - pad, hi + pad)
+    _settled_limits(ax, y, std, min_span, include)
+
+
+def _settled_limits(ax, y: np.ndarray, std: np.ndarray | None = None, min_span: float = 0.0, include=()) -> None:
+    """Y-limits from the second half of the frames' values y (F, n) with their finite 1-sigma ``std`` and the
+    ``include`` values, with a margin, at least ``min_span`` apart (so that a constant line is not drawn on an axis
+    of 1e-7 steps): an early transient does not hide the final values. Where earlier values leave the axis, a note
+    says so."""
+    settled = y[len(y) // 2 :]
+    s = np.zeros_like(settled) if std is None else np.where(np.isfinite(std[len(y) // 2 :]), std[len(y) // 2 :], 0.0)
+    extra = np.asarray(include, dtype=float).ravel()
+    with np.errstate(invalid="ignore"):
+        lo = np.nanmin(np.r_[(settled - s).ravel(), extra], initial=np.inf)
+        hi = np.nanmax(np.r_[(settled + s).ravel(), extra], initial=-np.inf)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return
+    if hi - lo < min_span:
+        lo, hi = (lo + hi - min_span) / 2, (lo + hi + min_span) / 2
+    pad = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), 1.0)) * 0.15
+    lo, hi = lo - pad, hi + pad
+    ax.set_ylim(lo, hi)
+    early = y[: len(y) // 2]
+    if ((early < lo) | (early > hi)).any():
+        ax.text(0.01, 0.97, "axis fits the second half; earlier values run off it", transform=ax.transAxes,
+                ha="left", va="top", fontsize=7, color="dimgray")  # fmt: skip
+
+
+def bundle_unobservable(doc: dict) -> list[list]:
+    """Per camera k >= 1 of a result JSON, the rig bundle adjustment's unobservable translation directions (n, 3)
+    where its extrinsic is the result (``"source": "bundle_adjustment"``), else none: ``plot_trace``'s
+    ``unobservable``."""
+    return [
+        e["observability"].get("unobservable_translation_directions", [])
+        if e.get("source") == "bundle_adjustment"
+        else []
+        for e in doc["extrinsics"]
+    ]

@@ -2,6 +2,7 @@
 
 import cv2
 import numpy as np
+import pytest
 import torch
 
 from ocalib.geometry.angles import rotation_error_deg
@@ -85,3 +86,51 @@ def test_plot_shows_an_unobservable_rotation_as_such(monkeypatch):
     texts = _figure_texts(monkeypatch, _trace(20, np.array([1.0, 0, 0, 0]), False), None)
     assert any(t.startswith("ROTATION UNOBSERVABLE") for t in texts)
     assert not any("std" in t for t in texts if t.startswith("about"))
+
+
+def _figure(monkeypatch, trace, **kwargs):
+    """The matplotlib figure plot_trace draws for one camera."""
+    import ocalib.viz.calibration as module
+
+    figures = []
+    monkeypatch.setattr(module, "save_figure", lambda fig, path, dpi=90: figures.append(fig))
+    plot_trace(trace, ["cam1.txt"], "unused.png", **kwargs)
+    return figures[0]
+
+
+def test_panels_fit_the_settled_estimate_not_an_early_transient(monkeypatch):
+    """A translation that starts at +-200 and settles at (0.5, 0, -0.2) from frame 40 of 100: the panel's axis
+    spans the settled values with a margin (not the +-200), and says that earlier values run off it."""
+    trace = _trace(100, np.array([1.0, 0, 0, 0]), True)
+    trace["translation"][:40, 0] = 200 * np.sin(np.arange(40))[:, None]
+    panel = _figure(monkeypatch, trace).axes[1]  # rows: rotation, translation, ...
+    low, high = panel.get_ylim()
+    span = 0.51 - -0.21  # the settled values -0.2..0.5 with their 1-sigma 0.01
+    assert (low, high) == pytest.approx((-0.21 - 0.15 * span, 0.51 + 0.15 * span))  # and a 15 % margin
+    assert any("earlier values run off it" in t.get_text() for t in panel.texts)
+    steady = _figure(monkeypatch, _trace(100, np.array([1.0, 0, 0, 0]), True)).axes[1]
+    assert steady.get_ylim() == pytest.approx((low, high)) and not steady.texts  # nothing ran off: no note
+
+
+def test_the_bundle_adjustments_unobservable_component_is_marked(monkeypatch):
+    """The bundle row labels the axes an unobservable direction has a share in as unobservable (a car's vertical
+    y here, not x or z) and names the direction; without unobservable directions nothing is marked."""
+    from ocalib.viz.calibration import bundle_unobservable
+
+    trace = _trace(50, np.array([1.0, 0, 0, 0]), True)
+    trace["bundle_quaternion"] = np.full((50, 1, 4), np.nan)
+    trace["bundle_translation"] = np.full((50, 1, 3), np.nan)
+    trace["bundle_quaternion"][-1, 0], trace["bundle_translation"][-1, 0] = [1.0, 0, 0, 0], [0.5, 0.03, -0.2]
+    doc = {
+        "extrinsics": [
+            {"source": "bundle_adjustment", "observability": {"unobservable_translation_directions": [[0, 1, 0]]}}
+        ]
+    }
+    assert bundle_unobservable(doc) == [[[0, 1, 0]]]
+    assert bundle_unobservable({"extrinsics": [dict(doc["extrinsics"][0], source="online")]}) == [[]]
+    row = _figure(monkeypatch, trace, units="metres", unobservable=bundle_unobservable(doc)).axes[-1]
+    labels = row.get_legend_handles_labels()[1]
+    assert labels == ["tx = +0.5000", "ty = +0.0300 (unobservable)", "tz = -0.2000"]
+    assert any(t.get_text().startswith("unobservable along [+0.00, +1.00, +0.00]") for t in row.texts)
+    row = _figure(monkeypatch, trace, units="metres").axes[-1]
+    assert not any("unobservable" in label for label in row.get_legend_handles_labels()[1]) and not row.texts
