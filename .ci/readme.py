@@ -3,6 +3,7 @@
     python .ci/readme.py install   the install commands, one a line, as CI runs them
     python .ci/readme.py test      the test command
     python .ci/readme.py demo OUT  check every line the README quotes from the demo against OUT (its stdout)
+    python .ci/readme.py figures   check the README's figures from benchmarks against bench/results/*.json
 
 The README marks each block with a comment line before it: ``<!-- ci: install -->``, ``<!-- ci: test -->``,
 ``<!-- ci: demo output -->``. CI installs torch itself (the pinned version: here the CPU build; PyTorch's CPU
@@ -12,9 +13,25 @@ exactly TORCH_LINE and is left out of what ``install`` prints.
 A quoted demo line is matched against the printed lines figure by figure: ``0.077±0.05`` is a figure within 0.05 of
 0.077, ``0.112±5%`` one within 5 % of 0.112, ``≤20`` one at most 20, ``*`` any figure (not checked: it is
 ill-conditioned); every other character must be as printed. A figure is digits, so a printed ``nan`` never matches.
+
+A figure the README quotes from a benchmark is declared in a comment after the paragraph or table that quotes it,
+one figure a line (tests/test_readme_figures.py runs the check)::
+
+    <!-- figures from bench/results/online.json
+    48 = summary/one_rig_us
+    14 ±10% = calibnet.json/runs/0/cases/aligned graph/fps
+    0.43 = median results/*/network (normalise), aligned/rotation_deg except front-left-1006
+    -->
+
+The figure must appear in that paragraph or table; the value at the key path (``/`` between keys, a list's index
+as a number; a first part ending in ``.json`` names another file in the same folder) must round to it (within half a
+unit of its last digit), or lie within the stated ``±`` tolerance (absolute, or ``%`` of the figure). ``min``,
+``max`` and ``median`` take the values of every key at a ``*`` (those after ``except``, separated by ``;``, left out).
 """
 
+import json
 import re
+import statistics
 import sys
 from pathlib import Path
 
@@ -70,6 +87,65 @@ def demo_problems(quoted: list[str], printed: list[str]) -> list[str]:
     return problems
 
 
+FIGURES = re.compile(r"<!-- figures from (\S+\.json)\n(.*?)-->", re.S)
+FIGURE_LINE = re.compile(
+    r"(?P<figure>[-+]?\d+(?:\.\d+)?)(?:\s*±(?P<tolerance>\d+(?:\.\d+)?)(?P<percent>%?))?\s*=\s*"
+    r"(?:(?P<aggregate>min|max|median)\s+)?(?P<path>.+?)(?:\s+except\s+(?P<exclude>.+))?"
+)
+
+
+def _values(node, keys: list[str], exclude: set[str]) -> list:
+    """The values at the key path ``keys`` under ``node`` (a ``*`` part: every key but ``exclude``)."""
+    if not keys:
+        return [node]
+    key, rest = keys[0], keys[1:]
+    if key == "*":
+        return [v for k, child in node.items() if k not in exclude for v in _values(child, rest, exclude)]
+    return _values(node[int(key)] if isinstance(node, list) else node[key], rest, exclude)
+
+
+def figure_problems(text: str, folder: Path) -> tuple[list[str], int]:
+    """Check every figure declared in a ``<!-- figures from FILE.json`` comment of the README ``text`` against the
+    JSON files of ``folder`` -> (problems, how many figures were checked)."""
+    problems, checked = [], 0
+    for marker in FIGURES.finditer(text):
+        above = text[: marker.start()].rstrip().split("\n\n")[-1]  # the paragraph or table the comment follows
+        default = Path(marker.group(1)).name
+        for line in filter(None, (line.strip() for line in marker.group(2).splitlines())):
+            m = FIGURE_LINE.fullmatch(line)
+            if m is None:
+                problems.append(f"{default}: not a figure line: {line}")
+                continue
+            checked += 1
+            figure = m.group("figure")
+            if not re.search(rf"(?<![\d.]){re.escape(figure)}(?!\.?\d)", above):
+                problems.append(f"{figure} is declared but not quoted in the text above it: {line}")
+            keys = m.group("path").split("/")
+            name = keys.pop(0) if keys[0].endswith(".json") else default
+            exclude = {k.strip() for k in (m.group("exclude") or "").split(";") if k.strip()}
+            try:
+                values = _values(json.loads((folder / name).read_text()), keys, exclude)
+            except (OSError, KeyError, IndexError, ValueError, AttributeError) as err:
+                problems.append(f"{name}: no value at {m.group('path')} ({type(err).__name__}: {err}): {line}")
+                continue
+            aggregate = m.group("aggregate")
+            if not values or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+                problems.append(f"{name}: not numbers at {m.group('path')}: {values}")
+                continue
+            if aggregate is None and len(values) != 1:
+                problems.append(f"{name}: {len(values)} values at {m.group('path')} without min, max or median")
+                continue
+            value = {"min": min, "max": max, "median": statistics.median, None: lambda v: v[0]}[aggregate](values)
+            if m.group("tolerance") is None:
+                decimals = len(figure.partition(".")[2])
+                tolerance = 0.5 * 10**-decimals
+            else:
+                tolerance = float(m.group("tolerance")) * (abs(float(figure)) / 100 if m.group("percent") else 1)
+            if not abs(value - float(figure)) <= tolerance * (1 + 1e-9):
+                problems.append(f"{figure} where {name} holds {value:.6g} (allowed ±{tolerance:g}): {line}")
+    return problems, checked
+
+
 def main() -> None:
     what = sys.argv[1]
     if what == "install":
@@ -85,6 +161,11 @@ def main() -> None:
         if problems:
             sys.exit("README: the demo's figures are off what the README quotes:\n  " + "\n  ".join(problems))
         print(f"README: the demo's {len(quoted)} quoted lines hold, each figure within its tolerance")
+    elif what == "figures":
+        problems, checked = figure_problems(README.read_text(), README.parent / "bench" / "results")
+        if problems:
+            sys.exit("README: figures off what the benchmarks wrote:\n  " + "\n  ".join(problems))
+        print(f"README: {checked} figures from bench/results hold, each within its tolerance")
     else:
         sys.exit(__doc__)
 
