@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
+from ocalib.calib.change import first_change, step_size
 from ocalib.calib.clock import estimate_time_offset, refine_time_offset
 from ocalib.calib.gating import Gates
 from ocalib.calib.handeye import row_statistics
@@ -38,6 +39,7 @@ from ocalib.calib.rotation import (
 )
 from ocalib.calib.sequence import calibrate_sequence
 from ocalib.errors import InputError
+from ocalib.geometry import quaternion_to_rotation_matrix
 from ocalib.io.poses import POSE_TOLERANCE, pose_validity, read_poses
 from ocalib.io.timing import INTERPOLATION_MAX_DT_PERIODS, associate, interpolate
 
@@ -223,17 +225,16 @@ def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bo
     elif head.solver == "batch":
         final = _batch(poses, rig.valid.all(1), head.motion, head.refine is True)
         trace, frames = trace_rows(final), np.array([len(poses) - 1])
-    elif head.solver == "exact":
-        (final, trace), frames = _sequence(poses, head, progress), np.arange(len(poses))
     else:
-        calibrator = OnlineCalibrator(
-            rig.poses.shape[1], **head.head_kwargs(), gates=Gates(pose_tolerance=POSE_TOLERANCE)
-        )
-        (final, trace), frames = _stream(calibrator, poses, progress), np.arange(len(poses))
+        final, trace = _online(poses, head, progress)
+        trace = {k: v.double().numpy() for k, v in trace.items()}
+        final, trace, changes = _follow_changes(rig, head, final, trace)
+        frames = np.arange(len(poses))
     times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
-    trace = {"frame": frames, "time": times} | {k: v.double().numpy() for k, v in trace.items()}
+    trace = {"frame": frames, "time": times} | {k: np.asarray(v, dtype=float) for k, v in trace.items()}
     settings = head.settings() | {"frames": len(poses), "max_dt": rig.max_dt, "pose_error": head.pose_error}
     run = CalibrationRun(rig, final, trace, settings, [])
+    run.changes = changes if head.motion != "absolute" and head.solver != "batch" else []
     run.warnings = run_warnings(run)
     return run
 
@@ -247,6 +248,53 @@ def calibrate_files(
     sync = load.get("sync", "interpolate") if rig.times is not None else None
     run.settings.update(format=load.get("format", "auto"), sync=sync)
     return run
+
+
+def _online(poses: torch.Tensor, head: HeadOptions, progress: bool | None) -> tuple[Calibration, dict]:
+    """The on-line head (``exact`` or ``rls``) over every frame (T, C, 4, 4) -> (the last estimate, the trace)."""
+    if head.solver == "exact":
+        return _sequence(poses, head, progress)
+    calibrator = OnlineCalibrator(poses.shape[1], **head.head_kwargs(), gates=Gates(pose_tolerance=POSE_TOLERANCE))
+    return _stream(calibrator, poses, progress)
+
+
+def _follow_changes(
+    rig: RigPoses, head: HeadOptions, final: Calibration, trace: dict[str, np.ndarray]
+) -> tuple[Calibration, dict[str, np.ndarray], list[dict]]:
+    """Each camera's extrinsic tested for changes over the stream (:func:`~ocalib.calib.change.first_change`); where
+    one is found, camera k's head restarts at its first frame (on camera 0 and camera k alone) and its estimates
+    replace the old from the frame it was detected. Returns the final estimate, the trace (camera k's columns
+    spliced; ``change_frame`` (F, K): at the frame a change was detected, its first frame, else NaN) and the changes: camera file, first frame, frame detected, the step from the estimate before to the
+    one that followed (degrees, camera-0 units)."""
+    poses = np.where(rig.valid[..., None, None], rig.poses, np.nan)
+    changes, trace["change_frame"] = [], np.full(trace["scale"].shape[:2], np.nan)
+    for k in range(1, poses.shape[1]):
+        start, found = 0, []
+        while change := first_change(poses[start:, 0], poses[start:, k], *_estimates(trace, k, start)):
+            onset, detected = start + change.frame, start + change.detected
+            new_final, new_trace = _online(torch.from_numpy(rig.poses[onset:, [0, k]]), head, progress=False)
+            for name, values in new_trace.items():
+                trace[name][detected:, k - 1] = values[detected - onset :, 0].double().numpy()
+            final = final.with_camera(k - 1, new_final)
+            found.append((onset, detected, _estimates(trace, k, onset - 1, onset)))
+            trace["change_frame"][detected, k - 1] = onset
+            start = onset
+        ends = [detected for _, detected, _ in found[1:]] + [len(poses)]
+        for (onset, detected, (R0, t0, _)), end in zip(found, ends):
+            R1, t1, _ = _estimates(trace, k, end - 1, end)
+            rotation, translation = step_size(R0[0], t0[0], R1[0], t1[0])
+            changes.append({"camera": rig.files[k], "frame": onset, "detected": detected,
+                            "time": None if rig.times is None else float(rig.times[onset]),
+                            "rotation_change_deg": rotation, "translation_change": translation})  # fmt: skip
+    return final, trace, changes
+
+
+def _estimates(trace: dict[str, np.ndarray], k: int, start: int, stop: int | None = None):
+    """Camera k's estimates over frames [start, stop) of ``trace``: rotations (n, 3, 3), translations (n, 3), scales
+    (n,)."""
+    rows = slice(start, stop)
+    R = quaternion_to_rotation_matrix(torch.from_numpy(trace["quaternion"][rows, k - 1])).numpy()
+    return R, trace["translation"][rows, k - 1], trace["scale"][rows, k - 1, 0]
 
 
 @contextlib.contextmanager

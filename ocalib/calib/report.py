@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -56,6 +56,7 @@ class CalibrationRun:
     trace: dict[str, np.ndarray]
     settings: dict
     warnings: list[str]
+    changes: list[dict] = field(default_factory=list)
 
     def result_json(self) -> dict:
         """The result JSON (README), plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
@@ -79,6 +80,7 @@ class CalibrationRun:
         ]
         if estimated:
             out["time_offset_estimates"] = estimated
+        out["changes"] = self.changes
         out["warnings"] = self.warnings
         return out
 
@@ -218,6 +220,12 @@ def run_warnings(run: CalibrationRun) -> list[str]:
                 f"{f}: {rejected} of {frames} frames rejected by the on-line head (an invalid pose of camera 0 or "
                 "this camera, or motions failing the screw-congruence gate)"
             )
+    for c in run.changes:
+        out.append(
+            f"{c['camera']}: its extrinsic changed at frame {c['frame']} (noticed at frame {c['detected']}): "
+            f"{c['rotation_change_deg']:.2f} deg, {c['translation_change']:.3g} in camera 0's units; the on-line head "
+            "restarted there and its estimate follows the new extrinsic"
+        )
     if run.settings["motion"] == "first":
         out.append(
             "frame-0 pairing: every motion shares frame 0's pose error, which no residual shows; the standard "

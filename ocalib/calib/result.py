@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 
 import torch
@@ -146,6 +146,18 @@ class Calibration:
         rotation = torch.where(rows > 0, 2 * (Er.clamp_min(0) / rows.clamp_min(1e-300)).sqrt(), torch.nan)
         translation = torch.where(c > 0, (Et.clamp_min(0) / c.clamp_min(1e-300)).sqrt(), torch.nan)
         return {"rotation_deg": torch.rad2deg(rotation), "translation_relative": translation}
+
+    def with_camera(self, k: int, other: Calibration) -> Calibration:
+        """This estimate with camera k+1's fields (every rig's) replaced by camera 1's of ``other`` (B, 1, ...)."""
+
+        def spliced(mine: Tensor | None, theirs: Tensor | None) -> Tensor | None:
+            if mine is None or theirs is None:
+                return mine
+            out = mine.clone()
+            out[:, k] = theirs[:, 0]
+            return out
+
+        return type(self)(**{f.name: spliced(getattr(self, f.name), getattr(other, f.name)) for f in fields(self)})
 
     def camera_json(self, b: int, k: int) -> dict:
         """The JSON object of camera k+1 of rig b (see ``ocalib calibrate-poses``)."""

@@ -92,13 +92,15 @@ def rig_trajectories(cam0: Tensor, extrinsics: Tensor, scales: Tensor | None = N
     """Every camera's trajectory, re-referenced to its own first frame.
 
     Args:
-        cam0: (n, 4, 4) camera-0 poses. extrinsics: (K, 4, 4) ``T_cam0_camk``.
+        cam0: (n, 4, 4) camera-0 poses. extrinsics: (K, 4, 4) ``T_cam0_camk``, or (n, K, 4, 4) one per frame (a
+            camera that moves on the rig).
         scales: (K,) the scale of each camera's units (``s`` multiplies camera-k units into camera-0).
 
     Returns:
         (n, 1 + K, 4, 4) poses, camera 0 first.
     """
-    poses = cam0.unsqueeze(1) @ torch.cat([torch.eye(4, dtype=F64)[None], extrinsics]).unsqueeze(0)
+    extrinsics = extrinsics.expand(len(cam0), *extrinsics.shape[-3:])
+    poses = cam0.unsqueeze(1) @ torch.cat([torch.eye(4, dtype=F64).expand(len(cam0), 1, 4, 4), extrinsics], 1)
     poses = rereference(poses.transpose(0, 1)).transpose(0, 1).clone()
     if scales is not None:
         poses[:, 1:, :3, 3] /= scales[None, :, None]

@@ -59,6 +59,9 @@ def plot_trace(
         axes[2, k].set_title("scale (camera-k units -> camera-0 units)", fontsize=9)
         _observability_row(axes[3, k], frames, trace, k)
         _residual_row(axes[4, k], frames, trace, k)
+        for frame in trace.get("change_frame", np.zeros((0, K)))[:, k]:  # the head's changes, at their first frame
+            for ax in axes[:5, k] if np.isfinite(frame) else ():
+                ax.axvline(frame, color="red", lw=1.5, ls=":", label="extrinsic changed")
         if rig:
             _rig_row(axes[5, k], frames, trace, k, true_k)
         if bundle:

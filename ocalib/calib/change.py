@@ -1,0 +1,168 @@
+"""A change of a camera's extrinsic told from noise, on the hand-eye residuals of the on-line head's input.
+
+Each frame's motion pair (camera 0's motion ``A``, camera k's ``B``, consecutive frames) gives the residuals of
+``A X = X B`` under one estimate of the head's, ``X = (R, t)`` and ``s``, taken once it has settled:
+``r = (rotvec(R_A R R_B^T R^T), (R_A - I) t + t_A - s R t_B)`` (6,). A step of the truth from there,
+``d = (d_rot, d_t, d_s)``, shows as ``r = J d`` (first order), ``J = [[I - R_A, 0, 0], [-s [R t_B]x, I - R_A, R t_B]]``.
+Each frame tests a two-sample generalized likelihood ratio: do the last ``window`` frames take another step than the
+``history`` before them? With the rows weighed by the inverse covariance of the history's residuals (once its own
+step is fitted), the ratio is chi-square with rank(H) degrees of freedom while nothing changed; it is divided by
+its overdispersion (the median ratio of the earlier tests over the chi-square median, at least 1: the residuals are
+neither white nor Gaussian). A p-value under ``false_alarm`` on ``persistence`` frames in a row is a change; its
+first frame is the split of the window that explains it best. Fitting each side's own step absorbs a lasting error
+of the reference estimate.
+
+Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``, camera-0 units), ``s`` camera-k units into camera-0 units;
+poses camera-to-world; a step ``d`` = (rotation rad, translation, scale) with its vectors in camera 0's axes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2 as chi2_distribution
+
+from ocalib.geometry.pose import cross_matrix
+
+
+@dataclass
+class Change:
+    """A detected change: the first ``frame`` that disagreed, the ``detected`` frame, and the step from the old
+    extrinsic to the new (rotation deg, translation in camera-0 units)."""
+
+    frame: int
+    detected: int
+    rotation_change_deg: float
+    translation_change: float
+
+
+@dataclass(frozen=True)
+class ChangeTest:
+    """The test's settings: frames in the ``window``, the chance of a false alarm per frame, frames in a row over the
+    threshold (``persistence``), frames before the first test (``warmup``: the estimate settles, the variances are
+    learnt) and accepted frames whose residuals give the variances (``history``)."""
+
+    window: int = 30
+    false_alarm: float = 1e-6
+    persistence: int = 3
+    warmup: int = 60
+    history: int = 300
+    min_history: int = 120
+
+
+def handeye_residuals(
+    A: np.ndarray, B: np.ndarray, R: np.ndarray, t: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The residuals (T, 6) of motions ``A``, ``B`` (T, 4, 4) under extrinsics ``R`` (T, 3, 3), ``t`` (T, 3) and
+    scales ``s`` (T,), and their Jacobians (T, 6, 7) with respect to a step of the
+    extrinsic and the scale (see the module)."""
+    RA, tA = A[:, :3, :3], A[:, :3, 3]
+    rotation = Rotation.from_matrix(RA @ R @ B[:, :3, :3].mT @ R.mT).as_rotvec()
+    moved = np.einsum("tij,tj->ti", R, B[:, :3, 3])  # camera k's translation in camera 0's axes
+    translation = np.einsum("tij,tj->ti", RA - np.eye(3), t) + tA - s[:, None] * moved
+    J = np.zeros((len(A), 6, 7))
+    J[:, :3, :3] = J[:, 3:, 3:6] = np.eye(3) - RA
+    J[:, 3:, :3] = -s[:, None, None] * cross_matrix(moved)
+    J[:, 3:, 6] = moved
+    return np.concatenate([rotation, translation], 1), J
+
+
+def motions(poses: np.ndarray) -> np.ndarray:
+    """Consecutive motions (T, 4, 4) of poses (T, 4, 4) camera-to-world; the first is the identity."""
+    out = np.broadcast_to(np.eye(4), poses.shape).copy()
+    out[1:] = np.linalg.inv(poses[:-1]) @ poses[1:]
+    return out
+
+
+def first_change(
+    poses0: np.ndarray, posesk: np.ndarray, R: np.ndarray, t: np.ndarray, s: np.ndarray, test: ChangeTest = ChangeTest()
+) -> Change | None:
+    """The first change of camera k's extrinsic in a stream, or None.
+
+    poses0, posesk: (T, 4, 4) camera-to-world poses of camera 0 and camera k (NaN where invalid).
+    R, t, s: (T, 3, 3), (T, 3), (T,) the head's estimate after each frame; frame i is tested against frame i-1's.
+    """
+    frames, sums = _referenced_sums(poses0, posesk, R, t, s, test.warmup)
+    W = test.window
+    ends = np.arange(W + test.min_history, len(frames) + 1)  # window [end - W, end), history before it
+    if not len(ends):
+        return None
+    ratio, dof, _ = _split_ratio(sums, np.maximum(ends - W - test.history, 0), ends - W, ends)
+    ratio = ratio / _dispersion(ratio / chi2_distribution.median(dof), W)
+    over = np.convolve(chi2_distribution.sf(ratio, dof) < test.false_alarm, np.ones(test.persistence), "valid")
+    hits = np.flatnonzero(over >= test.persistence)
+    if not len(hits):
+        return None
+    end = ends[hits[0] + test.persistence - 1]
+    splits = np.arange(end - W, end)
+    ratio, _, step = _split_ratio(sums, np.maximum(splits - test.history, 0), splits, np.full_like(splits, end))
+    best = int(np.argmax(ratio))
+    return Change(int(frames[splits[best]]), int(frames[end - 1]), float(np.degrees(np.linalg.norm(step[best, :3]))),
+                  float(np.linalg.norm(step[best, 3:])))  # fmt: skip
+
+
+def _referenced_sums(poses0, posesk, R, t, s, warmup: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The frames (n,) tested, from ``warmup`` on, and the running sums of their residuals (:func:`_cumulative`),
+    all taken against the estimate of frame ``warmup - 1`` (a fixed reference: the head's estimate moves)."""
+    A, B = motions(poses0)[1:], motions(posesk)[1:]
+    ref = min(warmup, len(R)) - 1
+    valid = np.isfinite(A).all((1, 2)) & np.isfinite(B).all((1, 2)) & (np.arange(len(A)) >= ref)
+    if not (np.isfinite(R[ref]).all() and np.isfinite(t[ref]).all() and np.isfinite(s[ref])):
+        valid[:] = False
+    reference = (np.broadcast_to(x[ref], (int(valid.sum()), *x.shape[1:])) for x in (R, t, s))
+    r, J = handeye_residuals(A[valid], B[valid], *reference)
+    return np.flatnonzero(valid) + 1, _cumulative(r, J)
+
+
+def _cumulative(r: np.ndarray, J: np.ndarray) -> dict[str, np.ndarray]:
+    """Running sums (n + 1, ...) over the frames' residuals r (n, 6) and Jacobians J (n, 6, 7): ``JJ`` (6, 7, 6, 7)
+    of J_ai J_bj, ``rJ`` (6, 6, 7) of r_a J_bj, ``rr`` (6, 6) of r_a r_b, and the count ``n``."""
+    terms = {
+        "JJ": np.einsum("nai,nbj->naibj", J, J),
+        "rJ": np.einsum("na,nbj->nabj", r, J),
+        "rr": np.einsum("na,nb->nab", r, r),
+        "n": np.ones(len(r)),
+    }
+    return {k: np.concatenate([np.zeros((1, *v.shape[1:])), np.cumsum(v, 0)]) for k, v in terms.items()}
+
+
+def _split_ratio(sums: dict, a: np.ndarray, b: np.ndarray, c: np.ndarray):
+    """The likelihood ratio (E,) that frames [b, c) take another step of the extrinsic than frames [a, b), with its
+    degrees of freedom (E,) and the step (E, 7) between the two; the rows weighed by the inverse covariance of
+    [a, b)'s residuals once its own step is taken out (which absorbs a lasting error of the head's estimate)."""
+    part = lambda key, i, j: sums[key][j] - sums[key][i]  # noqa: E731
+    JJ, rJ, rr, n = part("JJ", a, b), part("rJ", a, b), part("rr", a, b), part("n", a, b)
+    fit = _solve(np.einsum("eaiaj->eij", JJ), np.einsum("eaai->ei", rJ))  # least squares, unweighted
+    Jfit = np.einsum("eaibj,ej->eaib", JJ, fit)
+    cross = np.einsum("eabj,ej->eab", rJ, fit)
+    covariance = (rr - cross - cross.mT + np.einsum("eaib,ei->eab", Jfit, fit)) / n[:, None, None]
+    weight = np.linalg.pinv(covariance, rcond=1e-10, hermitian=True)
+    info = lambda i, j: np.einsum("eab,eaibj->eij", weight, part("JJ", i, j))  # noqa: E731
+    grad = lambda i, j: np.einsum("eab,ebaj->ej", weight, part("rJ", i, j))  # noqa: E731
+    H0, g0, H1, g1 = info(a, b), grad(a, b), info(b, c), grad(b, c)
+    step0, step1, both = _solve(H0, g0), _solve(H1, g1), _solve(H0 + H1, g0 + g1)
+    ratio = (g0 * step0).sum(1) + (g1 * step1).sum(1) - ((g0 + g1) * both).sum(1)
+    dof = np.linalg.matrix_rank(H1, rtol=1e-8, hermitian=True)
+    return ratio, np.maximum(dof, 1), step1 - step0
+
+
+def _dispersion(relative: np.ndarray, lag: int) -> np.ndarray:
+    """Each test's overdispersion (E,): the median of the ``relative`` ratios (E,) (ratio over its chi-square median)
+    of the tests that ended ``lag`` or more tests before it, at least 1 (1 where there are none)."""
+    out = np.ones(len(relative))
+    for e in range(lag + 1, len(relative)):
+        out[e] = max(float(np.median(relative[: e - lag])), 1.0)
+    return out
+
+
+def _solve(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Least-squares steps (E, 7) of normal equations H (E, 7, 7), g (E, 7), where H may be singular."""
+    return np.einsum("eij,ej->ei", np.linalg.pinv(H, rcond=1e-8, hermitian=True), g)
+
+
+def step_size(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray) -> tuple[float, float]:
+    """The step from extrinsic (R0 (3, 3), t0 (3,)) to (R1, t1): rotation angle (deg) and translation distance."""
+    angle = np.linalg.norm(Rotation.from_matrix(R1 @ R0.T).as_rotvec())
+    return float(np.degrees(angle)), float(np.linalg.norm(t1 - t0))

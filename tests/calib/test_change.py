@@ -1,0 +1,125 @@
+"""A change of an extrinsic told from noise on the head's residuals, and calibrate-poses following it."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from ocalib.calib.change import ChangeTest, _cumulative, _split_ratio, first_change, handeye_residuals, motions
+from ocalib.calib.pipeline import RigPoses, calibrate_rig
+from ocalib.calib.sequence import calibrate_sequence
+from ocalib.geometry import make_pose
+from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, so3_exp
+
+F64 = torch.float64
+
+
+def knocked_rig(seed, kind="lds", frames=1000, at=500, model="independent", noise=0.002):
+    """Camera 1 turned by 2 deg about y and moved 5 cm along x from frame ``at`` on: poses (T, 2, 4, 4) and the old
+    and new ``T_cam0_cam1``."""
+    g = torch.Generator().manual_seed(seed)
+    cam0 = lds_trajectory(frames, g) if kind == "lds" else car_trajectory(frames, g)
+    old = random_rig(g)
+    new = make_pose(so3_exp(torch.tensor([0, math.radians(2), 0], dtype=F64)) @ old[:3, :3],
+                    old[:3, 3] + torch.tensor([0.05, 0, 0], dtype=F64))  # fmt: skip
+    per_frame = torch.stack([old if i < at else new for i in range(frames)])[:, None]
+    return add_noise(rig_trajectories(cam0, per_frame), noise, g, model), old.numpy(), new.numpy()
+
+
+def head_change(poses):
+    out = calibrate_sequence(poses, motion="multi")
+    return first_change(poses[:, 0].numpy(), poses[:, 1].numpy(), out.rotation[:, 0].numpy(),
+                        out.translation[:, 0].numpy(), out.scale[:, 0].numpy())  # fmt: skip
+
+
+def test_residuals_vanish_on_a_rigid_rig_and_their_jacobian_matches_finite_differences():
+    g = torch.Generator().manual_seed(3)
+    X = random_rig(g)
+    poses = rig_trajectories(lds_trajectory(20, g), X[None], torch.tensor([1.7], dtype=F64)).numpy()
+    A, B = motions(poses[:, 0])[1:], motions(poses[:, 1])[1:]
+    R, t, s = (np.broadcast_to(v, (len(A), *np.shape(v))) for v in (X[:3, :3].numpy(), X[:3, 3].numpy(), 1.7))
+    r, J = handeye_residuals(A, B, R, t, s)
+    assert np.abs(r).max() < 1e-12
+    # a small step of the truth: the residuals of the old estimate against data made with the new one
+    d = np.array([1e-6, -2e-6, 1.5e-6, 3e-6, -1e-6, 2e-6, 4e-6])
+    X_new = X.numpy().copy()
+    X_new[:3, :3] = Rotation.from_rotvec(d[:3]).as_matrix() @ X_new[:3, :3]
+    X_new[:3, 3] += d[3:6]
+    moved = rig_trajectories(torch.from_numpy(poses[:, 0]), torch.from_numpy(X_new)[None],
+                             torch.tensor([1.7 + d[6]], dtype=F64)).numpy()  # fmt: skip
+    r_new, _ = handeye_residuals(A, motions(moved[:, 1])[1:], R, t, s)
+    np.testing.assert_allclose(r_new, np.einsum("tij,j->ti", J, d), atol=1e-10)
+
+
+def test_split_ratio_is_the_drop_in_weighted_least_squares_cost():
+    rng = np.random.default_rng(0)
+    n, split = 80, 50
+    J, r = rng.normal(size=(n, 6, 7)), rng.normal(size=(n, 6))
+    r[split:] += J[split:] @ rng.normal(size=7) * 0.3
+    ratio, dof, step = _split_ratio(_cumulative(r, J), np.array([0]), np.array([split]), np.array([n]))
+    # the reference: the covariance of the first part's residuals after its own fit, then three weighted fits
+    Ja, ra = J[:split].reshape(-1, 7), r[:split].reshape(-1)
+    fit = np.linalg.lstsq(Ja, ra, rcond=None)[0]
+    e = r[:split] - J[:split] @ fit
+    weight = np.linalg.inv(e.T @ e / split)
+    L = np.linalg.cholesky(weight).T
+
+    def cost(rows):
+        Jw = np.concatenate([L @ j for j in J[rows]])
+        rw = np.concatenate([L @ x for x in r[rows]])
+        x = np.linalg.lstsq(Jw, rw, rcond=None)[0]
+        return rw @ rw - (rw - Jw @ x) @ (rw - Jw @ x), x
+
+    explained_a, xa = cost(slice(0, split))
+    explained_b, xb = cost(slice(split, n))
+    explained_all, _ = cost(slice(0, n))
+    assert ratio[0] == pytest.approx(explained_a + explained_b - explained_all, rel=1e-8)
+    assert dof[0] == 7
+    np.testing.assert_allclose(step[0], xb - xa, rtol=1e-8)
+
+
+@pytest.mark.parametrize("kind, model", [("lds", "independent"), ("lds", "drift"), ("car", "independent"),
+                                         ("car", "drift")])  # fmt: skip
+def test_a_knocked_camera_is_detected_at_its_frame(kind, model):
+    poses, _, _ = knocked_rig(0, kind, model=model)
+    change = head_change(poses)
+    assert change is not None and abs(change.frame - 500) <= 3 and 500 <= change.detected <= 530
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("kind, model", [("lds", "independent"), ("car", "drift")])
+def test_no_change_on_a_steady_rig(kind, model, seed):
+    poses, _, _ = knocked_rig(10 + seed, kind, model=model, at=10**6)
+    assert head_change(poses) is None
+
+
+def test_nothing_is_tested_before_the_estimate_settles():
+    poses, _, _ = knocked_rig(0, frames=200, at=100)
+    test = ChangeTest(warmup=60, min_history=120)  # a window of 30 after 120 frames of history: frame 210 at least
+    out = calibrate_sequence(poses, motion="multi")
+    assert first_change(poses[:, 0].numpy(), poses[:, 1].numpy(), out.rotation[:, 0].numpy(),
+                        out.translation[:, 0].numpy(), out.scale[:, 0].numpy(), test) is None  # fmt: skip
+
+
+def test_calibrate_poses_follows_the_new_extrinsic_and_says_so():
+    poses, old, new = knocked_rig(1, "car", model="drift")
+    rig = RigPoses(["cam0.txt", "cam1.txt"], poses.numpy(), None, np.zeros((len(poses), 2), int), [None, None],
+                   [None, None])  # fmt: skip
+    run = calibrate_rig(rig)
+    (change,) = run.changes
+    assert change["camera"] == "cam1.txt" and abs(change["frame"] - 500) <= 3
+    assert change["rotation_change_deg"] == pytest.approx(2.0, abs=0.3)
+    assert change["translation_change"] == pytest.approx(0.05, abs=0.03)
+    R = run.final.rotation[0, 0].numpy()
+    error = lambda X: np.degrees(np.linalg.norm(Rotation.from_matrix(R @ X[:3, :3].T).as_rotvec()))  # noqa: E731
+    assert error(new) < 0.5 < 1.5 < error(old)
+    restarted = calibrate_sequence(poses[500:], motion="multi").rotation[-1, 0].numpy()  # the head from the change on
+    assert error(restarted) < 0.05
+    assert any("changed at frame" in w and "cam1.txt" in w for w in run.warnings)
+    assert run.result_json()["changes"] == run.changes
+    assert np.nanmax(run.trace["change_frame"]) == change["frame"]
+    steady = calibrate_rig(RigPoses(rig.files, knocked_rig(1, "car", model="drift", at=10**6)[0].numpy(), None,
+                                    rig.lines, [None, None], [None, None]))  # fmt: skip
+    assert steady.changes == [] and not any("changed at frame" in w for w in steady.warnings)
