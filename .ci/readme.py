@@ -26,7 +26,8 @@ one figure a line (tests/test_readme_figures.py runs the check)::
 The figure must appear in that paragraph or table; the value at the key path (``/`` between keys, a list's index
 as a number; a first part ending in ``.json`` names another file in the same folder) must round to it (within half a
 unit of its last digit), or lie within the stated ``±`` tolerance (absolute, or ``%`` of the figure). ``min``,
-``max`` and ``median`` take the values of every key at a ``*`` (those after ``except``, separated by ``;``, left out).
+``max`` and ``median`` take the values of every key (or list index) at a ``*`` (those after ``except``, separated by
+``;``, left out).
 """
 
 import json
@@ -95,12 +96,14 @@ FIGURE_LINE = re.compile(
 
 
 def _values(node, keys: list[str], exclude: set[str]) -> list:
-    """The values at the key path ``keys`` under ``node`` (a ``*`` part: every key but ``exclude``)."""
+    """The values at the key path ``keys`` under ``node`` (a ``*`` part: every key, or a list's every index, but
+    ``exclude``)."""
     if not keys:
         return [node]
     key, rest = keys[0], keys[1:]
     if key == "*":
-        return [v for k, child in node.items() if k not in exclude for v in _values(child, rest, exclude)]
+        items = enumerate(node) if isinstance(node, list) else node.items()
+        return [v for k, child in items if str(k) not in exclude for v in _values(child, rest, exclude)]
     return _values(node[int(key)] if isinstance(node, list) else node[key], rest, exclude)
 
 

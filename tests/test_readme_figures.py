@@ -28,7 +28,7 @@ def results(tmp_path):
             {
                 "summary": {"us": 48.36, "ms": 18.43},
                 "rigs": {"a": {"deg": 0.077}, "b": {"deg": 1.858}, "c": {"deg": 0.43}, "d": {"deg": 25.8}},
-                "runs": [{"fps": 14.97}],
+                "runs": [{"fps": 14.97}, {"fps": 9.2}, {"fps": 30.1}],
             }
         )  # fmt: skip
     )
@@ -58,6 +58,9 @@ def _readme(text: str, lines: str) -> str:
         ("From 0.08 to 1.86, median 0.43.", "0.08 = min rigs/*/deg except d\n1.86 = max rigs/*/deg except d", True),
         ("Median 0.43.", "0.43 = median rigs/*/deg except d", True),  # of 0.077, 1.858, 0.43
         ("Median 0.43.", "0.43 = median rigs/*/deg", False),  # with d: (0.43 + 1.858) / 2
+        ("At least 9.2 frames a second.", "9.2 = min runs/*/fps", True),  # a list's every index
+        ("At least 15 frames a second.", "15 = min runs/*/fps except 1", True),
+        ("At least 9.2 frames a second.", "9.2 = min runs/*/fps except 1", False),
         ("Up to 1.86.", "1.86 = rigs/*/deg", False),  # several values need min, max or median
         ("Up to 1.86.", "up to 1.86 here", False),  # not a figure line
     ],

@@ -40,11 +40,12 @@ class Change:
 
 @dataclass(frozen=True)
 class ChangeTest:
-    """The test's settings: frames in the ``window``, the chance of a false alarm per frame, frames in a row over the
-    threshold (``persistence``), frames before the first test (``warmup``: the estimate settles, the variances are
-    learnt) and accepted frames whose residuals give the variances (``history``)."""
+    """The test's settings: the ``windows`` tested at every frame (a short one notices a large change soon, a long one
+    a small change among much noise), the chance of a false alarm per frame, frames in a row over the threshold
+    (``persistence``), frames before the first test (``warmup``: the estimate settles), the frames before a window
+    that it is compared with (``history``, at least ``min_history``)."""
 
-    window: int = 30
+    windows: tuple[int, ...] = (30, 100, 300)
     false_alarm: float = 1e-6
     persistence: int = 3
     warmup: int = 60
@@ -85,18 +86,19 @@ def first_change(
     R, t, s: (T, 3, 3), (T, 3), (T,) the head's estimate after each frame; frame i is tested against frame i-1's.
     """
     frames, sums = _referenced_sums(poses0, posesk, R, t, s, test.warmup)
-    W = test.window
-    ends = np.arange(W + test.min_history, len(frames) + 1)  # window [end - W, end), history before it
-    if not len(ends):
-        return None
-    ratio, dof, _ = _split_ratio(sums, np.maximum(ends - W - test.history, 0), ends - W, ends)
-    ratio = ratio / _dispersion(ratio / chi2_distribution.median(dof), W)
-    over = np.convolve(chi2_distribution.sf(ratio, dof) < test.false_alarm, np.ones(test.persistence), "valid")
+    p = np.ones((len(test.windows), len(frames) + 1))  # per window and end: the p-value (Bonferroni over windows)
+    for i, W in enumerate(test.windows):
+        ends = np.arange(W + test.min_history, len(frames) + 1)  # window [end - W, end), history before it
+        if len(ends):
+            ratio, dof, _ = _split_ratio(sums, np.maximum(ends - W - test.history, 0), ends - W, ends)
+            ratio = ratio / _dispersion(ratio / chi2_distribution.median(dof), W)
+            p[i, ends] = np.minimum(chi2_distribution.sf(ratio, dof) * len(test.windows), 1)
+    over = np.convolve(p.min(0) < test.false_alarm, np.ones(test.persistence), "valid")
     hits = np.flatnonzero(over >= test.persistence)
     if not len(hits):
         return None
-    end = ends[hits[0] + test.persistence - 1]
-    splits = np.arange(end - W, end)
+    end = hits[0] + test.persistence - 1
+    splits = np.arange(end - test.windows[int(np.argmin(p[:, end]))], end)
     ratio, _, step = _split_ratio(sums, np.maximum(splits - test.history, 0), splits, np.full_like(splits, end))
     best = int(np.argmax(ratio))
     return Change(int(frames[splits[best]]), int(frames[end - 1]), float(np.degrees(np.linalg.norm(step[best, :3]))),

@@ -23,20 +23,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_distribution
 
+from ocalib.calib.change import Change, step_size
+
 HISTORY = 30  # accepted innovations whose spread the test uses
 MIN_HISTORY = 10  # innovations needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
-
-
-@dataclass
-class Change:
-    """A detected change: the first ``frame`` that disagreed, the ``detected`` frame, and the step from the old
-    fused extrinsic to the mean of the disagreeing measurements (rotation deg, translation in metres)."""
-
-    frame: int
-    detected: int
-    rotation_change_deg: float
-    translation_change: float
 
 
 @dataclass
@@ -86,7 +77,11 @@ class ExtrinsicTrack:
             return None
         step = np.mean([innovation(self.extrinsic, E) for _, E in self._pending], axis=0)
         new = perturbed(self.extrinsic, step)
-        change = Change(self._pending[0][0], frame, *_step(self.extrinsic, new))
+        change = Change(
+            self._pending[0][0],
+            frame,
+            *step_size(self.extrinsic[:3, :3], self.extrinsic[:3, 3], new[:3, :3], new[:3, 3]),
+        )
         self.changes.append(change)
         self.extrinsic, self.covariance = new.copy(), np.eye(6) * UNINFORMED
         self._history.clear()
@@ -119,8 +114,3 @@ def with_unobservable(covariance: np.ndarray, unobservable: np.ndarray) -> np.nd
 def _information(covariance: np.ndarray) -> np.ndarray:
     """The information (6, 6) of ``covariance``."""
     return np.linalg.pinv(covariance, hermitian=True, rcond=1e-12)
-
-
-def _step(old: np.ndarray, new: np.ndarray) -> tuple[float, float]:
-    d = innovation(old, new)
-    return float(np.degrees(np.linalg.norm(d[:3]))), float(np.linalg.norm(d[3:]))

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import pycolmap
 
-from ocalib.rigba.change import UNINFORMED, Change, ExtrinsicTrack, with_unobservable
+from ocalib.calib.change import Change
+from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, with_unobservable
 from ocalib.rigba.colmap import pinhole_params, to_matrix
 from ocalib.rigba.features import Features, SiftExtractor, match_features
 from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window

@@ -107,6 +107,16 @@ def rig_trajectories(cam0: Tensor, extrinsics: Tensor, scales: Tensor | None = N
     return poses
 
 
+def knocked(
+    extrinsic: Tensor, frames: int, at: int, rotation_deg: tuple = (0.0, 2.0, 0.0), shift: tuple = (0.05, 0.0, 0.0)
+) -> Tensor:
+    """Per-frame ``T_cam0_camk`` (frames, 4, 4) of a camera knocked at frame ``at``: ``extrinsic`` (4, 4) before,
+    then turned by the rotation vector ``rotation_deg`` (degrees, camera 0's axes) and moved by ``shift``."""
+    new = make_pose(so3_exp(torch.deg2rad(torch.tensor(rotation_deg, dtype=F64))) @ extrinsic[:3, :3],
+                    extrinsic[:3, 3] + torch.tensor(shift, dtype=F64))  # fmt: skip
+    return torch.where((torch.arange(frames) < at)[:, None, None], extrinsic, new)
+
+
 def add_noise(poses: Tensor, sigma: float, generator: torch.Generator, model: str = "independent") -> Tensor:
     """Gaussian pose noise of ``sigma`` (radians for rotation, units for translation).
 

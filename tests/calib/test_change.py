@@ -1,7 +1,5 @@
 """A change of an extrinsic told from noise on the head's residuals, and calibrate-poses following it."""
 
-import math
-
 import numpy as np
 import pytest
 import torch
@@ -10,8 +8,7 @@ from scipy.spatial.transform import Rotation
 from ocalib.calib.change import ChangeTest, _cumulative, _split_ratio, first_change, handeye_residuals, motions
 from ocalib.calib.pipeline import RigPoses, calibrate_rig
 from ocalib.calib.sequence import calibrate_sequence
-from ocalib.geometry import make_pose
-from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, so3_exp
+from ocalib.sim.trajectory import add_noise, car_trajectory, knocked, lds_trajectory, random_rig, rig_trajectories
 
 F64 = torch.float64
 
@@ -21,11 +18,9 @@ def knocked_rig(seed, kind="lds", frames=1000, at=500, model="independent", nois
     and new ``T_cam0_cam1``."""
     g = torch.Generator().manual_seed(seed)
     cam0 = lds_trajectory(frames, g) if kind == "lds" else car_trajectory(frames, g)
-    old = random_rig(g)
-    new = make_pose(so3_exp(torch.tensor([0, math.radians(2), 0], dtype=F64)) @ old[:3, :3],
-                    old[:3, 3] + torch.tensor([0.05, 0, 0], dtype=F64))  # fmt: skip
-    per_frame = torch.stack([old if i < at else new for i in range(frames)])[:, None]
-    return add_noise(rig_trajectories(cam0, per_frame), noise, g, model), old.numpy(), new.numpy()
+    extrinsics = knocked(random_rig(g), frames + 1, frames)  # the last is the new extrinsic
+    poses = rig_trajectories(cam0, knocked(extrinsics[0], frames, at)[:, None])
+    return add_noise(poses, noise, g, model), extrinsics[0].numpy(), extrinsics[-1].numpy()
 
 
 def head_change(poses):
