@@ -13,6 +13,10 @@ start, and over the last third of the stream against the first two thirds (it mu
     python bench/bench_rig_online.py [--sequences handheld-1001 front-left-1008 ...] [--frames 300]
     python bench/bench_rig_online.py --change --out bench/results/rig_online_change.json
 
+``--streaming N``: beside it, on the same sequence in the same run, the batch rig bundle adjustment streamed as
+``ocalib calibrate --bundle-adjust-every N`` streams it (a run after every N frames on the frames so far, from the
+network front end's head): its seconds per frame and its final errors.
+
 ``--change``: camera 1 is knocked at half the frames (2 deg about its y axis; on cars also 5 cm sideways); the
 frame it is noticed at and the error against the new mounting at the end are reported. Without ``--change``, every
 change found is a false alarm.
@@ -30,12 +34,14 @@ import cv2
 import numpy as np
 from bench_calibnet_accuracy import ensure
 from bench_rigba import PeakMemory, rss_mb
+from bench_rigba import run as run_bundle_adjustment
 from common import add_sequence_arguments, write_json
 from scipy.spatial.transform import Rotation
 
 from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
+from ocalib.rigba.options import BundleOptions
 from ocalib.synth import preset, render_sequence
 from ocalib.synth.presets import knocked
 
@@ -137,6 +143,7 @@ def main() -> None:
     p.add_argument("--change", action="store_true", help="camera 1 knocked at half the frames")
     p.add_argument("--keyframe-step", type=int, default=OnlineRigOptions.keyframe_step)
     p.add_argument("--window", type=int, default=OnlineRigOptions.window)
+    p.add_argument("--streaming", type=int, metavar="N", help="also the bundle adjustment after every N frames")
     p.add_argument("--out", default="bench/results/rig_online.json")
     args = p.parse_args()
     cv2.setNumThreads(1)
@@ -148,6 +155,14 @@ def main() -> None:
         root = Path(args.root)
         path = ensure_knocked(root, name, args.frames) if args.change else ensure(root, name, args.frames)
         r = results[path.name] = run(path, args.frames, options)
+        if args.streaming:
+            streamed = run_bundle_adjustment(path, "network", args.frames, BundleOptions(), args.streaming)
+            r["streaming_bundle_adjustment"] = {"every": args.streaming} | {
+                key: streamed[key] for key in ("bundle", "stage_seconds_per_frame", "stage_peak_mb", "trusted")
+            }
+            print(f"{path.name:24} bundle adjustment every {args.streaming} frames: "
+                  f"{1000 * streamed['stage_seconds_per_frame']:.0f} ms/frame, {streamed['stage_peak_mb']:.0f} MB, "
+                  f"final {streamed['bundle']}", flush=True)  # fmt: skip
         for camera, c in r["cameras"].items():
             f = c["final"]
             print(

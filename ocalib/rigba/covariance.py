@@ -44,8 +44,10 @@ class ExtrinsicUncertainty:
 
     @property
     def rotation_std(self) -> np.ndarray:
-        """(3,) rad about camera 0's axes."""
-        return np.sqrt(np.diag(self.covariance)[:3])
+        """(3,) rad about camera 0's axes; NaN where the variance came out negative (a covariance broken by rounding:
+        not a measurement)."""
+        variance = np.diag(self.covariance)[:3]
+        return np.sqrt(np.where(variance >= 0, variance, np.nan))
 
     @property
     def translation_std(self) -> np.ndarray:

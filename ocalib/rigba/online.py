@@ -32,7 +32,7 @@ import pycolmap
 from ocalib.calib.change import Change
 from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, with_unobservable
 from ocalib.rigba.colmap import pinhole_params, to_matrix
-from ocalib.rigba.features import Features, SiftExtractor, match_features
+from ocalib.rigba.features import SiftExtractor, match_features
 from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
@@ -160,45 +160,50 @@ class OnlineRigEstimator:
         for k, features in enumerate(kf.features):
             new_from_world = np.linalg.inv(kf.pose @ self.extrinsics[k])
             for previous, pairs in reversed(list(zip(recent, matches[k]))):
+                i, j = pairs[kf.point_ids[k][pairs[:, 0]] < 0].T
+                pid = previous.point_ids[k][j]
+                known = np.array([p in self.points for p in pid.tolist()], dtype=bool)
+                if known.any():
+                    X = np.stack([self.points[p] for p in pid[known].tolist()])
+                    ok = self._reprojects(new_from_world, k, X, features.keypoints[i[known]])
+                    kf.point_ids[k][i[known][ok]] = pid[known][ok]
+                fresh = pid < 0
+                if not fresh.any():
+                    continue
                 old_from_world = np.linalg.inv(previous.pose @ self.extrinsics[k])
-                for i, j in pairs[kf.point_ids[k][pairs[:, 0]] < 0]:
-                    pid = previous.point_ids[k][j]
-                    if pid >= 0:
-                        if pid in self.points and self._reprojects(new_from_world, k, self.points[pid], features, i):
-                            kf.point_ids[k][i] = pid
-                        continue
-                    X = self._point(old_from_world, new_from_world, k, previous.features[k], j, features, i)
-                    if X is not None:
-                        pid = self._next_point
-                        self._next_point += 1
-                        self.points[pid] = X
-                        kf.point_ids[k][i] = previous.point_ids[k][j] = pid
+                uv = previous.features[k].keypoints[j[fresh]], features.keypoints[i[fresh]]
+                X, ok = self._points(old_from_world, new_from_world, k, *uv)
+                ids = self._next_point + np.arange(int(ok.sum()))
+                self._next_point += len(ids)
+                self.points.update(zip(ids.tolist(), X[ok]))
+                kf.point_ids[k][i[fresh][ok]] = ids
+                previous.point_ids[k][j[fresh][ok]] = ids
 
-    def _point(self, old_from_world, new_from_world, k, old: Features, j: int, new: Features, i: int):
-        """The 3-D point of keypoints ``j`` of ``old`` and ``i`` of ``new`` (camera k), or None where it is behind
-        a camera, seen under less than ``min_angle_deg``, or reprojects over ``MAX_ERROR_PX``."""
-        K_inv = np.linalg.inv(self.K[k])
-        rays = [K_inv @ np.array([*old.keypoints[j], 1.0]), K_inv @ np.array([*new.keypoints[i], 1.0])]
-        X = pycolmap.triangulate_point(old_from_world[:3], new_from_world[:3], rays[0][:2], rays[1][:2])
-        if X is None:
-            return None
-        X = np.asarray(X, dtype=np.float64).ravel()
-        centres = [np.linalg.inv(T)[:3, 3] for T in (old_from_world, new_from_world)]
-        a, b = X - centres[0], X - centres[1]
-        cosine = a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300)
-        if cosine > np.cos(np.radians(self.options.min_angle_deg)):
-            return None
-        if not (self._reprojects(old_from_world, k, X, old, j) and self._reprojects(new_from_world, k, X, new, i)):
-            return None
-        return X
+    def _points(self, old_from_world, new_from_world, k: int, old_uv: np.ndarray, new_uv: np.ndarray):
+        """The 3-D points (n, 3) of keypoints ``old_uv`` and ``new_uv`` (n, 2) of camera k seen from two poses
+        (linear triangulation), and which are good (n,): in front of both, seen under ``min_angle_deg`` or more,
+        reprojecting within ``MAX_ERROR_PX``."""
+        rows = []
+        for T, uv in ((old_from_world, old_uv), (new_from_world, new_uv)):
+            xy = (np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(self.K[k]).T)[:, :2]
+            rows += [xy[:, :1] * T[2] - T[0], xy[:, 1:] * T[2] - T[1]]
+        X = np.linalg.svd(np.stack(rows, 1))[2][:, -1]  # (n, 4) homogeneous
+        with np.errstate(divide="ignore", invalid="ignore"):
+            X = X[:, :3] / X[:, 3:]
+        a, b = (X - np.linalg.inv(T)[:3, 3] for T in (old_from_world, new_from_world))
+        cosine = (a * b).sum(1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+        ok = np.isfinite(X).all(1) & (cosine <= np.cos(np.radians(self.options.min_angle_deg)))
+        ok &= self._reprojects(old_from_world, k, X, old_uv) & self._reprojects(new_from_world, k, X, new_uv)
+        return X, ok
 
-    def _reprojects(self, cam_from_world: np.ndarray, k: int, X: np.ndarray, features: Features, i: int) -> bool:
-        """Whether ``X`` lies in front of camera k at ``cam_from_world`` and reprojects within ``MAX_ERROR_PX``."""
-        p = cam_from_world[:3, :3] @ X + cam_from_world[:3, 3]
-        if p[2] <= 1e-9:
-            return False
-        uv = self.K[k] @ p
-        return bool(np.linalg.norm(uv[:2] / uv[2] - features.keypoints[i]) < MAX_ERROR_PX)
+    def _reprojects(self, cam_from_world: np.ndarray, k: int, X: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Whether points ``X`` (n, 3) lie in front of camera k at ``cam_from_world`` and reproject within
+        ``MAX_ERROR_PX`` of keypoints ``uv`` (n, 2) -> (n,) bool."""
+        p = X @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            projected = p @ self.K[k].T
+            error = np.linalg.norm(projected[:, :2] / projected[:, 2:] - uv, axis=1)
+        return (p[:, 2] > 1e-9) & (error < MAX_ERROR_PX)
 
     def _evict(self) -> None:
         """Keep the last ``window`` keyframes and the points they observe."""
