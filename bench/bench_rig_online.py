@@ -120,7 +120,7 @@ def run(path: Path, frames: int, options: OnlineRigOptions) -> dict:
             for s in states
         ]
         settled = next((states[i].frame for i in range(len(states)) if all(within[i:])), None)
-        found = [{"frame": c.frame, "detected_at": c.detected, "rotation_change_deg": c.rotation_change_deg,
+        found = [{"frame": c.frame, "detected": c.detected, "rotation_change_deg": c.rotation_change_deg,
                   "translation_change": c.translation_change} for s in states for j, c in s.changes if j == k]  # fmt: skip
         out["cameras"][cams[k].name] = {
             "final": dict(
@@ -169,7 +169,7 @@ def main() -> None:
                 f"{path.name:24} {camera:8} {f['rotation_deg']:6.2f} {f['direction_deg']:6.1f} "
                 f"{f['translation_rel_baseline']:6.2f} {str(c['stays_within_targets_from_frame']):>11} "
                 f"{1000 * r['seconds_per_frame']:8.0f} {r['peak_mb']:5.0f} "
-                f"{str([(x['frame'], x['detected_at']) for x in c['changes']]):>26}",
+                f"{str([(x['frame'], x['detected']) for x in c['changes']]):>26}",
                 flush=True,
             )
         doc = {"frames": args.frames, "change": args.change, "options": dataclasses.asdict(options),

@@ -8,9 +8,7 @@ k's pose resected from its 2-D-3-D matches, composed with the rig's pose) agains
 innovation ``d`` (rotation vector and translation difference, camera 0's axes), less the mean of the recent
 accepted ones, gives ``chi2 = d^T S^-1 d`` with ``S`` their covariance (the spread the measurements show on a steady
 rig, which the covariances of a bundle adjustment understate). Over the chi-square quantile at ``false_alarm`` on
-``persistence`` keyframes in a row is a change, where they agree with each other (their scatter about their mean is
-what the spread allows: a knock moves every measurement the same way, an excursion of the noise does not): the
-track restarts from their mean.
+``persistence`` keyframes in a row is a change: the track restarts from their mean.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_fused`` with ``d`` =
 (rotation rad, translation) in camera 0's axes.
@@ -74,13 +72,10 @@ class ExtrinsicTrack:
             self._pending.clear()
             self._history.append(d)
             return None
-        self._pending.append((frame, extrinsic, z))
+        self._pending.append((frame, extrinsic))
         if len(self._pending) < self.persistence:
             return None
-        if not _one_step(np.stack([z for _, _, z in self._pending]), spread, self.false_alarm):
-            self._pending.pop(0)  # disagreements about different axes: excursions of the noise, not a step
-            return None
-        step = np.mean([innovation(self.extrinsic, E) for _, E, _ in self._pending], axis=0)
+        step = np.mean([innovation(self.extrinsic, E) for _, E in self._pending], axis=0)
         new = perturbed(self.extrinsic, step)
         change = Change(
             self._pending[0][0],
@@ -92,14 +87,6 @@ class ExtrinsicTrack:
         self._history.clear()
         self._pending.clear()
         return change
-
-
-def _one_step(z: np.ndarray, spread: np.ndarray, false_alarm: float) -> bool:
-    """Whether innovations ``z`` (n, 6) that each disagree share one step: their scatter about their mean is what the
-    ``spread`` (6, 6) of a steady rig allows (at the chi-square quantile at ``false_alarm``, 6 (n - 1) degrees)."""
-    e = z - z.mean(0)
-    scatter = float(np.einsum("ni,ni->", e, np.linalg.solve(spread, e.T).T))
-    return scatter <= chi2_distribution.ppf(1 - false_alarm, 6 * (len(z) - 1))
 
 
 def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:

@@ -10,7 +10,8 @@ given (as CamOdoCal holds the odometry); what the images must give is each camer
 2. resects every camera from its 2-D-3-D matches (COLMAP's absolute pose), keeping the matches that agree: with the
    rig's pose, each gives that keyframe's own measurement of the camera's extrinsic;
 3. continues the tracks the matches extend and triangulates new points;
-4. adjusts the points and every extrinsic over the last ``window`` keyframes (:mod:`ocalib.rigba.window`);
+4. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
+   (:mod:`ocalib.rigba.window`);
 5. tests each measurement against the camera's track for a change, and fuses the window estimate into the track
    (:mod:`ocalib.rigba.change`).
 
@@ -45,6 +46,7 @@ class OnlineRigOptions:
 
     keyframe_step: int = 2  # every K-th frame is a keyframe
     window: int = 30  # keyframes adjusted together
+    adjust_every: int = 2  # keyframes between two adjustments of the window (each adjustment is half the cost)
     match_previous: int = 3  # earlier keyframes each new one is matched to, per camera
     max_features: int = 1024  # SIFT keypoints an image
     min_inliers: int = 15  # 2-D-3-D inliers for a keyframe to count as registered
@@ -86,7 +88,8 @@ class OnlineRigEstimator:
         self.extrinsics[:, :3, 3] = 0.0
         self.extrinsics[0] = np.eye(4)
         C = len(self.K)
-        self.tracks = [ExtrinsicTrack(options.window, options.false_alarm, options.persistence) for _ in range(C)]
+        overlap = options.window / options.adjust_every  # windows a keyframe is adjusted in
+        self.tracks = [ExtrinsicTrack(overlap, options.false_alarm, options.persistence) for _ in range(C)]
         self.keyframes: deque[Keyframe] = deque()
         self.points: dict[int, np.ndarray] = {}
         self._next_point = 0
@@ -118,7 +121,8 @@ class OnlineRigEstimator:
         self.keyframes.append(kf)
         changes = self._changes(frame, measured)
         self._evict()
-        if len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
+        adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
+        if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes)
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None:

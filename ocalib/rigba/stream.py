@@ -122,7 +122,7 @@ class RigStream:
             {
                 "camera": names[k],
                 "frame": c.frame,
-                "detected_at": c.detected,
+                "detected": c.detected,
                 "rotation_change_deg": c.rotation_change_deg,
                 "translation_change": c.translation_change,
             }
