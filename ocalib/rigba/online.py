@@ -222,14 +222,14 @@ class OnlineRigEstimator:
 
     def _changes(self, frame: int, measured: dict[int, np.ndarray]) -> list[tuple[int, Change]]:
         """Test each camera's measured extrinsic against its track -> the changes found; a camera that moved loses
-        its observations from before, and starts again from the measurement."""
+        its observations from before, and its track takes the next windows' estimates (the window starts from where
+        it was: a few single-keyframe measurements are a poor start, and a false alarm then costs little)."""
         changes = []
         for k, extrinsic in measured.items():
             change = self.tracks[k].observe(frame, extrinsic) if k > 0 else None
             if change is not None:
                 changes.append((k, change))
                 self._forget_before(k, change.frame)
-                self.extrinsics[k] = self.tracks[k].extrinsic.copy()
         return changes
 
     def _forget_before(self, k: int, frame: int) -> None:
