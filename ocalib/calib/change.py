@@ -4,8 +4,8 @@ Each frame's motion pair (camera 0's motion ``A``, camera k's ``B``, consecutive
 ``A X = X B`` under one estimate of the head's, ``X = (R, t)`` and ``s``, taken once it has settled:
 ``r = (rotvec(R_A R R_B^T R^T), (R_A - I) t + t_A - s R t_B)`` (6,). A step of the truth from there,
 ``d = (d_rot, d_t, d_s)``, shows as ``r = J d`` (first order), ``J = [[I - R_A, 0, 0], [-s [R t_B]x, I - R_A, R t_B]]``.
-Each frame tests a two-sample generalized likelihood ratio: do the last ``window`` frames take another step than the
-``history`` before them? With the rows weighed by the inverse covariance of the history's residuals (once its own
+Each frame tests a two-sample generalized likelihood ratio: do the last ``windows`` frames take another step than
+the ``history`` before them? With the rows weighed by the inverse covariance of the history's residuals (once its own
 step is fitted), the ratio is chi-square with rank(H) degrees of freedom while nothing changed; it is divided by
 its overdispersion (the median ratio of the earlier tests over the chi-square median, at least 1: the residuals are
 neither white nor Gaussian). A p-value under ``false_alarm`` on ``persistence`` frames in a row is a change; its
@@ -26,6 +26,8 @@ from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.geometry.pose import cross_matrix
 
+SEGMENT_HISTORIES = 10  # the frames a segment tests, in histories (a new reference each; segments overlap by a span)
+
 
 @dataclass
 class Change:
@@ -40,12 +42,13 @@ class Change:
 
 @dataclass(frozen=True)
 class ChangeTest:
-    """The test's settings: the ``windows`` tested at every frame (a short one notices a large change soon, a long one
-    a small change among much noise), the chance of a false alarm per frame, frames in a row over the threshold
+    """The test's settings: the ``windows`` tested at every frame (windows of 100 and 300 frames notice small changes
+    in much noise, but raise alarms over the slow drift of a long stream's residuals), the chance of a false alarm per
+    frame, frames in a row over the threshold
     (``persistence``), frames before the first test (``warmup``: the estimate settles), the frames before a window
     that it is compared with (``history``, at least ``min_history``)."""
 
-    windows: tuple[int, ...] = (30, 100, 300)
+    windows: tuple[int, ...] = (30,)
     false_alarm: float = 1e-6
     persistence: int = 3
     warmup: int = 60
@@ -83,8 +86,25 @@ def first_change(
     """The first change of camera k's extrinsic in a stream, or None.
 
     poses0, posesk: (T, 4, 4) camera-to-world poses of camera 0 and camera k (NaN where invalid).
-    R, t, s: (T, 3, 3), (T, 3), (T,) the head's estimate after each frame; frame i is tested against frame i-1's.
+    R, t, s: (T, 3, 3), (T, 3), (T,) the head's estimate after each frame. The stream is tested in overlapping
+    segments; each segment's residuals are taken against the estimate after its first ``test.warmup`` frames (the
+    head's estimate moves, and the first-order model holds near its reference), and it tests the frames after a full
+    history, the first segment from ``test.warmup`` on.
     """
+    span = test.warmup + test.history + max(test.windows)  # the frames before the first one a later segment tests
+    stride = SEGMENT_HISTORIES * test.history
+    for start in range(0, max(len(poses0) - span, 0) + 1, stride):
+        part = slice(start, start + span + stride)
+        first = 0 if start == 0 else span - test.persistence
+        found = _segment_change(poses0[part], posesk[part], R[part], t[part], s[part], test, first)
+        if found is not None:
+            return Change(found.frame + start, found.detected + start, found.rotation_change_deg,
+                          found.translation_change)  # fmt: skip
+    return None
+
+
+def _segment_change(poses0, posesk, R, t, s, test: ChangeTest, first: int) -> Change | None:
+    """:func:`first_change` within one segment, counting only detections at frame ``first`` or later."""
     frames, sums = _referenced_sums(poses0, posesk, R, t, s, test.warmup)
     p = np.ones((len(test.windows), len(frames) + 1))  # per window and end: the p-value (Bonferroni over windows)
     for i, W in enumerate(test.windows):
@@ -94,10 +114,10 @@ def first_change(
             ratio = ratio / _dispersion(ratio / chi2_distribution.median(dof), W)
             p[i, ends] = np.minimum(chi2_distribution.sf(ratio, dof) * len(test.windows), 1)
     over = np.convolve(p.min(0) < test.false_alarm, np.ones(test.persistence), "valid")
-    hits = np.flatnonzero(over >= test.persistence)
-    if not len(hits):
+    hits = [h + test.persistence - 1 for h in np.flatnonzero(over >= test.persistence)]
+    end = next((e for e in hits if frames[e - 1] >= first), None)
+    if end is None:
         return None
-    end = hits[0] + test.persistence - 1
     splits = np.arange(end - test.windows[int(np.argmin(p[:, end]))], end)
     ratio, _, step = _split_ratio(sums, np.maximum(splits - test.history, 0), splits, np.full_like(splits, end))
     best = int(np.argmax(ratio))
@@ -152,10 +172,11 @@ def _split_ratio(sums: dict, a: np.ndarray, b: np.ndarray, c: np.ndarray):
 
 def _dispersion(relative: np.ndarray, lag: int) -> np.ndarray:
     """Each test's overdispersion (E,): the median of the ``relative`` ratios (E,) (ratio over its chi-square median)
-    of the tests that ended ``lag`` or more tests before it, at least 1 (1 where there are none)."""
+    of the tests that ended ``lag`` to ``2 lag`` or more tests before it (updated every ``lag`` tests), at least 1 (1
+    where there are none)."""
     out = np.ones(len(relative))
-    for e in range(lag + 1, len(relative)):
-        out[e] = max(float(np.median(relative[: e - lag])), 1.0)
+    for e in range(2 * lag, len(relative), lag):
+        out[e : e + lag] = max(float(np.median(relative[: e - lag])), 1.0)
     return out
 
 
