@@ -264,8 +264,9 @@ def _follow_changes(
     """Each camera's extrinsic tested for changes over the stream (:func:`~ocalib.calib.change.first_change`); where
     one is found, camera k's head restarts at its first frame (on camera 0 and camera k alone) and its estimates
     replace the old from the frame it was detected. Returns the final estimate, the trace (camera k's columns
-    spliced; ``change_frame`` (F, K): at the frame a change was detected, its first frame, else NaN) and the changes: camera file, first frame, frame detected, the step from the estimate before to the
-    one that followed (degrees, camera-0 units)."""
+    spliced; ``change_frame`` (F, K): at the frame a change was detected, its first frame, else NaN) and the changes:
+    camera file, first frame, frame detected, the step from the estimate before to the one that followed (degrees,
+    camera-0 units)."""
     poses = np.where(rig.valid[..., None, None], rig.poses, np.nan)
     changes, trace["change_frame"] = [], np.full(trace["scale"].shape[:2], np.nan)
     for k in range(1, poses.shape[1]):
