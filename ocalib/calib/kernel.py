@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 import torch
-from numba import njit, prange
+from numba import prange
 from torch import Tensor
 
 from ocalib.calib import (
@@ -56,7 +56,7 @@ from ocalib.calib import (
     translation_kernel,
 )
 from ocalib.calib.handeye import STATISTICS, TranslationMoment
-from ocalib.calib.linalg_kernel import OPTIONS, jit, jit_inline
+from ocalib.calib.linalg_kernel import compiled, jit, jit_inline
 from ocalib.calib.pairing import MotionPairs
 from ocalib.calib.refine import REFINE_STEPS
 from ocalib.calib.rotation import RotationSystem
@@ -243,7 +243,7 @@ def _rigs(poses, state, settings, out, start, stop):
         _rig_step(b, poses[b], state, settings, out, work)
 
 
-@njit(parallel=True, **OPTIONS)
+@compiled(parallel=True)
 def _parallel(poses, state, settings, out, chunks):
     """:func:`_rigs` of all rigs, in ``chunks`` over numba's threads."""
     for chunk in prange(chunks):

@@ -14,59 +14,82 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
+import numba
 from numba import njit
-from numba.core import caching
 
 JACOBI_SWEEPS = 30
 JACOBI_TOLERANCE = 1e-16  # an off-diagonal entry below this times sqrt(a_pp a_qq) is treated as zero
 
-# Every compiled twin: cached on disk, no GIL (the rigs run on numba's threads), numpy's division semantics, and
-# floating-point contraction and reassociation allowed (an FMA or a reordered sum changes results by rounding only).
-OPTIONS = dict(cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
-jit = njit(**OPTIONS)
-# The helpers called for every rig with named tuples of many arrays: compiled into their callers (numba inlines them),
-# since a call counts a reference to each array it is passed, about 5 ns each (atomics: more across threads).
-jit_inline = njit(inline="always", **OPTIONS)
+# Every compiled twin (cached on disk by :func:`compiled`): no GIL (the rigs run on numba's threads), numpy's division
+# semantics, and floating-point contraction and reassociation allowed (an FMA or a reordered sum changes results by
+# rounding only).
+OPTIONS = dict(nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
 
 _CALIB = Path(__file__).resolve().parent
 
 
-class _KernelSources:
-    """numba's on-disk cache for the kernel modules (``*_kernel.py``, ``kernel.py``), valid while none of them nor
-    their PyTorch modules (whose constants they compile in) changed. numba's own check looks at a function's file
-    alone, but a compiled function holds the twins it calls, from other files: an edit there would run stale code.
-    Mixed into each of numba's locators of source files, in numba's order."""
-
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        return super().from_function(py_func, py_file) if str(Path(py_file).resolve()) in _kernel_sources() else None
-
-    def get_source_stamp(self):
-        return _sources_digest(tuple((p, Path(p).stat().st_mtime_ns) for p in _kernel_sources()))
+def kernel_sources() -> list[Path]:
+    """The kernel modules (``*_kernel.py``, ``kernel.py``) and the PyTorch modules beside them (their twins, whose
+    constants they compile in)."""
+    kernels = sorted(_CALIB.glob("*_kernel.py"))
+    twins = [_CALIB / p.name.replace("_kernel.py", ".py") for p in kernels]
+    return [p for p in [*kernels, *twins, _CALIB / "kernel.py"] if p.exists()]
 
 
 @functools.cache
-def _kernel_sources() -> tuple[str, ...]:
-    kernels = sorted(_CALIB.glob("*_kernel.py"))
-    twins = [_CALIB / p.name.replace("_kernel.py", ".py") for p in kernels]
-    return tuple(str(p) for p in [*kernels, *twins, _CALIB / "kernel.py"] if p.exists())
+def cache_dir() -> str | None:
+    """numba's cache folder for the kernels, one per digest of :func:`kernel_sources`: a compiled function holds the
+    twins it calls from other files, which numba's own check (the function's file alone) would miss. Under
+    ``NUMBA_CACHE_DIR`` where set, else in this package's ``__pycache__`` (older digests' folders removed), else in
+    the user's cache folder: the first that is writable; None where none is (nothing is cached)."""
+    digest = hashlib.sha256(b"".join(p.name.encode() + p.read_bytes() for p in kernel_sources())).hexdigest()[:16]
+    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ocalib" / f"numba-{digest}"
+    in_tree = _CALIB / "__pycache__" / f"numba-{digest}"
+    chosen = [Path(numba.config.CACHE_DIR) / f"ocalib-{digest}"] if numba.config.CACHE_DIR else []
+    for folder in [*chosen, in_tree, user]:
+        if _writable(folder):
+            if folder == in_tree:
+                for old in folder.parent.glob("numba-*"):
+                    if old != folder:
+                        shutil.rmtree(old, ignore_errors=True)
+            return str(folder)
+    return None
 
 
-@functools.lru_cache(maxsize=4)
-def _sources_digest(stamps: tuple[tuple[str, int], ...]) -> str:
-    return hashlib.sha256(b"".join(Path(p).read_bytes() for p, _ in stamps)).hexdigest()
+def _writable(folder: Path) -> bool:
+    """Whether ``folder`` exists (made where missing) and a file can be written in it."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
 
 
-def _locators() -> list[type]:
-    names = ("UserProvidedCacheLocator", "InTreeCacheLocator", "UserWideCacheLocator")  # numba < 0.61: "_" + name
-    bases = [getattr(caching, name, None) or getattr(caching, "_" + name) for name in names]
-    return [type(f"Kernel{base.__name__.lstrip('_')}", (_KernelSources, base), {}) for base in bases]
+def compiled(**options):
+    """numba's ``njit`` with :data:`OPTIONS` and ``options``, cached in :func:`cache_dir` (numba's ``CACHE_DIR`` set
+    while the function is decorated, when numba picks its cache folder)."""
+
+    def decorate(function):
+        folder, previous = cache_dir(), numba.config.CACHE_DIR
+        numba.config.CACHE_DIR = folder or previous
+        try:
+            return njit(cache=folder is not None, **OPTIONS, **options)(function)
+        finally:
+            numba.config.CACHE_DIR = previous
+
+    return decorate
 
 
-if not any(issubclass(c, _KernelSources) for c in caching.CacheImpl._locator_classes):
-    caching.CacheImpl._locator_classes[:0] = _locators()
+jit = compiled()
+# The helpers called for every rig with named tuples of many arrays: compiled into their callers (numba inlines them),
+# since a call counts a reference to each array it is passed, about 5 ns each (atomics: more across threads).
+jit_inline = compiled(inline="always")
 
 
 @jit
