@@ -46,12 +46,15 @@ def decode_image(
         raise InputError(f"{path}: unsupported pixel type {array.dtype} (expected 8 or 16 bit)")
     if array.ndim == 3:  # BGR(A) -> RGB; grey + alpha -> grey
         array = cv2.cvtColor(array[:, :, :3], cv2.COLOR_BGR2RGB) if array.shape[2] >= 3 else array[:, :, 0]
-    if out_size is not None and tuple(out_size) != array.shape[:2]:
-        shrink = out_size[0] <= array.shape[0] and out_size[1] <= array.shape[1]
-        array = cv2.resize(
-            array, (out_size[1], out_size[0]), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
-        )
-    return array
+    return resize_image(array, out_size)
+
+
+def resize_image(array: np.ndarray, out_size: tuple[int, int] | None) -> np.ndarray:
+    """A decoded image (H, W[, 3]) resized to ``out_size`` (H', W') as :func:`read_image` does; None keeps it."""
+    if out_size is None or tuple(out_size) == array.shape[:2]:
+        return array
+    shrink = out_size[0] <= array.shape[0] and out_size[1] <= array.shape[1]
+    return cv2.resize(array, (out_size[1], out_size[0]), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
 
 
 def image_tensor(array: np.ndarray) -> Tensor:

@@ -9,6 +9,7 @@ cameras:
     K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]     # pixels, integer pixel centres
     T_cam0_cam: [[...4 rows of 4...]]            # optional: the true pose of this camera in camera 0's frame
     change: {frame: F, T_cam0_cam: [[...]]}      # optional: the camera was moved; its true pose from frame F on
+    distortion: {model: opencv, coeffs: [k1, k2, p1, p2, k3]}   # optional, or {model: fisheye, coeffs: [k1..k4]}
 ```
 
 Convention: ``T_cam0_cam`` maps points of this camera into camera 0 (``p_cam0 = R p_cam + t``); it is
@@ -17,7 +18,8 @@ ground truth of a calibration, known for rendered or surveyed rigs only: a camer
 and nothing is compared against it. Where another camera has one, camera 0's may be left out (the identity).
 ``change`` records a camera knocked out of place mid-sequence: ``T_cam0_cam`` holds for frames ``0 .. F-1``
 and the change's ``T_cam0_cam`` for frames ``F ..``; it needs the camera's ``T_cam0_cam``, ``F >= 1``, and
-camera 0 (the rig frame) cannot have one.
+camera 0 (the rig frame) cannot have one. ``distortion`` is the lens's (:mod:`ocalib.data.distortion`, OpenCV's
+models); K is then the intrinsics of the distorted images, and of their undistorted view; none is a pinhole.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ocalib.data.distortion import Distortion, read_distortion
 from ocalib.errors import InputError, read_text
 
 
@@ -47,6 +50,7 @@ class CameraSpec:
     K: np.ndarray  # (3, 3) float64, pixels
     T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, the true extrinsic where known (at frame 0)
     change: ExtrinsicChange | None = None  # the true extrinsic from a later frame on, where the camera moved
+    distortion: Distortion | None = None  # the lens's, None for a pinhole
 
 
 @dataclass
@@ -73,6 +77,7 @@ def write_rig_yaml(path: str | Path, rig: RigSpec) -> None:
             }
             | ({} if c.T_cam0_cam is None else {"T_cam0_cam": np.asarray(c.T_cam0_cam, dtype=float).tolist()})
             | ({} if c.change is None else {"change": _change_dict(c.change)})
+            | ({} if c.distortion is None else {"distortion": c.distortion.as_dict()})
             for c in rig.cameras
         ],
     }
@@ -128,6 +133,7 @@ def read_rig_yaml(path: str | Path) -> RigSpec:
             raise InputError(f"{where}: T_cam0_cam must be 4x4, all finite")
         if c.get("change") is not None:
             cam.change = _read_change(c["change"], i == 0, T is not None, f"{where} ({cam.name})")
+        cam.distortion = read_distortion(c.get("distortion"), f"{where} ({cam.name})")
         cameras.append(cam)
     if cameras[0].T_cam0_cam is None and any(c.T_cam0_cam is not None for c in cameras[1:]):
         cameras[0].T_cam0_cam = np.eye(4)

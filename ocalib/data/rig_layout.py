@@ -1,7 +1,7 @@
 """Loader of the project's native rig layout (what ``ocalib synth`` writes).
 
 ```
-DIR/rig.yaml                      # cameras: name, width, height, K, optional T_cam0_cam and change; frame_rate
+DIR/rig.yaml                      # cameras: name, width, height, K, optional T_cam0_cam, change, distortion; frame_rate
 DIR/times.txt                     # optional: one time (s) a line; else frame / frame_rate
 DIR/<name>/images/000000.png ...
 DIR/<name>/depth/000000.png ...   # optional: uint16, metres x 256, 0 = no surface
@@ -32,7 +32,15 @@ def open_rig(path: str | Path) -> Sequence:
     for spec in rig.cameras:
         images = list_frames(path / spec.name / "images")
         cameras.append(
-            Camera(spec.name, images, spec.K, (spec.height, spec.width), spec.T_cam0_cam, change=spec.change)
+            Camera(
+                spec.name,
+                images,
+                spec.K,
+                (spec.height, spec.width),
+                spec.T_cam0_cam,
+                change=spec.change,
+                distortion=spec.distortion,
+            )
         )
     sequence = Sequence(path.name, path, "rig", cameras)  # checks the cameras' frame counts first
     for cam in cameras:

@@ -5,7 +5,8 @@ pose of a camera in the frame of the sequence's first camera (``p_cam0 = R p_cam
 for that camera; K (3, 3) float64 in pixels (integer pixel centres) at the image size ``size`` (H, W).
 Frame t of every camera is the same instant. A camera's ``change`` (:class:`~ocalib.data.rig.ExtrinsicChange`)
 is its true ``T_cam0_cam`` from frame ``change.frame`` on, where it was moved mid-sequence; ``T_cam0_cam``
-holds before that frame.
+holds before that frame. A camera's ``distortion`` is its lens's (None: a pinhole); :meth:`Camera.read` gives its frames
+as the front ends see them, undistorted for K.
 """
 
 from __future__ import annotations
@@ -14,7 +15,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from torch import Tensor
 
+from ocalib.data.distortion import Distortion, undistort_image
+from ocalib.data.image_io import decode_image, image_tensor, read_image, resize_image
 from ocalib.data.rig import ExtrinsicChange
 from ocalib.errors import InputError
 
@@ -32,9 +36,18 @@ class Camera:
     depth: list[Path] | None = None  # N uint16 PNGs, metres x depth_scale, 0 = no surface
     depth_scale: float = 256.0
     change: ExtrinsicChange | None = None  # the true extrinsic from a later frame on, where the camera moved
+    distortion: Distortion | None = None  # the lens's, None for a pinhole
 
     def __len__(self) -> int:
         return len(self.images)
+
+    def read(self, t: int, out_size: tuple[int, int] | None = None) -> Tensor:
+        """Frame t as the front ends see it -> (3, H, W) float32 in [0, 1]: the pinhole image of K (undistorted
+        where the camera has a distortion, by a remap cached per camera), resized to ``out_size`` (H', W') if given."""
+        if self.distortion is None:
+            return read_image(self.images[t], self.size, out_size)
+        array = undistort_image(decode_image(self.images[t], self.size), self.K, self.distortion)
+        return image_tensor(resize_image(array, out_size))
 
 
 @dataclass

@@ -12,7 +12,6 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from ocalib.data.image_io import read_image
 from ocalib.data.sequence import Sequence
 from ocalib.frontend.base import FrontEnd
 from ocalib.frontend.opencv_vo import OpenCVOdometry
@@ -28,7 +27,7 @@ class GreyFrames(Dataset):
         return len(self.sequence)
 
     def __getitem__(self, t: int) -> list[Tensor]:
-        rgb = [(read_image(c.images[t], c.size) * 255).round().byte().permute(1, 2, 0) for c in self.sequence.cameras]
+        rgb = [(c.read(t) * 255).round().byte().permute(1, 2, 0) for c in self.sequence.cameras]
         return [torch.from_numpy(cv2.cvtColor(image.numpy(), cv2.COLOR_RGB2GRAY)) for image in rgb]
 
 

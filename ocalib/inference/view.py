@@ -13,7 +13,6 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import Dataset
 
-from ocalib.data.image_io import read_image
 from ocalib.data.intrinsics import crop_intrinsics, resize_intrinsics
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.errors import InputError
@@ -30,12 +29,13 @@ class ModelView:
     size: tuple[int, int]
     K: np.ndarray
 
-    def image(self, path, camera_size: tuple[int, int]) -> torch.Tensor:
-        """Read one image of the camera (its size checked against ``camera_size``) -> (3, H, W) float32."""
+    def image(self, camera: Camera, t: int) -> torch.Tensor:
+        """Frame t of ``camera`` (:meth:`~ocalib.data.sequence.Camera.read`: undistorted where it has a lens
+        distortion) through the view -> (3, H, W) float32."""
         x0, y0, w, h = self.crop
-        if (h, w) == tuple(camera_size):  # no crop: the same resize as training (cv2, area when shrinking)
-            return read_image(path, camera_size, self.size)
-        image = read_image(path, camera_size)[:, y0 : y0 + h, x0 : x0 + w]
+        if (h, w) == tuple(camera.size):  # no crop: the same resize as training (cv2, area when shrinking)
+            return camera.read(t, self.size)
+        image = camera.read(t)[:, y0 : y0 + h, x0 : x0 + w]
         shrink = self.size[0] < h or self.size[1] < w
         return F.interpolate(image[None], self.size, mode="bilinear", align_corners=False, antialias=shrink)[0].clamp(
             0, 1
@@ -77,4 +77,4 @@ class FrameImages(Dataset):
         return len(self.sequence)
 
     def __getitem__(self, t: int) -> torch.Tensor:
-        return torch.stack([v.image(c.images[t], c.size) for c, v in zip(self.sequence.cameras, self.views)])
+        return torch.stack([v.image(c, t) for c, v in zip(self.sequence.cameras, self.views)])

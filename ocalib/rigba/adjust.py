@@ -32,7 +32,7 @@ from ocalib.eval.alignment import umeyama
 from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.io.jsonable import finite_or_null
-from ocalib.rigba.colmap import camera_to_world, to_matrix
+from ocalib.rigba.colmap import camera_to_world, pinhole_equivalent, to_matrix
 from ocalib.rigba.covariance import ExtrinsicUncertainty, extrinsic_uncertainty
 from ocalib.rigba.mapping import map_rig
 from ocalib.rigba.options import BundleOptions, MapperOptions
@@ -182,7 +182,7 @@ def _read(
     registered = ~np.isnan(poses[:, :, 0, 0])
     start = time.perf_counter()
     try:
-        uncertainty = extrinsic_uncertainty(rec, camera_ids)
+        uncertainty = extrinsic_uncertainty(pinhole_equivalent(rec), camera_ids)
     except np.linalg.LinAlgError:
         uncertainty = [None] * (C - 1)
     seconds = time.perf_counter() - start

@@ -1,7 +1,7 @@
 """The boundary to COLMAP: intrinsics, poses and rigs converted once, here.
 
-Convention: ocalib's K has integer pixel centres (kornia's); COLMAP's PINHOLE model puts them at +0.5, so its
-principal point is ``K[:2, 2] + 0.5``. COLMAP stores world-to-camera transforms (``cam_from_world``) and each
+Convention: ocalib's K has integer pixel centres (kornia's and OpenCV's); COLMAP's camera models put them at +0.5,
+so their principal point is ``K[:2, 2] + 0.5`` (the lens's coefficients act on normalised coordinates, unchanged). COLMAP stores world-to-camera transforms (``cam_from_world``) and each
 sensor's ``sensor_from_rig``; with camera 0 as the rig frame, ``T_cam0_camk = inverse(sensor_from_rig_k)``
 (``p_cam0 = R p_camk + t``) and camera 0's camera-to-world pose is ``inverse(cam_from_world)``.
 """
@@ -12,6 +12,8 @@ import signal
 
 import numpy as np
 import pycolmap
+
+from ocalib.data.distortion import Distortion
 
 QUIET = 2  # COLMAP's log level while ocalib runs it: errors only (its INFO log is thousands of lines a run)
 pycolmap.logging.minloglevel = QUIET
@@ -26,6 +28,44 @@ except ValueError:  # imported outside the main thread, where signals cannot be 
 def pinhole_params(K: np.ndarray) -> list[float]:
     """COLMAP PINHOLE parameters ``fx, fy, cx, cy`` of ocalib's K (3, 3) (pixel centres shifted by +0.5)."""
     return [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5]
+
+
+def colmap_camera(
+    K: np.ndarray, size: tuple[int, int], distortion: Distortion | None, camera_id: int
+) -> pycolmap.Camera:
+    """COLMAP's camera of ocalib's K (3, 3), image size (H, W) and lens (:mod:`ocalib.data.distortion`): PINHOLE
+    without one; ``opencv`` as OPENCV (``fx, fy, cx, cy, k1, k2, p1, p2``), or FULL_OPENCV (``..., k3, k4, k5, k6``
+    with k4 = k5 = k6 = 0) where k3 is not 0; ``fisheye`` as OPENCV_FISHEYE (``fx, fy, cx, cy, k1, k2, k3, k4``)."""
+    params, model = pinhole_params(K), "PINHOLE"
+    if distortion is not None and distortion.model == "fisheye":
+        params, model = params + list(distortion.coeffs), "OPENCV_FISHEYE"
+    elif distortion is not None:
+        k1, k2, p1, p2, k3 = distortion.coeffs
+        model = "OPENCV" if k3 == 0 else "FULL_OPENCV"
+        params = params + [k1, k2, p1, p2] + ([] if k3 == 0 else [k3, 0.0, 0.0, 0.0])
+    height, width = size
+    return pycolmap.Camera(model=model, width=int(width), height=int(height), params=params, camera_id=camera_id)
+
+
+def pinhole_equivalent(rec: pycolmap.Reconstruction) -> pycolmap.Reconstruction:
+    """A copy of ``rec`` whose cameras are PINHOLE (the same fx, fy, cx, cy) and whose keypoints are moved to the
+    pinhole pixels of their rays: what a pinhole-only consumer (the covariance) reads of a distorted one; ``rec``
+    itself where every camera is PINHOLE."""
+    if all(camera.model == pycolmap.CameraModelId.PINHOLE for camera in rec.cameras.values()):
+        return rec
+    out = pycolmap.Reconstruction(rec)
+    lenses = {cid: camera for cid, camera in out.cameras.items() if camera.model != pycolmap.CameraModelId.PINHOLE}
+    for image in out.images.values():
+        camera = lenses.get(image.camera_id)
+        if camera is None or not len(image.points2D):
+            continue
+        xy = camera.cam_from_img(np.array([p.xy for p in image.points2D]))
+        pixels = xy * camera.params[:2] + camera.params[2:4]
+        for point, pixel in zip(image.points2D, pixels):
+            point.xy = pixel
+    for camera in lenses.values():
+        camera.model, camera.params = pycolmap.CameraModelId.PINHOLE, camera.params[:4]
+    return out
 
 
 def intrinsics_matrix(params) -> np.ndarray:

@@ -5,7 +5,8 @@ are read and matched.
 Image ``t`` of camera ``k`` is ``c{k}/{t:06d}{suffix}`` (a link to the sequence's file), so COLMAP groups the images
 of one instant into one rig frame by their common name. Camera 0 is the rig's reference sensor.
 
-Convention: intrinsics K (3, 3) in ocalib's pixels (integer centres), converted by :mod:`ocalib.rigba.colmap`;
+Convention: intrinsics K (3, 3) in ocalib's pixels (integer centres) and each camera's lens, converted by
+:func:`ocalib.rigba.colmap.colmap_camera` (held fixed: COLMAP reads the original, distorted images);
 ``extrinsics`` (C, 4, 4) are ``T_cam0_camk`` (``p_cam0 = R p_camk + t``), the identity for camera 0.
 """
 
@@ -21,7 +22,7 @@ import pycolmap
 
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
-from ocalib.rigba.colmap import pinhole_params, to_rigid
+from ocalib.rigba.colmap import colmap_camera, to_rigid
 from ocalib.rigba.options import FeatureOptions
 
 
@@ -57,8 +58,9 @@ class Workspace:
         extraction.sift.max_num_features = self.options.max_features
         extraction.sift.peak_threshold = self.options.peak_threshold
         for k, cam in enumerate(self.sequence.cameras):
+            camera = colmap_camera(cam.K, cam.size, cam.distortion, k + 1)
             reader = pycolmap.ImageReaderOptions(
-                camera_model="PINHOLE", camera_params=",".join(f"{v:.10g}" for v in pinhole_params(cam.K))
+                camera_model=camera.model.name, camera_params=",".join(f"{v:.17g}" for v in camera.params)
             )
             if self.camera_ids:
                 reader.existing_camera_id = self.camera_ids[k]

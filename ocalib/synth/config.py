@@ -14,6 +14,10 @@ frame (x right, y down, z forward), ``R = Rz(rz) Ry(ry) Rx(rx)``: ``ry = -90`` l
 A camera other than camera 0 may be knocked out of place mid-sequence: ``change: {frame: F, rotation_deg:
 [rx, ry, rz], position: [x, y, z]}`` is its new mounting (absolute, same convention) from frame F on,
 ``1 <= F <= frames - 1``.
+
+A camera may have a lens: ``distortion: {model: opencv, coeffs: [k1, k2, p1, p2, k3]}`` or ``{model: fisheye,
+coeffs: [k1, k2, k3, k4]}`` (OpenCV's models, :mod:`ocalib.data.distortion`); it is rendered exactly (a ray per
+pixel) and written into rig.yaml. It must be invertible over the image (no ray folding back).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ocalib.data.distortion import Distortion, invertible, read_distortion
 from ocalib.errors import InputError, read_text
 
 TRAJECTORIES = ("drive", "handheld", "lds")  # see ocalib.synth.trajectory; options: speed (m/s), height (m)
@@ -56,6 +61,7 @@ class CameraConfig:
     position: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     rotation_deg: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     change: dict | None = None  # {frame: F, rotation_deg: [3], position: [3]}: the mounting from frame F on
+    distortion: Distortion | None = None  # the lens's ({model, coeffs} in a config), None for a pinhole
 
     def K(self, height: int, width: int) -> np.ndarray:
         """(3, 3) float64 pixel intrinsics at this size (integer pixel centres)."""
@@ -98,7 +104,11 @@ class SynthConfig:
         return validate(cfg, f"{self.name} (with overrides)")
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """As a config file holds it (:func:`config_from_dict` reads it back)."""
+        out = dataclasses.asdict(self)
+        for cam, c in zip(out["cameras"], self.cameras):
+            cam["distortion"] = None if c.distortion is None else c.distortion.as_dict()
+        return out
 
 
 def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
@@ -123,6 +133,8 @@ def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
             raise InputError(f"{where}: camera {c.name}: position and rotation_deg need 3 numbers each")
         if min(c.fx, c.fy) <= 0 or not all(map(math.isfinite, [c.fx, c.fy, c.cx, c.cy, *c.position, *c.rotation_deg])):
             raise InputError(f"{where}: camera {c.name}: fx, fy must be > 0 and all numbers finite")
+    for c in cfg.cameras:
+        _check_distortion(c, cfg.height, cfg.width, where)
     c0 = cfg.cameras[0]
     if any(c0.position) or any(c0.rotation_deg):
         raise InputError(f"{where}: camera 0 ({c0.name}) defines the rig frame: its position and rotation must be 0")
@@ -148,6 +160,18 @@ def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
 
 def _is_number(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_distortion(c: CameraConfig, height: int, width: int, where: str) -> None:
+    """Parse ``c.distortion`` into a :class:`Distortion` in place; :class:`InputError` where it is malformed or
+    not invertible over the image."""
+    where = f"{where}: camera {c.name}"
+    c.distortion = read_distortion(c.distortion, where)
+    if c.distortion is not None and not invertible(c.K(height, width), (height, width), c.distortion):
+        raise InputError(
+            f"{where}: distortion {c.distortion.as_dict()} folds back inside the {height}x{width} image "
+            "(some pixels have no ray); use weaker coefficients"
+        )
 
 
 def _check_change(c: CameraConfig, frames: int, where: str) -> None:

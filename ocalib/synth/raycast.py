@@ -2,8 +2,9 @@
 
 A view's rays are cut into screen tiles; every box is projected (clipped at the near plane) to a
 pixel rectangle, and only (box, tile) pairs that overlap are tested, all in one batch, then reduced
-to the nearest hit per ray with ``scatter_reduce``. Coordinates are relative to the camera centre
-(float32 is then precise to ~1e-5 m near the camera).
+to the nearest hit per ray with ``scatter_reduce``. Through a lens (:mod:`ocalib.data.distortion`) the
+rectangles come from the rays' bounds in the normalised plane, tile by tile. Coordinates are relative
+to the camera centre (float32 is then precise to ~1e-5 m near the camera).
 
 Convention: ray directions are world-frame vectors whose camera-frame z component is 1, so the ray
 parameter ``t`` of a hit *is* its z-depth. Hit ids: box index >= 0, :data:`GROUND` (-1), :data:`SKY` (-2).
@@ -12,6 +13,7 @@ parameter ``t`` of a hit *is* its z-depth. Hit ids: box index >= 0, :data:`GROUN
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from ocalib.synth.texture import GROUND, SKY
@@ -20,12 +22,11 @@ _CORNERS = torch.tensor([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])
 _EDGES = torch.tensor([[a, b] for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1])
 
 
-def screen_rects(rel: Tensor, Rt: Tensor, K: Tensor, height: int, width: int, near: float, far: float):
-    """Pixel rectangles of boxes seen by a camera at the origin.
-
-    rel (P, 6) float64 box bounds relative to the camera centre; Rt (3, 3) world-to-camera rotation;
-    K (3, 3). Returns (keep (P,) bool, rect (P, 4) long ``[u0, v0, u1, v1]`` inclusive, clipped to the image).
-    """
+def box_extents(rel: Tensor, Rt: Tensor, K: Tensor, near: float):
+    """Bounds of the projections by K (3, 3) of boxes (their parts beyond the near plane) seen by a camera at the
+    origin; rel (P, 6) float64 box bounds relative to the camera centre, Rt (3, 3) world-to-camera rotation.
+    Returns (seen (P,) bool: some part beyond the near plane, extent (P, 4) ``[u0, v0, u1, v1]``, dist (P,) metres
+    from the camera to the box)."""
     lo, hi = rel[:, :3], rel[:, 3:]
     corners = torch.where(_CORNERS.to(rel.device).bool(), hi[:, None], lo[:, None]) @ Rt.T  # (P, 8, 3)
     a, b = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]  # (P, 12, 3)
@@ -40,12 +41,45 @@ def screen_rects(rel: Tensor, Rt: Tensor, K: Tensor, height: int, width: int, ne
     u0, u1 = torch.where(valid, u, inf).amin(1), torch.where(valid, u, -inf).amax(1)
     v0, v1 = torch.where(valid, v, inf).amin(1), torch.where(valid, v, -inf).amax(1)
     dist = torch.maximum(torch.maximum(lo, -hi), torch.zeros_like(lo)).norm(dim=1)
-    keep = valid.any(1) & (u1 >= -1) & (u0 <= width) & (v1 >= -1) & (v0 <= height) & (dist < far)
+    return valid.any(1), torch.stack([u0, v0, u1, v1], 1), dist
+
+
+def screen_rects(rel: Tensor, Rt: Tensor, K: Tensor, height: int, width: int, near: float, far: float):
+    """Pixel rectangles of boxes seen by a pinhole camera at the origin.
+
+    rel (P, 6) float64 box bounds relative to the camera centre; Rt (3, 3) world-to-camera rotation;
+    K (3, 3). Returns (keep (P,) bool, rect (P, 4) long ``[u0, v0, u1, v1]`` inclusive, clipped to the image).
+    """
+    seen, extent, dist = box_extents(rel, Rt, K, near)
+    u0, v0, u1, v1 = extent.unbind(1)
+    keep = seen & (u1 >= -1) & (u0 <= width) & (v1 >= -1) & (v0 <= height) & (dist < far)
     rect = torch.stack([u0 - 1, v0 - 1, u1 + 1, v1 + 1], 1).clamp(-1, 1e6).nan_to_num(0)
     rect = torch.stack([rect[:, 0].ceil(), rect[:, 1].ceil(), rect[:, 2].floor(), rect[:, 3].floor()], 1).long()
     rect[:, 0::2] = rect[:, 0::2].clamp(0, width - 1)
     rect[:, 1::2] = rect[:, 1::2].clamp(0, height - 1)
     return keep, rect
+
+
+def lens_rects(rel: Tensor, Rt: Tensor, grid: Tensor, near: float, far: float, tile: int = 4):
+    """Pixel rectangles of boxes seen through a lens, for :func:`trace_tiles`: ``grid`` (H, W, 2) the normalised
+    (undistorted) coordinates of the pixel-centre rays. A box's rectangle spans the tiles whose rays (with their
+    neighbours') have bounds in the normalised plane that meet its projection's (conservative: a ray hits the box only
+    inside its projection). rel, Rt as :func:`screen_rects`. Returns (keep (P,) bool, rect (P, 4) long inclusive)."""
+    H, W, _ = grid.shape
+    seen, extent, dist = box_extents(rel, Rt, torch.eye(3, dtype=rel.dtype, device=rel.device), near)
+    g = F.pad(grid.permute(2, 0, 1)[None], (1, 1, 1, 1), mode="replicate")
+    hi = F.max_pool2d(F.max_pool2d(g, 3, 1), tile, tile, ceil_mode=True)[0]  # (2, ty, tx): the tiles' bounds
+    lo = -F.max_pool2d(F.max_pool2d(-g, 3, 1), tile, tile, ceil_mode=True)[0]
+    meets = (
+        (extent[:, 0, None, None] <= hi[0]) & (extent[:, 2, None, None] >= lo[0])
+        & (extent[:, 1, None, None] <= hi[1]) & (extent[:, 3, None, None] >= lo[1])
+    )  # (P, ty, tx)  # fmt: skip
+    rows, cols = meets.any(2), meets.any(1)
+    keep = seen & rows.any(1) & (dist < far)
+    first = lambda m: m.float().argmax(1)  # noqa: E731
+    last = lambda m: m.shape[1] - 1 - m.flip(1).float().argmax(1)  # noqa: E731
+    rect = torch.stack([first(cols) * tile, first(rows) * tile, last(cols) * tile, last(rows) * tile], 1)
+    return keep, torch.minimum(rect, torch.tensor([W - 1, H - 1, W - 1, H - 1], device=rect.device))
 
 
 def slab(lo: Tensor, hi: Tensor, inv: Tensor) -> Tensor:
@@ -115,4 +149,15 @@ def hit_axis(dirs: Tensor, lo: Tensor, hi: Tensor) -> Tensor:
     return torch.minimum(lo * inv, hi * inv).argmax(-1)
 
 
-__all__ = ["GROUND", "SKY", "screen_rects", "slab", "safe_inverse", "ground_t", "trace_tiles", "hit_axis"]
+__all__ = [
+    "GROUND",
+    "SKY",
+    "box_extents",
+    "screen_rects",
+    "lens_rects",
+    "slab",
+    "safe_inverse",
+    "ground_t",
+    "trace_tiles",
+    "hit_axis",
+]

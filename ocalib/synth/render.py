@@ -9,19 +9,23 @@ pixel. Interior pixels are shaded once with textures prefiltered to the pixel fo
 (:mod:`ocalib.synth.texture`), edge pixels ``s x s`` times with the sub-sample footprint.
 
 Convention: ``pose`` is camera-to-world (``p_world = R p_cam + t``), float64; camera x right, y down,
-z forward; ``K`` in pixels with integer pixel centres. Depth is the z-depth of the hit of the pixel
+z forward; ``K`` in pixels with integer pixel centres, through the camera's lens where it has one (OpenCV's models,
+:mod:`ocalib.data.distortion`). Depth is the z-depth of the hit of the pixel
 *centre* ray (0 for sky), so it is exact at pixel centres.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ocalib.data.distortion import Distortion, undistort
+from ocalib.errors import InputError
 from ocalib.synth import raycast
 from ocalib.synth.texture import GROUND, SKY, footprint, shade, sky
 from ocalib.synth.world import World
@@ -51,10 +55,32 @@ class WorldTensors:
         )
 
 
-def _pixel_dirs(K: Tensor, R: Tensor, u: Tensor, v: Tensor) -> Tensor:
-    """World directions (..., 3) float32 through pixel coordinates u, v (...) float64; camera z = 1."""
+def _pixel_dirs(K: Tensor, R: Tensor, u: Tensor, v: Tensor, distortion: Distortion | None = None) -> Tensor:
+    """World directions (..., 3) float32 through pixel coordinates u, v (...) float64 (through the lens's inverse
+    where there is one); camera z = 1."""
     cam = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1)
+    if distortion is not None:
+        cam[..., :2] = _through_lens(cam[..., :2], distortion)
     return (cam @ R.T).float()
+
+
+def _through_lens(xy: Tensor, distortion: Distortion) -> Tensor:
+    """Distorted normalised coordinates (..., 2) float64 -> the undistorted ones of the same rays."""
+    out = undistort(xy.reshape(-1, 2).cpu().numpy(), distortion)
+    if not np.isfinite(out).all():
+        raise InputError(f"distortion {distortion.as_dict()}: no ray for some pixels (the lens folds back there)")
+    return torch.from_numpy(out).to(xy.device).view_as(xy)
+
+
+@lru_cache(maxsize=16)
+def _lens_grid(K: tuple, height: int, width: int, distortion: Distortion) -> Tensor:
+    """(H, W, 2) float64 undistorted normalised coordinates of the pixel centres of a camera (K as a 9-tuple)."""
+    K = torch.tensor(K, dtype=torch.float64).view(3, 3)
+    v, u = torch.meshgrid(
+        torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64), indexing="ij"
+    )
+    x = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], -1)
+    return _through_lens(x, distortion)
 
 
 def _cull(rel: Tensor, Rt: Tensor, far: float) -> Tensor:
@@ -78,10 +104,13 @@ def _faces(dirs: Tensor, hit: Tensor, rel32: Tensor, oz: float):
     return axis, plane
 
 
-def render_view(world: WorldTensors, K, pose, height: int, width: int, supersample: int = 2):
+def render_view(
+    world: WorldTensors, K, pose, height: int, width: int, supersample: int = 2, distortion: Distortion | None = None
+):
     """Render a view -> (image (3, H, W) float32 in [0, 1], depth (H, W) float32 metres, 0 = sky).
 
-    K (3, 3) and pose (4, 4) camera-to-world, float64 (numpy or torch).
+    K (3, 3) and pose (4, 4) camera-to-world, float64 (numpy or torch); ``distortion``: the lens's (a ray per pixel
+    through its inverse; the rays' pixel-centre grid cached per camera), None for a pinhole.
     """
     dev = world.boxes.device
     K = torch.as_tensor(np.asarray(K), dtype=torch.float64, device=dev)
@@ -93,11 +122,15 @@ def render_view(world: WorldTensors, K, pose, height: int, width: int, supersamp
         torch.arange(width, dtype=torch.float64, device=dev),
         indexing="ij",
     )
-    dirs = _pixel_dirs(K, R, u_pix, v_pix)  # (H, W, 3)
-
     rel = world.boxes - o.repeat(2)
     near_boxes = _cull(rel, R.T, FAR)
-    keep, rect = raycast.screen_rects(rel[near_boxes], R.T, K, height, width, NEAR, FAR)
+    if distortion is None:
+        dirs = _pixel_dirs(K, R, u_pix, v_pix)  # (H, W, 3)
+        keep, rect = raycast.screen_rects(rel[near_boxes], R.T, K, height, width, NEAR, FAR)
+    else:
+        grid = _lens_grid(tuple(K.cpu().ravel().tolist()), height, width, distortion).to(dev)
+        dirs = (torch.cat([grid, torch.ones_like(grid[..., :1])], -1) @ R.T).float()
+        keep, rect = raycast.lens_rects(rel[near_boxes], R.T, grid, NEAR, FAR)
     rel32 = rel.float()
     t, hit = raycast.trace_tiles(dirs, rel32, near_boxes[keep], rect[keep], raycast.ground_t(oz, dirs, FAR))
     hit = torch.where(hit >= 0, hit, torch.where(torch.isfinite(t), GROUND, SKY))
@@ -115,7 +148,11 @@ def render_view(world: WorldTensors, K, pose, height: int, width: int, supersamp
     g = (torch.arange(s, dtype=torch.float64, device=dev) + 0.5) / s - 0.5
     off_v, off_u = torch.meshgrid(g, g, indexing="ij")
     d_e = _pixel_dirs(
-        K, R, (edge % width)[:, None] + off_u.reshape(1, -1), (edge // width)[:, None] + off_v.reshape(1, -1)
+        K,
+        R,
+        (edge % width)[:, None] + off_u.reshape(1, -1),
+        (edge // width)[:, None] + off_v.reshape(1, -1),
+        distortion,
     )
     # A sub-sample lies between its pixel's centre and the 3 neighbouring centres of its quadrant.
     pad = F.pad(hit.view(1, 1, height, width).float(), (1, 1, 1, 1), value=SKY)[0, 0].long()

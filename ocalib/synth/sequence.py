@@ -44,7 +44,7 @@ class SynthSequence:
 
 
 def rig_spec(cfg: SynthConfig) -> RigSpec:
-    """The rig.yaml description of a config at its resolution (``T_cam0_cam`` at frame 0, and any change)."""
+    """The rig.yaml description of a config at its resolution (``T_cam0_cam`` at frame 0, any change and lens)."""
     cams = [
         CameraSpec(
             c.name,
@@ -53,6 +53,7 @@ def rig_spec(cfg: SynthConfig) -> RigSpec:
             c.K(cfg.height, cfg.width),
             c.T_cam0_cam(),
             None if c.change is None else ExtrinsicChange(c.change["frame"], c.T_cam0_cam(c.change["frame"])),
+            c.distortion,
         )
         for c in cfg.cameras
     ]
@@ -89,7 +90,8 @@ def frames(cfg: SynthConfig, device="cpu", progress: bool = False, indices=None)
     for n in indices:
         views = []
         for k, K in enumerate(Ks):
-            image, depth = render_view(world, K, poses[k, n], cfg.height, cfg.width, cfg.supersample)
+            lens = cfg.cameras[k].distortion
+            image, depth = render_view(world, K, poses[k, n], cfg.height, cfg.width, cfg.supersample, lens)
             if photometric is not None:
                 image = photometric.apply(image, k, n)
             views.append((image, depth))
