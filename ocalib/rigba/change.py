@@ -3,15 +3,16 @@ mounting told from noise.
 
 :meth:`ExtrinsicTrack.fuse` adds a window estimate ``E_w`` with its covariance ``P_w``: information-weighted, each
 window's information divided by ``overlap`` (the number of windows a keyframe appears in: overlapping windows
-share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement of the extrinsic (camera
-k's pose resected from its 2-D-3-D matches, composed with the rig's pose) against the fused estimate: the
-innovation ``d`` (rotation vector and translation difference, camera 0's axes), less the mean of the recent
-accepted ones, gives ``chi2 = d^T S^-1 d`` with ``S`` their covariance (the spread the measurements show on a steady
-rig, which the covariances of a bundle adjustment understate). Over the chi-square quantile at ``false_alarm`` on
-``persistence`` keyframes in a row is a change: the track restarts from their mean.
+share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement ``E_k`` of the extrinsic
+(camera k resected from its 2-D-3-D inliers, composed with the rig's pose) against the window's: with ``d`` the
+innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the statistic
+``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
+points are estimates, shared by neighbouring keyframes) taken as the median of the recent steady statistics over
+the distribution's median, when above 1. Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
+in a row is a change: the track restarts from their mean measurement.
 
-Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_fused`` with ``d`` =
-(rotation rad, translation) in camera 0's axes.
+Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_ref`` with ``d`` =
+(rotation rad, translation) in camera 0's axes; rig poses camera-to-world (4, 4).
 """
 
 from __future__ import annotations
@@ -25,9 +26,10 @@ from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.change import Change, step_size
 
-HISTORY = 30  # accepted innovations whose spread the test uses
-MIN_HISTORY = 10  # innovations needed before the test runs
+HISTORY = 30  # steady keyframes whose ratios give the overdispersion
+MIN_HISTORY = 10  # steady keyframes needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
+CHI2_MEDIAN = float(chi2_distribution.median(6))
 
 
 @dataclass
@@ -36,8 +38,8 @@ class ExtrinsicTrack:
     window), the last keyframe's normalised change statistic ``chi2``, the ``changes`` detected."""
 
     overlap: float = 1.0
-    false_alarm: float = 1e-4
-    persistence: int = 3
+    false_alarm: float = 1e-8
+    persistence: int = 2
     extrinsic: np.ndarray | None = None
     covariance: np.ndarray | None = None
     chi2: float = float("nan")
@@ -56,21 +58,30 @@ class ExtrinsicTrack:
         self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
         self.covariance = cov
 
-    def observe(self, frame: int, extrinsic: np.ndarray) -> Change | None:
-        """Test one keyframe's measurement ``extrinsic`` (4, 4) -> the change it completes, if any."""
-        if self.extrinsic is None:
+    @property
+    def disagrees(self) -> bool:
+        """Whether the last keyframes disagree with the window, short of a change yet."""
+        return bool(self._pending)
+
+    def observe(self, frame: int, extrinsic: np.ndarray, information: np.ndarray, reference) -> Change | None:
+        """Test one keyframe's measurement ``extrinsic`` (4, 4) with its ``information`` (6, 6) (:func:`information`)
+        against ``reference``, the window's ``(extrinsic (4, 4), covariance (6, 6))`` -> the change it completes, if
+        any."""
+        if self.extrinsic is None or not np.isfinite(information).all():
             return None
-        d = innovation(self.extrinsic, extrinsic)
+        d = innovation(reference[0], extrinsic)
+        try:
+            statistic = float(d @ np.linalg.solve(np.linalg.inv(information) + reference[1], d))
+        except np.linalg.LinAlgError:
+            return None
         if len(self._history) < MIN_HISTORY:
-            self._history.append(d)
+            self._history.append(statistic)
             return None
-        history = np.stack(self._history)
-        spread = np.cov(history.T) + np.diag(np.maximum(history.var(0), 1e-12)) * 0.1  # shrunk toward its diagonal
-        z = d - history.mean(0)
-        self.chi2 = float(z @ np.linalg.solve(spread, z))
+        overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0)
+        self.chi2 = statistic / overdispersion
         if self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 6):
             self._pending.clear()
-            self._history.append(d)
+            self._history.append(statistic)
             return None
         self._pending.append((frame, extrinsic))
         if len(self._pending) < self.persistence:
@@ -87,6 +98,28 @@ class ExtrinsicTrack:
         self._history.clear()
         self._pending.clear()
         return change
+
+
+def information(xy: np.ndarray, xyz: np.ndarray, K: np.ndarray, pose: np.ndarray, extrinsic: np.ndarray) -> np.ndarray:
+    """The information (6, 6) a keyframe's keypoints ``xy`` (n, 2) (pixels) of points ``xyz`` (n, 3) give about the
+    camera's ``extrinsic`` (4, 4) on the rig at ``pose`` (4, 4): ``J^T J / sigma^2``, J the reprojection's derivative
+    in the perturbation ``d`` of ``exp(d) extrinsic`` (central differences), sigma^2 the residuals' variance per axis
+    (their median squared error over ``2 ln 2``, a chi-square's median with 2 degrees of freedom). K (3, 3)."""
+
+    def residuals(E):
+        return (_project(xyz, K, np.linalg.inv(pose @ E)) - xy).ravel()
+
+    step = 1e-6
+    J = np.stack([(residuals(perturbed(extrinsic, step * e)) - residuals(perturbed(extrinsic, -step * e))) / (2 * step)
+                  for e in np.eye(6)], axis=1)  # fmt: skip
+    variance = float(np.median((residuals(extrinsic).reshape(-1, 2) ** 2).sum(1))) / (2 * np.log(2))
+    return J.T @ J / variance
+
+
+def _project(xyz: np.ndarray, K: np.ndarray, cam_from_world: np.ndarray) -> np.ndarray:
+    """(n, 2) pixels of points ``xyz`` (n, 3) seen from ``cam_from_world`` (4, 4)."""
+    uv = (xyz @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]) @ K.T
+    return uv[:, :2] / uv[:, 2:]
 
 
 def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:

@@ -8,12 +8,12 @@ given (as CamOdoCal holds the odometry); what the images must give is each camer
 1. extracts every camera's features (:mod:`ocalib.rigba.features`) and matches them to the same camera's
    ``match_previous`` latest keyframes;
 2. resects every camera from its 2-D-3-D matches (COLMAP's absolute pose), keeping the matches that agree: with the
-   rig's pose, each gives that keyframe's own measurement of the camera's extrinsic;
-3. continues the tracks the matches extend and triangulates new points;
-4. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
-   (:mod:`ocalib.rigba.window`);
-5. tests each measurement against the camera's track for a change, and fuses the window estimate into the track
-   (:mod:`ocalib.rigba.change`).
+   rig's pose, each gives that keyframe's own measurement of the camera's extrinsic, with its information;
+3. tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
+4. continues the tracks the matches extend and triangulates new points, each camera where the window puts it, or
+   where its own resection does while it disagrees with the window;
+5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
+   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track.
 
 The estimator starts from the on-line head's rotations and zero lever arms; its translations are in metres.
 
@@ -31,9 +31,10 @@ import numpy as np
 import pycolmap
 
 from ocalib.calib.change import Change
-from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, with_unobservable
+from ocalib.data.distortion import Distortion, undistort_pixels
+from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, information, with_unobservable
 from ocalib.rigba.colmap import pinhole_params, to_matrix
-from ocalib.rigba.features import SiftExtractor, match_features
+from ocalib.rigba.features import Features, SiftExtractor, match_features
 from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
@@ -50,9 +51,10 @@ class OnlineRigOptions:
     match_previous: int = 3  # earlier keyframes each new one is matched to, per camera
     max_features: int = 1024  # SIFT keypoints an image
     min_inliers: int = 15  # 2-D-3-D inliers for a keyframe to count as registered
+    min_test_inliers: int = 30  # 2-D-3-D inliers for a keyframe to be tested for a change
     min_angle_deg: float = 1.0  # a new point's least triangulation angle
-    false_alarm: float = 1e-4  # a keyframe's chance to look like a change on a steady rig
-    persistence: int = 3  # keyframes in a row that must disagree before a change is declared
+    false_alarm: float = 1e-8  # a keyframe's chance to look like a change, were the test's ratio chi-square
+    persistence: int = 2  # keyframes in a row that must disagree before a change is declared
 
 
 @dataclass
@@ -73,8 +75,8 @@ class RigState:
 
 
 class OnlineRigEstimator:
-    """See the module. K (C, 3, 3) and ``sizes`` (C,) of (height, width) are the cameras'; ``extrinsics`` (C, 4, 4)
-    the start (their rotations are used, the lever arms start at zero)."""
+    """See the module. K (C, 3, 3), ``sizes`` (C,) of (height, width) and ``distortions`` (C,) (None: pinhole) are
+    the cameras'; ``extrinsics`` (C, 4, 4) the start (their rotations are used, the lever arms start at zero)."""
 
     def __init__(
         self,
@@ -82,14 +84,17 @@ class OnlineRigEstimator:
         sizes: list[tuple[int, int]],
         extrinsics: np.ndarray,
         options: OnlineRigOptions = OnlineRigOptions(),
+        distortions: list[Distortion | None] | None = None,
     ):
         self.K, self.sizes, self.options = np.asarray(K, np.float64), list(sizes), options
+        self.distortions = distortions or [None] * len(self.K)
         self.extrinsics = np.array(extrinsics, dtype=np.float64)
         self.extrinsics[:, :3, 3] = 0.0
         self.extrinsics[0] = np.eye(4)
         C = len(self.K)
         overlap = options.window / options.adjust_every  # windows a keyframe is adjusted in
         self.tracks = [ExtrinsicTrack(overlap, options.false_alarm, options.persistence) for _ in range(C)]
+        self.window_covariance = np.tile(np.eye(6) * UNINFORMED, (C, 1, 1))  # of the window's last extrinsics
         self.keyframes: deque[Keyframe] = deque()
         self.points: dict[int, np.ndarray] = {}
         self._next_point = 0
@@ -108,7 +113,7 @@ class OnlineRigEstimator:
         if (self.frames_seen - 1) % self.options.keyframe_step:
             return None
         start = time.perf_counter()
-        features = [self._extract(image) for image in images]
+        features = [self._features(image, k) for k, image in enumerate(images)]
         kf = Keyframe(frame, np.asarray(pose, np.float64).copy(), features, [np.full(len(f), -1) for f in features])
         measured = {}
         if self.keyframes:
@@ -117,23 +122,38 @@ class OnlineRigEstimator:
                        enumerate(features)]  # fmt: skip
             measured = self._resect(kf, recent, matches)
             self.keyframes_unregistered += len(measured) < len(features)
-            self._triangulate(kf, recent, matches)
+            changes = self._changes(frame, measured)
+            self._triangulate(kf, recent, matches, self._poses(kf, measured))
+        else:
+            changes = []
         self.keyframes.append(kf)
-        changes = self._changes(frame, measured)
         self._evict()
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes)
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None:
-                    self.tracks[k].fuse(self.extrinsics[k], with_unobservable(u.covariance, u.unobservable))
+                    self.window_covariance[k] = with_unobservable(u.covariance, u.unobservable)
+                    self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
         registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)
 
-    def _resect(self, kf: Keyframe, recent: list[Keyframe], matches) -> dict[int, np.ndarray]:
+    def _features(self, image: np.ndarray, k: int) -> Features:
+        """Camera k's SIFT features of ``image``, their keypoints moved to the pinhole pixels of their rays where the
+        camera has a lens distortion (the estimator works in pinhole pixels; rays the lens cannot invert dropped)."""
+        features = self._extract(image)
+        if self.distortions[k] is None:
+            return features
+        xy = undistort_pixels(features.keypoints, self.K[k], self.distortions[k])
+        ok = np.isfinite(xy).all(1)
+        return Features(xy[ok], features.descriptors[ok])
+
+    def _resect(self, kf: Keyframe, recent: list[Keyframe], matches) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """Each camera's pose from its 2-D-3-D matches with the ``recent`` keyframes (``matches[k][j]``: camera k's
         with keyframe j; COLMAP's absolute pose, at least ``min_inliers`` inliers), whose inliers' point ids are set
-        -> per camera resected, its extrinsic as this keyframe measures it (``inverse(rig pose) @ camera pose``)."""
+        -> per camera resected: its extrinsic as this keyframe measures it (``inverse(rig pose) @ camera pose``) and
+        the information (6, 6) its inliers give about it (:func:`~ocalib.rigba.change.information`; NaN with fewer
+        than ``min_test_inliers``: not tested)."""
         options = pycolmap.AbsolutePoseEstimationOptions()
         options.ransac.max_error, options.ransac.min_num_trials, options.ransac.random_seed = MAX_ERROR_PX, 100, 0
         measured = {}
@@ -152,17 +172,32 @@ class OnlineRigEstimator:
             )
             if result is None or int(np.sum(result["inlier_mask"])) < self.options.min_inliers:
                 continue
-            for (i, pid), inlier in zip(where, result["inlier_mask"]):
+            inliers = np.asarray(result["inlier_mask"], bool)
+            for (i, pid), inlier in zip(where, inliers):
                 if inlier:
                     kf.point_ids[k][i] = pid
-            measured[k] = np.linalg.inv(kf.pose) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
+            extrinsic = np.linalg.inv(kf.pose) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
+            info = np.full((6, 6), np.nan)
+            if inliers.sum() >= self.options.min_test_inliers:
+                info = information(np.asarray(xy)[inliers], np.asarray(xyz)[inliers], self.K[k], kf.pose, extrinsic)
+            measured[k] = extrinsic, info
         return measured
 
-    def _triangulate(self, kf: Keyframe, recent: list[Keyframe], matches) -> None:
+    def _poses(self, kf: Keyframe, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+        """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or where its own
+        resection does while it disagrees with the window (so that a knocked camera's new points are where it now
+        looks, and the next keyframes measure the new mounting instead of the old one their points would give)."""
+        return [
+            np.linalg.inv(kf.pose @ (measured[k][0] if k in measured and self.tracks[k].disagrees else E))
+            for k, E in enumerate(self.extrinsics)
+        ]
+
+    def _triangulate(self, kf: Keyframe, recent: list[Keyframe], matches, poses: list[np.ndarray]) -> None:
         """Extend the tracks the new keyframe's matches with the ``recent`` keyframes continue (where the point
-        reprojects), and triangulate new points from the others, the latest keyframe first."""
+        reprojects), and triangulate new points from the others, the latest keyframe first; ``poses`` (C,) the new
+        keyframe's cam_from_world (4, 4) per camera."""
         for k, features in enumerate(kf.features):
-            new_from_world = np.linalg.inv(kf.pose @ self.extrinsics[k])
+            new_from_world = poses[k]
             for previous, pairs in reversed(list(zip(recent, matches[k]))):
                 i, j = pairs[kf.point_ids[k][pairs[:, 0]] < 0].T
                 pid = previous.point_ids[k][j]
@@ -220,13 +255,14 @@ class OnlineRigEstimator:
         for pid in set(self.points) - seen:
             del self.points[pid]
 
-    def _changes(self, frame: int, measured: dict[int, np.ndarray]) -> list[tuple[int, Change]]:
-        """Test each camera's measured extrinsic against its track -> the changes found; a camera that moved loses
+    def _changes(self, frame: int, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[tuple[int, Change]]:
+        """Test each camera's measured extrinsic against the window -> the changes found; a camera that moved loses
         its observations from before, and its track takes the next windows' estimates (the window starts from where
         it was: a few single-keyframe measurements are a poor start, and a false alarm then costs little)."""
         changes = []
-        for k, extrinsic in measured.items():
-            change = self.tracks[k].observe(frame, extrinsic) if k > 0 else None
+        for k, (extrinsic, info) in measured.items():
+            reference = self.extrinsics[k], self.window_covariance[k]
+            change = self.tracks[k].observe(frame, extrinsic, info, reference) if k > 0 else None
             if change is not None:
                 changes.append((k, change))
                 self._forget_before(k, change.frame)

@@ -64,7 +64,8 @@ class RigStream:
         extrinsics[1:, :3, :3] = estimate.rotation[0].double().cpu().numpy()
         K = np.stack([cam.K for cam in self.sequence.cameras])
         sizes = [tuple(cam.size) for cam in self.sequence.cameras]
-        self.estimator, self.start = OnlineRigEstimator(K, sizes, extrinsics, self.options), t
+        distortions = [cam.distortion for cam in self.sequence.cameras]
+        self.estimator, self.start = OnlineRigEstimator(K, sizes, extrinsics, self.options, distortions), t
         return True
 
     def attach(self, result) -> None:

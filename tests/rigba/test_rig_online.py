@@ -4,12 +4,15 @@ camera at the right frame, keeps its state bounded, and says so where a camera r
 
 import cv2
 import numpy as np
+import pycolmap
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.change import ExtrinsicTrack, innovation, perturbed
+from ocalib.rigba.change import ExtrinsicTrack, information, innovation
+from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.rigba.window import Keyframe, adjust_window
@@ -62,24 +65,54 @@ def test_the_window_recovers_an_extrinsic_from_exact_observations():
     assert np.linalg.norm(error) < 0.25 * np.linalg.norm(truth[1, :3, 3])
 
 
-def _measurements(rng, truth, n, rotation_sigma=np.radians(0.1), translation_sigma=0.01):
-    return [perturbed(truth, np.r_[rng.normal(0, rotation_sigma, 3), rng.normal(0, translation_sigma, 3)]) for _ in
-            range(n)]  # fmt: skip
+def _resected(rng, pose, mounting, sigma_px=0.5, n=120):
+    """A keyframe of a camera mounted at ``mounting`` on a rig at ``pose``: keypoints (n, 2) of points (n, 3) 3-8 m
+    in front, with ``sigma_px`` of noise, and the camera's cam_from_world resected from them by COLMAP."""
+    cam_from_world = np.linalg.inv(pose @ mounting)
+    uv = rng.uniform([0, 0], [416, 128], (n, 2))
+    rays = (np.linalg.inv(K) @ np.c_[uv, np.ones(n)].T).T * rng.uniform(3, 8, (n, 1))
+    world_from_cam = np.linalg.inv(cam_from_world)
+    xyz = rays @ world_from_cam[:3, :3].T + world_from_cam[:3, 3]
+    xy = uv + rng.normal(0, sigma_px, (n, 2))
+    camera = pycolmap.Camera(model="PINHOLE", width=416, height=128, params=[K[0, 0], K[1, 1], K[0, 2] + 0.5,
+                                                                          K[1, 2] + 0.5])  # fmt: skip
+    result = pycolmap.estimate_and_refine_absolute_pose(xy + 0.5, xyz, camera)
+    return xy, xyz, to_matrix(result["cam_from_world"])
 
 
-@pytest.mark.parametrize("seed", range(10))
+def test_a_keyframes_information_makes_its_error_a_chi_square_with_six_degrees_of_freedom():
+    """With Gaussian pixel noise, the least-squares extrinsic's error ``d`` against the truth weighed by the
+    keyframe's information, ``d^T I d``, is chi-square distributed with the pose's 6 degrees of freedom."""
+    rng = np.random.default_rng(0)
+    mounting = _mounting([0, 90, 0], [0.9, 0, 0])
+    statistics = []
+    for _ in range(200):
+        pose = _mounting(rng.normal(0, 10, 3), rng.normal(0, 2, 3))
+        xy, xyz, measured = _resected(rng, pose, mounting)
+        extrinsic = np.linalg.inv(pose) @ np.linalg.inv(measured)
+        d = innovation(mounting, extrinsic)
+        statistics.append(d @ information(xy, xyz, K, pose, extrinsic) @ d)
+    assert 5.0 < np.mean(statistics) < 7.0 and 7.0 < np.var(statistics) < 18.0  # chi-square(6): mean 6, variance 12
+
+
+@pytest.mark.parametrize("seed", range(5))
 def test_the_change_test_gives_no_alarm_on_a_steady_camera_and_finds_a_step(seed):
     rng = np.random.default_rng(seed)
     before, after = _mounting([0, 90, 0], [0.9, 0, 0]), _mounting([0, 92, 0], [0.95, 0, 0])
     track = ExtrinsicTrack(overlap=10)
     track.fuse(before, np.eye(6) * 1e-4)
-    for t, E in enumerate(_measurements(rng, before, 150)):
-        assert track.observe(t, E) is None, f"a false alarm at keyframe {t}"
-    changes = [track.observe(150 + t, E) for t, E in enumerate(_measurements(rng, after, 10))]
+    window = before, np.eye(6) * 1e-8
+    changes = []
+    for t in range(160):
+        pose = _mounting(rng.normal(0, 10, 3), rng.normal(0, 2, 3))
+        xy, xyz, measured = _resected(rng, pose, before if t < 150 else after)
+        extrinsic = np.linalg.inv(pose) @ np.linalg.inv(measured)
+        changes.append(track.observe(t, extrinsic, information(xy, xyz, K, pose, extrinsic), window))
+    assert not any(changes[:150]), "a false alarm"
     found = [c for c in changes if c is not None]
     assert len(found) == 1 and found[0].frame == 150 and found[0].detected == 150 + track.persistence - 1
-    assert abs(found[0].rotation_change_deg - 2.0) < 0.3 and abs(found[0].translation_change - 0.05) < 0.02
-    assert np.degrees(np.linalg.norm(innovation(track.extrinsic, after)[:3])) < 0.3
+    assert abs(found[0].rotation_change_deg - 2.0) < 0.2 and abs(found[0].translation_change - 0.05) < 0.02
+    assert np.degrees(np.linalg.norm(innovation(track.extrinsic, after)[:3])) < 0.2
 
 
 @pytest.fixture(scope="module")
@@ -119,7 +152,7 @@ def test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed(knocked_rig):
     assert len(changes) == 1, changes
     detected, change = changes[0]
     assert 70 <= change.frame <= 74 and detected <= 70 + 30
-    assert 1.0 < change.rotation_change_deg < 4.0  # the step, from three single-keyframe measurements
+    assert 1.0 < change.rotation_change_deg < 4.0  # the step, from two single-keyframe measurements
     after = np.linalg.inv(knocked_rig.cameras[0].T_cam0_cam) @ knocked_rig.cameras[1].change.T_cam0_cam
     final = states[-1].extrinsics[1]
     assert float(rotation_angle_deg(final[:3, :3].T @ after[:3, :3])) < 0.5
@@ -136,3 +169,15 @@ def test_a_textureless_stretch_is_counted_not_fatal(knocked_rig):
         state = estimator.update(t, [blank, blank], poses[t])
         assert state is None or (not state.registered and np.isnan(state.std[1]).all())
     assert estimator.keyframes_unregistered == 9
+
+
+def test_keypoints_of_a_distorted_camera_are_moved_to_the_pinhole_pixels_of_their_rays():
+    rng = np.random.default_rng(3)
+    image = cv2.GaussianBlur(rng.integers(0, 256, (128, 416)).astype(np.uint8), (0, 0), 1.5)
+    lens = Distortion("fisheye", (0.05, -0.01, 0.002, 0.0))
+    estimator = OnlineRigEstimator(np.stack([K, K]), [(128, 416)] * 2, np.tile(np.eye(4), (2, 1, 1)),
+                                   distortions=[None, lens])  # fmt: skip
+    raw, moved = estimator._features(image, 0), estimator._features(image, 1)
+    assert len(moved.keypoints) == len(raw.keypoints) > 100
+    reference = cv2.fisheye.undistortPoints(raw.keypoints[:, None].astype(np.float64), K, np.array(lens.coeffs), P=K)
+    np.testing.assert_allclose(moved.keypoints, reference[:, 0], atol=1e-6)
