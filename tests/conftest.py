@@ -12,3 +12,46 @@ def device(request):
 @pytest.fixture
 def generator():
     return torch.Generator().manual_seed(1234)
+
+
+# The slow tests (node ids under tests/, or their prefixes): a render, a training run, a whole command, a compile.
+# `pytest -m "not slow"` leaves them out (the edit-test loop); the whole suite runs them.
+SLOW = (
+    "calib/test_absolute.py::test_beats_opencv_on_its_own_protocol",
+    "calib/test_compile.py",
+    "calib/test_numba_cache.py",
+    "calib/test_online.py::test_gradcheck_through_the_stream",
+    "calibnet/test_calibnet_cli.py",
+    "calibnet/test_calibnet_kitti.py",
+    "cli/test_calibrate_poses.py::test_kitti_end_to_end",
+    "cli/test_calibrate_poses.py::test_three_cameras_and_solvers",
+    "cli/test_user_mistakes.py::test_a_rig_without_truth_is_compared_with_none",
+    "cli/test_user_mistakes.py::test_ctrl_c_during_calibrate_and_demo",
+    "eval/test_eval_predict.py",
+    "frontend/test_frontend_registry.py::test_the_opencv_front_end_is_opencv_vo_per_camera",
+    "frontend/test_opencv_vo.py",
+    "losses/test_losses_warp.py::test_warp_gradcheck_float64",
+    "rigba/test_adjust.py",
+    "rigba/test_calibrate_bundle.py",
+    "rigba/test_rig_online.py::test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed",
+    "rigba/test_rig_online.py::test_a_textureless_stretch_is_counted_not_fatal",
+    "sim/test_experiment.py::test_cli_end_to_end",
+    "sim/test_readme_table.py",
+    "synth/test_change.py::test_rendered_layout_holds_the_truth",
+    "synth/test_io.py::test_cli_writes_a_sequence",
+    "synth/test_io.py::test_same_seed_same_bytes_other_seed_differs",
+    "test_packaging.py::test_train_runs_from_a_folder_holding_train_py",
+    "train/test_train_compile.py",
+    "train/test_train_ddp.py",
+    "train/test_train_nan_guard.py::test_nonfinite_loss_step_is_skipped",
+    "train/test_train_run.py",
+    "train/test_train_schedule.py::test_the_trainer_anneals_by_its_max_time",
+    "viz/test_calibration_plot.py::test_plot_with_truth_writes_a_png",
+)
+
+
+def pytest_collection_modifyitems(items):
+    """Mark the tests of :data:`SLOW` slow."""
+    for item in items:
+        if item.nodeid.removeprefix("tests/").startswith(SLOW):
+            item.add_marker(pytest.mark.slow)
