@@ -25,8 +25,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.change import Change, step_size
+from ocalib.data.distortion import project
 
-HISTORY = 30  # steady keyframes whose ratios give the overdispersion
+HISTORY = 30  # steady keyframes whose statistics give the overdispersion
 MIN_HISTORY = 10  # steady keyframes needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 CHI2_MEDIAN = float(chi2_distribution.median(6))
@@ -63,15 +64,17 @@ class ExtrinsicTrack:
         """Whether the last keyframes disagree with the window, short of a change yet."""
         return bool(self._pending)
 
-    def observe(self, frame: int, extrinsic: np.ndarray, information: np.ndarray, reference) -> Change | None:
-        """Test one keyframe's measurement ``extrinsic`` (4, 4) with its ``information`` (6, 6) (:func:`information`)
-        against ``reference``, the window's ``(extrinsic (4, 4), covariance (6, 6))`` -> the change it completes, if
-        any."""
-        if self.extrinsic is None or not np.isfinite(information).all():
+    def observe(
+        self, frame: int, extrinsic: np.ndarray, info: np.ndarray, reference: tuple[np.ndarray, np.ndarray]
+    ) -> Change | None:
+        """Test one keyframe's measurement ``extrinsic`` (4, 4) with its information ``info`` (6, 6)
+        (:func:`information`) against ``reference``, the window's ``(extrinsic (4, 4), covariance (6, 6))`` -> the
+        change it completes, if any."""
+        if self.extrinsic is None or not np.isfinite(info).all():
             return None
         d = innovation(reference[0], extrinsic)
         try:
-            statistic = float(d @ np.linalg.solve(np.linalg.inv(information) + reference[1], d))
+            statistic = float(d @ np.linalg.solve(np.linalg.inv(info) + reference[1], d))
         except np.linalg.LinAlgError:
             return None
         if len(self._history) < MIN_HISTORY:
@@ -107,19 +110,14 @@ def information(xy: np.ndarray, xyz: np.ndarray, K: np.ndarray, pose: np.ndarray
     (their median squared error over ``2 ln 2``, a chi-square's median with 2 degrees of freedom). K (3, 3)."""
 
     def residuals(E):
-        return (_project(xyz, K, np.linalg.inv(pose @ E)) - xy).ravel()
+        cam_from_world = np.linalg.inv(pose @ E)
+        return (project(xyz @ cam_from_world[:3, :3].T + cam_from_world[:3, 3], K, None) - xy).ravel()
 
     step = 1e-6
     J = np.stack([(residuals(perturbed(extrinsic, step * e)) - residuals(perturbed(extrinsic, -step * e))) / (2 * step)
                   for e in np.eye(6)], axis=1)  # fmt: skip
     variance = float(np.median((residuals(extrinsic).reshape(-1, 2) ** 2).sum(1))) / (2 * np.log(2))
     return J.T @ J / variance
-
-
-def _project(xyz: np.ndarray, K: np.ndarray, cam_from_world: np.ndarray) -> np.ndarray:
-    """(n, 2) pixels of points ``xyz`` (n, 3) seen from ``cam_from_world`` (4, 4)."""
-    uv = (xyz @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]) @ K.T
-    return uv[:, :2] / uv[:, 2:]
 
 
 def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:
