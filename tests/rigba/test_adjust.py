@@ -133,7 +133,10 @@ def test_an_undetermined_extrinsic_is_not_trusted(rig):
 
 def test_a_distorted_rig_is_adjusted_through_its_lens(rig, tmp_path):
     """The rendered rig seen through a pincushion lens (its images warped by the lens, rig.yaml naming it): the
-    adjustment reads them through COLMAP's OPENCV model, held as given, and finds the extrinsic as on the pinhole rig."""
+    adjustment reads them through COLMAP's OPENCV model, held as given. The rotation is found as on the pinhole rig
+    (0.13-0.33 deg over two seeds and COLMAP's thread counts; 1.3-1.9 deg with the lens left out). 60 hand-held
+    frames determine the translation weakly (0.08-0.56 baselines off, the pinhole rig alike; 5.3-6.2 with the lens
+    left out), so only a gross error fails it."""
     seq, extrinsics, truth = rig
     lens = Distortion("opencv", (0.08, 0.01, 0.0005, -0.0005, 0.0))
     K, (H, W) = seq.cameras[0].K, seq.cameras[0].size
@@ -150,8 +153,8 @@ def test_a_distorted_rig_is_adjusted_through_its_lens(rig, tmp_path):
     distorted = open_sequence(copy.path)
     out = adjust_rig(distorted, _head_like(extrinsics), metric=_metric(truth), workdir=tmp_path / "ws")
     assert out.registered.all() and out.stats["reprojection_error_px"] < 1.0, out.warnings
-    [e] = adjustment_errors(out, extrinsics, truth)  # measured: 0.32 deg, 0.21 (the pinhole rig: 0.28, 0.10)
-    assert e["rotation_error_deg"] < 0.5 and e["translation_error_rel_baseline"] < 0.35, e
+    [e] = adjustment_errors(out, extrinsics, truth)
+    assert e["rotation_error_deg"] < 0.5 and e["translation_error_rel_baseline"] < 1.0, e
     rec = pycolmap.Reconstruction(next((tmp_path / "ws" / "sparse").iterdir()))
     for cam in rec.cameras.values():
         assert cam.model.name == "OPENCV"
