@@ -34,6 +34,7 @@ from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.io.jsonable import finite_or_null
 from ocalib.rigba.colmap import camera_to_world, pinhole_equivalent, to_matrix
 from ocalib.rigba.covariance import ExtrinsicUncertainty, extrinsic_uncertainty
+from ocalib.rigba.lens_check import radial_residuals
 from ocalib.rigba.mapping import map_rig
 from ocalib.rigba.options import BundleOptions, MapperOptions
 from ocalib.rigba.workspace import Workspace, create_workspace
@@ -181,11 +182,13 @@ def _read(
             poses[row[t], k] = camera_to_world(image)
     registered = ~np.isnan(poses[:, :, 0, 0])
     start = time.perf_counter()
+    pinhole = pinhole_equivalent(rec)
     try:
-        uncertainty = extrinsic_uncertainty(pinhole_equivalent(rec), camera_ids)
+        uncertainty = extrinsic_uncertainty(pinhole, camera_ids)
     except np.linalg.LinAlgError:
         uncertainty = [None] * (C - 1)
     seconds = time.perf_counter() - start
+    radial = radial_residuals(pinhole)
     units, scale, warnings = "reconstruction", 1.0, []
     ok = registered[:, 0]
     reference = metric if metric is not None else (front_end[:, 0] if front_end is not None else None)
@@ -222,6 +225,8 @@ def _read(
         "reprojection_error_px": float(rec.compute_mean_reprojection_error()),
         "mean_track_length": float(rec.compute_mean_track_length()),
         "uncertainty_seconds": seconds,
+        "radial_residual_corner_px": [radial[cid].corner_px for cid in camera_ids],
+        "lens_missing": [radial[cid].significant for cid in camera_ids],
     }
     if metric is not None and units == "metres":
         out.stats["drift"] = _drift(poses[ok, 0, :3, 3], metric[index[ok], :3, 3])
@@ -253,6 +258,13 @@ def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models:
                 f"register (first: frame {out.frames[missing[0]]})"
             )
         if share < MIN_REGISTERED:
+            out.trusted[k] = False
+        if out.stats.get("lens_missing", [False] * len(names))[k]:
+            warnings.append(
+                f"bundle adjustment: {name}: its residuals grow towards the image corners "
+                f"({out.stats['radial_residual_corner_px'][k]:+.1f} px there): its lens distortion is missing from "
+                "rig.yaml, or wrong"
+            )
             out.trusted[k] = False
     if not out.trusted[0]:
         out.trusted[:] = False
