@@ -9,7 +9,8 @@ innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`i
 ``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
 points are estimates, shared by neighbouring keyframes) taken as the median of the recent steady statistics over
 the distribution's median, when above 1. Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
-in a row is a change: the track restarts from their mean measurement.
+in a row is a candidate change; the caller confirms it (:meth:`ExtrinsicTrack.accept`: the track restarts from the
+keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_ref`` with ``d`` =
 (rotation rad, translation) in camera 0's axes; rig poses camera-to-world (4, 4).
@@ -36,7 +37,8 @@ CHI2_MEDIAN = float(chi2_distribution.median(6))
 @dataclass
 class ExtrinsicTrack:
     """The fused extrinsic of one camera: ``extrinsic`` (4, 4) and ``covariance`` (6, 6) (None before the first
-    window), the last keyframe's normalised change statistic ``chi2``, the ``changes`` detected."""
+    window), the last keyframe's normalised change statistic ``chi2``, the ``changes`` accepted, and the extrinsic
+    a pending ``candidate`` change would give."""
 
     overlap: float = 1.0
     false_alarm: float = 1e-8
@@ -45,6 +47,7 @@ class ExtrinsicTrack:
     covariance: np.ndarray | None = None
     chi2: float = float("nan")
     changes: list[Change] = field(default_factory=list)
+    candidate: np.ndarray | None = None
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     _pending: list = field(default_factory=list)
 
@@ -69,7 +72,7 @@ class ExtrinsicTrack:
     ) -> Change | None:
         """Test one keyframe's measurement ``extrinsic`` (4, 4) with its information ``info`` (6, 6)
         (:func:`information`) against ``reference``, the window's ``(extrinsic (4, 4), covariance (6, 6))`` -> the
-        change it completes, if any."""
+        candidate change it completes, if any, to :meth:`accept` or :meth:`dismiss`."""
         if self.extrinsic is None or not np.isfinite(info).all():
             return None
         d = innovation(reference[0], extrinsic)
@@ -90,17 +93,24 @@ class ExtrinsicTrack:
         if len(self._pending) < self.persistence:
             return None
         step = np.mean([innovation(self.extrinsic, E) for _, E in self._pending], axis=0)
-        new = perturbed(self.extrinsic, step)
-        change = Change(
+        self.candidate = perturbed(self.extrinsic, step)
+        return Change(
             self._pending[0][0],
             frame,
-            *step_size(self.extrinsic[:3, :3], self.extrinsic[:3, 3], new[:3, :3], new[:3, 3]),
+            *step_size(self.extrinsic[:3, :3], self.extrinsic[:3, 3], self.candidate[:3, :3], self.candidate[:3, 3]),
         )
+
+    def accept(self, change: Change) -> None:
+        """The candidate ``change`` is real: record it and restart the track from its extrinsic, uninformed."""
         self.changes.append(change)
-        self.extrinsic, self.covariance = new.copy(), np.eye(6) * UNINFORMED
+        self.extrinsic, self.covariance = self.candidate, np.eye(6) * UNINFORMED
         self._history.clear()
+        self.dismiss()
+
+    def dismiss(self) -> None:
+        """Forget the pending candidate: the keyframes that disagreed were wrong, not the window."""
         self._pending.clear()
-        return change
+        self.candidate = None
 
 
 def information(xy: np.ndarray, xyz: np.ndarray, K: np.ndarray, pose: np.ndarray, extrinsic: np.ndarray) -> np.ndarray:

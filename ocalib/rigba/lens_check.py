@@ -76,7 +76,9 @@ def radial_residuals(rec: pycolmap.Reconstruction) -> dict[int, RadialResidual]:
     for cid, (observed, normalised) in gathered.items():
         camera = rec.cameras[cid]
         focal, centre = np.asarray(camera.params[:2]), np.asarray(camera.params[2:4])
-        corners = (np.array([[0, 0], [camera.width, 0], [0, camera.height], [camera.width, camera.height]]) - centre) / focal
+        corners = (
+            np.array([[0, 0], [camera.width, 0], [0, camera.height], [camera.width, camera.height]]) - centre
+        ) / focal
         corner = corners[np.argmax((corners**2).sum(1))]
         if not observed:
             out[cid] = RadialResidual(0.0, 0.0, 0)

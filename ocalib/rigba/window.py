@@ -25,6 +25,8 @@ from ocalib.rigba.features import Features
 
 LOSS_SCALE_PX = 1.0  # the Cauchy loss's scale: residuals well above a pixel count less and less
 MAX_ERROR_PX = 4.0  # an observation reprojected farther than this after the adjustment is dropped
+MIN_SPLIT_OBSERVATIONS = 30  # of a camera before and after a split for :func:`split_statistic`
+SPLIT_TRUNCATION = 13.8  # the chi-square's 1e-3 quantile, 2 dof: a squared error counts up to this many variances
 MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts from the last window's solution)
 
 
@@ -99,22 +101,7 @@ def adjust_window(
     obs = observations(keyframes, points)
     C = len(extrinsics)
     rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs)
-    config = pycolmap.BundleAdjustmentConfig()
-    for image_id in rec.images:
-        config.add_image(image_id)
-    for k in range(C):
-        config.set_constant_cam_intrinsics(k + 1)
-    for i in range(len(keyframes)):
-        config.set_constant_rig_from_world_pose(i + 1)
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
-    options.refine_sensor_from_rig = True
-    options.print_summary = False
-    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
-    options.ceres.loss_function_scale = LOSS_SCALE_PX
-    options.ceres.solver_options.num_threads = 1
-    options.ceres.solver_options.max_num_iterations = MAX_ITERATIONS
-    pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    _solve(rec, C, len(keyframes))
     rig = rec.rig(1)
     for k in range(1, C):
         extrinsics[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
@@ -134,10 +121,72 @@ def adjust_window(
     return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()))
 
 
-def _reconstruction(keyframes, points, extrinsics, K, sizes, obs) -> pycolmap.Reconstruction:
-    """The window as a COLMAP reconstruction: camera k has id k + 1, keyframe i frame id i + 1 and image ids
-    ``i C + k + 1``, point p (of ``obs["ids"]``) id p + 1."""
+def split_statistic(
+    keyframes: list[Keyframe],
+    points: dict[int, np.ndarray],
+    extrinsics: np.ndarray,
+    K: np.ndarray,
+    sizes: list[tuple[int, int]],
+    camera: int,
+    frame: int,
+) -> float:
+    """The likelihood ratio of camera ``camera`` having moved at ``frame``: the window adjusted with one extrinsic
+    for the camera, then from that solution with a second one for its keyframes from ``frame`` on; the fall of the
+    truncated squared reprojection errors (``min(e^2, c^2)``, c^2 the chi-square's 1e-3 quantile with 2 degrees of
+    freedom over the variance per axis) over that variance. Near chi-square with 6 degrees of freedom where it has
+    not moved; the points are free in both, so resections misled by a few of them are not taken for a move. NaN
+    where either side has under ``MIN_SPLIT_OBSERVATIONS``. Nothing given is changed."""
+    obs = observations(keyframes, points)
     C = len(extrinsics)
+    after = (obs["camera"] == camera) & (np.array([kf.frame for kf in keyframes])[obs["frame"]] >= frame)
+    before = (obs["camera"] == camera) & ~after
+    if min(after.sum(), before.sum()) < MIN_SPLIT_OBSERVATIONS:
+        return float("nan")
+    poses = np.stack([kf.pose for kf in keyframes])
+    source = list(range(C)) + [camera]
+    split = dict(obs, camera=np.where(after, C, obs["camera"]))
+    errors, E, points = [], extrinsics.copy(), dict(points)
+    for o, sensors in ((obs, source[:C]), (split, source)):
+        E = np.concatenate([E, E[camera : camera + 1]]) if len(sensors) > len(E) else E
+        rec = _reconstruction(keyframes, points, E, K[sensors], [sizes[k] for k in sensors], o, sensors)
+        _solve(rec, len(E), len(keyframes))
+        rig = rec.rig(1)
+        for k in range(1, len(E)):
+            E[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
+        xyz = np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)])
+        points.update(zip(obs["ids"].tolist(), xyz))
+        errors.append(reprojection_errors(o, poses, E, xyz, K[sensors]) ** 2)
+    variance = float(np.median(errors[1])) / (2 * np.log(2))  # per axis: a chi-square's median, 2 dof
+    cap = SPLIT_TRUNCATION * variance
+    return float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
+
+
+def _solve(rec: pycolmap.Reconstruction, cameras: int, frames: int) -> None:
+    """Adjust ``rec``'s points and rig sensors (robust loss), its intrinsics and rig poses held."""
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.images:
+        config.add_image(image_id)
+    for k in range(cameras):
+        config.set_constant_cam_intrinsics(k + 1)
+    for i in range(frames):
+        config.set_constant_rig_from_world_pose(i + 1)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
+    options.refine_sensor_from_rig = True
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = LOSS_SCALE_PX
+    options.ceres.solver_options.num_threads = 1
+    options.ceres.solver_options.max_num_iterations = MAX_ITERATIONS
+    pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+
+
+def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source=None) -> pycolmap.Reconstruction:
+    """The window as a COLMAP reconstruction: camera k has id k + 1, keyframe i frame id i + 1 and image ids
+    ``i C + k + 1``, point p (of ``obs["ids"]``) id p + 1. Sensor k sees camera ``source[k]``'s keypoints
+    (default: its own)."""
+    C = len(extrinsics)
+    source = list(range(C)) if source is None else source
     rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
     for k in range(C):
@@ -159,7 +208,7 @@ def _reconstruction(keyframes, points, extrinsics, K, sizes, obs) -> pycolmap.Re
         for k in range(C):
             image = pycolmap.Image(
                 name=f"c{k}/{kf.frame:06d}",
-                keypoints=kf.features[k].keypoints + 0.5,
+                keypoints=kf.features[source[k]].keypoints + 0.5,
                 camera_id=k + 1,
                 image_id=i * C + k + 1,
             )

@@ -7,6 +7,7 @@ import numpy as np
 import pycolmap
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
@@ -15,7 +16,7 @@ from ocalib.rigba.change import ExtrinsicTrack, information, innovation
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
-from ocalib.rigba.window import Keyframe, adjust_window
+from ocalib.rigba.window import Keyframe, adjust_window, split_statistic
 from ocalib.synth import preset, render_sequence
 from ocalib.synth.presets import knocked
 
@@ -29,13 +30,14 @@ def _mounting(rotation_deg, position) -> np.ndarray:
     return E
 
 
-def test_the_window_recovers_an_extrinsic_from_exact_observations():
-    rng = np.random.default_rng(1)
-    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+def _window(rng, truth: np.ndarray, moved: np.ndarray | None = None, at: int = 8, sigma_px: float = 0.3):
+    """12 keyframes of a two-camera rig (extrinsics ``truth`` (2, 4, 4)), 150 points in front of each camera at
+    the first, seen only by it, observed with ``sigma_px`` noise; camera 1 at ``moved`` from keyframe ``at`` on.
+    -> keyframes, points (their positions off by 5 cm), poses."""
     poses = [_mounting(np.degrees([0.02 * i, 0.05 * i, 0.01 * i]), [0.1 * i, 0.02 * i, 0.2 * i]) for i in range(12)]
     points, keyframes = {}, []
     world = []
-    for k in range(2):  # points in front of each camera at frame 0, seen only by it
+    for k in range(2):
         depth, uv = rng.uniform(3, 8, 150), rng.uniform([0, 0], [416, 128], (150, 2))
         rays = (np.linalg.inv(K) @ np.c_[uv, np.ones(150)].T).T * depth[:, None]
         cam = poses[0] @ truth[k]
@@ -44,14 +46,22 @@ def test_the_window_recovers_an_extrinsic_from_exact_observations():
     for i, pose in enumerate(poses):
         features, ids = [], []
         for k in range(2):
-            T = np.linalg.inv(pose @ truth[k])
+            mounting = moved if (k == 1 and moved is not None and i >= at) else truth[k]
+            T = np.linalg.inv(pose @ mounting)
             p = world[k] @ T[:3, :3].T + T[:3, 3]
             uv = p @ K.T
-            xy = uv[:, :2] / uv[:, 2:] + rng.normal(0, 0.3, (150, 2))
+            xy = uv[:, :2] / uv[:, 2:] + rng.normal(0, sigma_px, (150, 2))
             inside = (p[:, 2] > 0) & (xy >= 0).all(1) & (xy < [416, 128]).all(1)
             features.append(Features(xy, np.zeros((150, 128), np.float32)))
             ids.append(np.where(inside, 150 * k + np.arange(150), -1))
         keyframes.append(Keyframe(i, pose, features, ids))
+    return keyframes, points
+
+
+def test_the_window_recovers_an_extrinsic_from_exact_observations():
+    rng = np.random.default_rng(1)
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    keyframes, points = _window(rng, truth)
     start = truth.copy()
     start[1, :3, 3] = 0.0
     start[1, :3, :3] = Rotation.from_rotvec(np.radians([0.3, 0.2, -0.2])).as_matrix() @ truth[1, :3, :3]
@@ -63,6 +73,28 @@ def test_the_window_recovers_an_extrinsic_from_exact_observations():
     error = start[1, :3, 3] - truth[1, :3, 3]
     assert np.all(np.abs(error) < 3 * std[3:]), (error, std)  # the reported 1-sigma covers the error
     assert np.linalg.norm(error) < 0.25 * np.linalg.norm(truth[1, :3, 3])
+
+
+def test_the_split_window_tells_a_moved_camera_from_a_steady_one():
+    """The likelihood ratio of a second extrinsic from keyframe 8 on: near chi-square(6) on a steady camera (mean 6
+    over seeds), thousands where it turned by 1 deg; the window given is left as it was."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    moved = _mounting([0, 121, 0], [0.12, 0.0, -0.05])
+    Ks, sizes = np.stack([K, K]), [(128, 416)] * 2
+    steady = []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        keyframes, points = _window(rng, truth)
+        adjust_window(keyframes, points, truth.copy(), Ks, sizes)
+        before = {p: x.copy() for p, x in points.items()}
+        steady.append(split_statistic(keyframes, points, truth.copy(), Ks, sizes, 1, 8))
+        assert all(np.array_equal(points[p], x) for p, x in before.items())
+    assert max(steady) < chi2.ppf(1 - 1e-4, 6) and 3.0 < np.mean(steady) < 10.0, steady
+    keyframes, points = _window(np.random.default_rng(0), truth, moved)
+    extrinsics = truth.copy()
+    adjust_window(keyframes, points, extrinsics, Ks, sizes)
+    assert split_statistic(keyframes, points, extrinsics, Ks, sizes, 1, 8) > 1000
+    assert np.isnan(split_statistic(keyframes, points, extrinsics, Ks, sizes, 1, 12))  # nothing after: NaN
 
 
 def _resected(rng, pose, mounting, sigma_px=0.5, n=120):
@@ -107,10 +139,18 @@ def test_the_change_test_gives_no_alarm_on_a_steady_camera_and_finds_a_step(seed
         pose = _mounting(rng.normal(0, 10, 3), rng.normal(0, 2, 3))
         xy, xyz, measured = _resected(rng, pose, before if t < 150 else after)
         extrinsic = np.linalg.inv(pose) @ np.linalg.inv(measured)
-        changes.append(track.observe(t, extrinsic, information(xy, xyz, K, pose, extrinsic), window))
+        change = track.observe(t, extrinsic, information(xy, xyz, K, pose, extrinsic), window)
+        if change is not None:
+            track.accept(change)
+        changes.append(change)
     assert not any(changes[:150]), "a false alarm"
     found = [c for c in changes if c is not None]
-    assert len(found) == 1 and found[0].frame == 150 and found[0].detected == 150 + track.persistence - 1
+    assert (
+        track.changes == found
+        and len(found) == 1
+        and found[0].frame == 150
+        and found[0].detected == 150 + track.persistence - 1
+    )
     assert abs(found[0].rotation_change_deg - 2.0) < 0.2 and abs(found[0].translation_change - 0.05) < 0.02
     assert np.degrees(np.linalg.norm(innovation(track.extrinsic, after)[:3])) < 0.2
 
