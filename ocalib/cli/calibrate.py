@@ -76,6 +76,13 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "sequence's timestamps), e.g. wheel odometry, GNSS or the rig layout's poses.txt: the "
         "translation is then in metres",
     )
+    ba.add_argument(
+        "--metric-noise",
+        type=float,
+        metavar="METRES",
+        help="the metric trajectory's noise per axis, which weighs its positions as priors in the bundle adjustment "
+        "(default: estimated from how well the reconstruction fits it)",
+    )
     ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
     ba.add_argument(
         "--online-rig",
@@ -119,7 +126,9 @@ def run(args) -> int:
         from ocalib.rigba.stage import refine_calibration
 
         options = BundleOptions(
-            FeatureOptions(cross_camera=args.cross_camera), MapperOptions(kind=args.mapper), args.keyframe_step
+            FeatureOptions(cross_camera=args.cross_camera),
+            MapperOptions(kind=args.mapper, metric_noise=args.metric_noise),
+            args.keyframe_step,
         )
         refine_calibration(result, metric, options, args.bundle_adjust_every, args.colmap_workspace)
     doc = result.result_json()
@@ -159,6 +168,10 @@ def _metric_trajectory(args):
         raise InputError(f"--bundle-adjust-every must be at least 1 frame, got {args.bundle_adjust_every}")
     if args.keyframe_step < 1:
         raise InputError(f"--keyframe-step must be at least 1, got {args.keyframe_step}")
+    if args.metric_noise is not None and not (args.metric_noise > 0 and args.metric_trajectory):
+        raise InputError(
+            f"--metric-noise must be a positive number of metres with --metric-trajectory, got {args.metric_noise}"
+        )
     if not args.metric_trajectory:
         return None, None
     if not args.bundle_adjust and not args.online_rig:

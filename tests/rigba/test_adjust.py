@@ -4,17 +4,21 @@ intrinsics held, and each failure said with the head's estimate kept."""
 import math
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pycolmap
 import pytest
+from scipy.spatial.transform import Rotation
 
 from ocalib.data.distortion import Distortion, undistort_pixels
 from ocalib.data.layout import open_sequence
 from ocalib.data.rig import read_rig_yaml, write_rig_yaml
+from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.rigba.adjust import adjust_rig, adjustment_errors
 from ocalib.rigba.colmap import colmap_camera, pinhole_params
+from ocalib.rigba.metric_prior import adjust_with_metric_prior
 from ocalib.rigba.options import BundleOptions
 from ocalib.synth import preset, render_sequence
 
@@ -164,3 +168,37 @@ def test_a_distorted_rig_is_adjusted_through_its_lens(rig, tmp_path):
     for cam in rec.cameras.values():
         assert cam.model.name == "OPENCV"
         np.testing.assert_allclose(cam.params, colmap_camera(K, (H, W), lens, 1).params, rtol=1e-9)
+
+
+def test_a_metric_trajectory_is_held_as_a_prior(rig, tmp_path):
+    """Camera 0's positions mapped by a similarity (scale 2.5) given as priors to a reconstruction in its own units:
+    the adjusted reconstruction meets them, and its extrinsic is the plain adjustment's (no priors) with the
+    translation scaled by the similarity's scale (a similarity leaves the rig's shape and angles)."""
+    seq, extrinsics, _ = rig
+    adjust_rig(seq, _head_like(extrinsics), frames=30, options=BundleOptions(keyframe_step=1), workdir=tmp_path)
+    rec = pycolmap.Reconstruction(next((tmp_path / "sparse").iterdir()))
+    camera_id = next(im.camera_id for im in rec.images.values() if im.name.startswith("c0/"))
+    frame_of = {i: int(Path(im.name).stem) for i, im in rec.images.items()}
+    rig_id = next(iter(rec.rigs))
+    sensor = next(iter(rec.rigs[rig_id].non_ref_sensors))
+    plain = pycolmap.Reconstruction(rec)
+    config, options = pycolmap.BundleAdjustmentConfig(), pycolmap.BundleAdjustmentOptions()
+    for image_id in plain.reg_image_ids():
+        config.add_image(image_id)
+    for cid in plain.cameras:
+        config.set_constant_cam_intrinsics(cid)
+    options.refine_sensor_from_rig, options.print_summary = True, False
+    pycolmap.create_default_bundle_adjuster(options, config, plain).solve()
+    before = plain.rigs[rig_id].sensor_from_rig(sensor).matrix()
+    scale, turn, shift = 2.5, Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix(), np.array([10.0, -3.0, 4.0])
+    metric = np.tile(np.eye(4), (len(seq), 1, 1))
+    for i, im in plain.images.items():
+        if im.camera_id == camera_id:
+            metric[frame_of[i], :3, 3] = scale * turn @ im.projection_center() + shift
+    assert adjust_with_metric_prior(rec, camera_id, frame_of, metric, noise=1e-3) == 1e-3
+    for i, im in rec.images.items():
+        if im.camera_id == camera_id:
+            assert np.linalg.norm(im.projection_center() - metric[frame_of[i], :3, 3]) < 5e-3
+    after = rec.rigs[rig_id].sensor_from_rig(sensor).matrix()
+    np.testing.assert_allclose(np.linalg.norm(after[:, 3]), scale * np.linalg.norm(before[:, 3]), rtol=0.02)
+    assert rotation_angle_deg(after[:, :3].T @ before[:, :3]) < 0.05
