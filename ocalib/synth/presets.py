@@ -36,6 +36,16 @@ PRESETS: dict[str, dict] = {
             {"name": "cam1", "fx": 0.5, "fy": 1.6, "position": [0.12, 0.0, -0.05], "rotation_deg": [0.0, 120.0, 0.0]},
         ],
     },
+    "surround": {
+        "name": "surround",
+        "trajectory": {"kind": "drive", "speed": 8.0, "height": 1.65},
+        "cameras": [
+            {"name": "front"},
+            {"name": "left", "position": [-0.9, 0.3, -1.0], "rotation_deg": [0.0, -90.0, 0.0]},
+            {"name": "right", "position": [0.9, 0.3, -1.0], "rotation_deg": [0.0, 90.0, 0.0]},
+            {"name": "rear", "position": [0.0, 0.1, -3.2], "rotation_deg": [0.0, 180.0, 0.0]},
+        ],
+    },
     "stereo": {
         "name": "stereo",
         "trajectory": {"kind": "drive", "speed": 8.0, "height": 1.65},
