@@ -80,8 +80,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "--metric-noise",
         type=float,
         metavar="METRES",
-        help="the metric trajectory's noise per axis, which weighs its positions as priors in the bundle adjustment "
-        "(default: estimated from how well the reconstruction fits it)",
+        help="the metric trajectory's noise per axis: its positions are then priors in the bundle adjustment, so "
+        "weighed (default: the reconstruction is only scaled to it)",
     )
     ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
     ba.add_argument(

@@ -21,7 +21,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "from its images with the pose network and the on-line head, and compare with the true extrinsics. "
         "Writes the sequence, result.json, trace.csv and plots to --out.",
     )
-    p.add_argument("--preset", default="handheld", help="synthetic rig: handheld (default), front-left, front-rear, surround")
+    p.add_argument(
+        "--preset", default="handheld", help="synthetic rig: handheld (default), front-left, front-rear, surround"
+    )
     p.add_argument("--frames", type=int, default=300, help="frames to render (default 300)")
     p.add_argument("--seed", type=int, default=1001, help="world and trajectory seed (>= 1000: never used in training)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -19,7 +19,9 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "(uint16, metres x 256) and KITTI poses for every camera, plus rig.yaml and times.txt.",
     )
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--preset", help="built-in rig: front-rear, front-left, handheld, surround, stereo (default: front-rear)")
+    src.add_argument(
+        "--preset", help="built-in rig: front-rear, front-left, handheld, surround, stereo (default: front-rear)"
+    )
     src.add_argument("--config", help="a YAML config file (see configs/synth/)")
     p.add_argument("--out", help="output folder (default: data/synth/<name of the preset or config>)")
     for option, text in [

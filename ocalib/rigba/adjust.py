@@ -4,9 +4,9 @@ extrinsics, so the translation between cameras is recovered where each camera's 
 :func:`adjust_rig` builds a COLMAP workspace of the sequence (:mod:`ocalib.rigba.workspace`), maps it with the rig's
 ``sensor_from_rig`` started from the on-line head's rotation and refined in every bundle adjustment
 (:mod:`ocalib.rigba.mapping`), reads camera k's extrinsic with its uncertainty (:mod:`ocalib.rigba.covariance`),
-expresses it in metres (camera 0's metric trajectory as priors in a last adjustment,
-:mod:`ocalib.rigba.metric_prior`, then a Sim(3) fit of its reconstructed trajectory to it) or in camera 0's
-front-end units, and checks the result. What goes wrong is said: a camera whose frames do not register, a
+expresses it in metres (a Sim(3) fit of camera 0's reconstructed trajectory to a metric one, after a last
+adjustment with that trajectory's positions as priors where its noise is given: :mod:`ocalib.rigba.metric_prior`) or
+in camera 0's front-end units, and checks the result. What goes wrong is said: a camera whose frames do not register, a
 reconstruction in pieces or drifting, a rotation moved far from the head's. Such a camera keeps the head's estimate.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); trajectories are camera-to-world (N, 4, 4); the scale
@@ -135,10 +135,10 @@ def _solve(
     ws.add_frames(index.tolist())
     start = time.perf_counter()
     models = map_rig(ws, options)
-    prior_noise = None
-    if models and metric is not None and options.metric_prior:
+    prior = False
+    if models and metric is not None and options.metric_noise is not None:
         frame_of = {i: int(Path(image.name).stem) for i, image in models[0].images.items()}
-        prior_noise = adjust_with_metric_prior(
+        prior = adjust_with_metric_prior(
             models[0], ws.camera_ids[0], frame_of, metric, options.metric_noise, options.threads
         )
     mapping = time.perf_counter() - start
@@ -163,7 +163,7 @@ def _solve(
         models=len(models),
         keypoints_median=keypoints,
         mapping_seconds=mapping,
-        metric_prior_noise_m=prior_noise,
+        metric_prior_noise_m=options.metric_noise if prior else None,
         registered_frames_other_models=[m.num_reg_frames() for m in models[1:]],
     )
     return out

@@ -31,8 +31,8 @@ class MapperOptions:
     refine_intrinsics: bool = False  # hold K as given (the default); True refines focal lengths and principal points
     threads: int = -1
     seed: int = 0  # COLMAP's RANSAC and initial choices: a fixed seed gives a repeatable result
-    metric_prior: bool = True  # a metric trajectory's positions as priors in a last adjustment (else a Sim(3) fit only)
-    metric_noise: float | None = None  # that trajectory's noise, metres per axis (None: estimated)
+    metric_noise: float | None = None  # metres per axis: a metric trajectory's positions as priors so weighed in a
+    # last adjustment (None: a Sim(3) fit to it only)
 
 
 @dataclass(frozen=True)
