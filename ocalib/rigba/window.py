@@ -100,14 +100,9 @@ def adjust_window(
     are dropped from the keyframes afterwards (their ``point_ids`` set to -1)."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
-    rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs)
-    _solve(rec, C, len(keyframes))
-    rig = rec.rig(1)
-    for k in range(1, C):
-        extrinsics[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
-    xyz = np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)]) if len(obs["ids"]) else None
-    if xyz is None:
+    if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
+    xyz = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)))
     for pid, x in zip(obs["ids"], xyz):
         points[int(pid)] = x
     poses = np.stack([kf.pose for kf in keyframes])
@@ -148,12 +143,7 @@ def split_statistic(
     errors, E, points = [], extrinsics.copy(), dict(points)
     for o, sensors in ((obs, source[:C]), (split, source)):
         E = np.concatenate([E, E[camera : camera + 1]]) if len(sensors) > len(E) else E
-        rec = _reconstruction(keyframes, points, E, K[sensors], [sizes[k] for k in sensors], o, sensors)
-        _solve(rec, len(E), len(keyframes))
-        rig = rec.rig(1)
-        for k in range(1, len(E)):
-            E[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
-        xyz = np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)])
+        xyz = _solve(keyframes, points, E, K[sensors], [sizes[k] for k in sensors], o, sensors)
         points.update(zip(obs["ids"].tolist(), xyz))
         errors.append(reprojection_errors(o, poses, E, xyz, K[sensors]) ** 2)
     variance = float(np.median(errors[1])) / (2 * np.log(2))  # per axis: a chi-square's median, 2 dof
@@ -161,14 +151,16 @@ def split_statistic(
     return float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
 
 
-def _solve(rec: pycolmap.Reconstruction, cameras: int, frames: int) -> None:
-    """Adjust ``rec``'s points and rig sensors (robust loss), its intrinsics and rig poses held."""
+def _solve(keyframes, points, extrinsics, K, sizes, obs, source) -> np.ndarray:
+    """Adjust the window's points and rig sensors (robust loss; sensor k sees camera ``source[k]``), the intrinsics and
+    the rig's poses held: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of ``obs["ids"]``."""
+    rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source)
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.images:
         config.add_image(image_id)
-    for k in range(cameras):
+    for k in range(len(extrinsics)):
         config.set_constant_cam_intrinsics(k + 1)
-    for i in range(frames):
+    for i in range(len(keyframes)):
         config.set_constant_rig_from_world_pose(i + 1)
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
@@ -179,6 +171,10 @@ def _solve(rec: pycolmap.Reconstruction, cameras: int, frames: int) -> None:
     options.ceres.solver_options.num_threads = 1
     options.ceres.solver_options.max_num_iterations = MAX_ITERATIONS
     pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    rig = rec.rig(1)
+    for k in range(1, len(extrinsics)):
+        extrinsics[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
+    return np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)])
 
 
 def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source=None) -> pycolmap.Reconstruction:
