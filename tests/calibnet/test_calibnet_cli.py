@@ -211,3 +211,20 @@ def test_planar_motion_with_the_network_advises_the_opencv_front_end(frontend):
     assert advice["car"][0] and not advice["handheld"][0]
     assert advice["car"][1] == ([f"left: {PLANAR_ADVICE}"] if frontend == "network" else [])
     assert advice["handheld"][1] == []
+
+
+def test_a_surround_rig_is_calibrated_camera_by_camera_without_a_nan(tmp_path, capsys):
+    """The four-camera surround preset (a straight stretch: every camera's translation unobservable) through
+    ``calibrate``: three extrinsics against the front camera, each with its errors, and no NaN printed."""
+    seq = render_sequence(
+        preset("surround").with_overrides(frames=12, height=32, width=96, seed=1003), tmp_path / "seq", progress=False
+    )
+    torch.manual_seed(0)
+    model = save_model(EgoMotionModel("small", height=32, width=96), tmp_path / "model.pt")
+    out = tmp_path / "r.json"
+    assert main(["calibrate", "--sequence", str(seq), "--checkpoint", str(model), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["reference"] == "front" and [e["camera"] for e in doc["extrinsics"]] == ["left", "right", "rear"]
+    assert len(doc["ground_truth_errors"]) == 3
+    printed = capsys.readouterr()
+    assert "nan" not in (printed.out + printed.err).lower()
