@@ -38,7 +38,7 @@ from ocalib.frontend import FrontEndOptions, build_frontend
 from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
-    from ocalib.rigba.adjust import RigAdjustment
+    from ocalib.rigba.result import RigAdjustment
     from ocalib.rigba.stream import RigStream
 
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
@@ -57,7 +57,7 @@ class ImageCalibration:
     sequence: Sequence | None = None  # the sequence calibrated (its first settings["frames"] frames)
     bundle: RigAdjustment | None = None  # the rig bundle adjustment's result
     bundle_errors: list[dict] | None = (
-        None  # its ground-truth errors, see :func:`ocalib.rigba.adjust.adjustment_errors`
+        None  # its ground-truth errors, see :func:`ocalib.rigba.evaluate.adjustment_errors`
     )
     rig: RigStream | None = None  # the on-line rig estimator
     rig_errors: list[dict] | None = None  # its final estimate's errors against the truth at the last frame
@@ -83,7 +83,7 @@ class ImageCalibration:
             if self.rig_errors is not None:
                 doc["rig_estimator_ground_truth_errors"] = finite_or_null(self.rig_errors)
         if self.bundle is not None:
-            from ocalib.rigba.adjust import camera_json
+            from ocalib.rigba.result import camera_json
 
             doc["extrinsics"] = [camera_json(self.bundle, k + 1, e) for k, e in enumerate(online)]
             doc["units"] = self.bundle.units

@@ -18,58 +18,25 @@ from __future__ import annotations
 import math
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pycolmap
-import torch
 from tqdm import tqdm
 
-from ocalib.calibnet.truth import angle_deg, trajectory_scale
+from ocalib.calibnet.truth import trajectory_scale
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
 from ocalib.eval.alignment import umeyama
-from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
-from ocalib.io.jsonable import finite_or_null
 from ocalib.rigba.colmap import camera_to_world, pinhole_equivalent, to_matrix
-from ocalib.rigba.covariance import ExtrinsicUncertainty, extrinsic_uncertainty
+from ocalib.rigba.covariance import extrinsic_uncertainty
 from ocalib.rigba.lens_check import radial_residuals
 from ocalib.rigba.mapping import map_rig
 from ocalib.rigba.metric_prior import adjust_with_metric_prior
 from ocalib.rigba.options import BundleOptions, MapperOptions
+from ocalib.rigba.result import RigAdjustment
+from ocalib.rigba.trust import checks
 from ocalib.rigba.workspace import Workspace, create_workspace
-
-MAX_ROTATION_CHANGE_DEG = 5.0  # a bundle-adjusted rotation this far from the head's is not trusted
-MIN_REGISTERED = 0.5  # share of a camera's frames below which its extrinsic is not trusted
-WARN_REGISTERED = 0.9  # share below which the missing frames are reported
-MIN_KEYPOINTS = 100  # median keypoints an image below which the images are reported as too poor in features
-MAX_DRIFT = 0.05  # RMS position error over the path length, after the Sim(3) fit to a metric trajectory
-MAX_ROTATION_STD_DEG = 1.0  # a rotation 1-sigma above this (deg, any axis): the images do not determine the camera
-
-
-@dataclass
-class RigAdjustment:
-    """The outcome of :func:`adjust_rig`.
-
-    ``extrinsics`` (C, 4, 4) ``T_cam0_camk`` in ``units``; ``trusted`` (C,) bool (camera 0 always True): where False
-    the caller keeps the head's estimate (``warnings`` say why); ``uncertainty`` per camera k >= 1 (None when the
-    reconstruction has none); ``scale`` (C,) camera k's front-end units into camera 0's (1 without a front end);
-    ``trajectory`` (N, 4, 4) camera 0's camera-to-world pose in ``units`` at ``frames`` (NaN where not registered);
-    ``registered`` (N, C) bool.
-    """
-
-    extrinsics: np.ndarray
-    trusted: np.ndarray
-    uncertainty: list[ExtrinsicUncertainty | None]
-    scale: np.ndarray
-    frames: np.ndarray
-    trajectory: np.ndarray
-    registered: np.ndarray
-    units: str
-    stats: dict = field(default_factory=dict)
-    warnings: list[str] = field(default_factory=list)
 
 
 def adjust_rig(
@@ -157,7 +124,7 @@ def _solve(
         out = _read(models[0], ws, index, front_end, metric)
         check = np.ones(len(initial), bool) if check_rotation is None else np.asarray(check_rotation, bool)
         out.warnings = (
-            _checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models, keypoints) + out.warnings
+            checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models, keypoints) + out.warnings
         )
     out.stats.update(
         models=len(models),
@@ -242,71 +209,6 @@ def _read(
     return out
 
 
-def _checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: list, keypoints: float) -> list[str]:
-    """Warnings on what went wrong, and ``out.trusted`` cleared for the cameras whose extrinsic cannot be used
-    (``initial``: NaN where its rotation is not to be checked against)."""
-    warnings = []
-    names = sequence.names
-    N = len(out.frames)
-    if keypoints < MIN_KEYPOINTS:
-        warnings.append(
-            f"bundle adjustment: {keypoints:.0f} keypoints an image (median): the images are poor in "
-            "texture, the result is weak"
-        )
-    if len(models) > 1:
-        warnings.append(
-            f"bundle adjustment: the reconstruction fell apart into {len(models)} pieces; the largest, "
-            f"{models[0].num_reg_frames()} of {N} frames, is used"
-        )
-    for k, name in enumerate(names):
-        share = out.registered[:, k].mean()
-        if share < WARN_REGISTERED:
-            missing = np.flatnonzero(~out.registered[:, k])
-            warnings.append(
-                f"bundle adjustment: {name}: {N - out.registered[:, k].sum()} of {N} frames did not "
-                f"register (first: frame {out.frames[missing[0]]})"
-            )
-        if share < MIN_REGISTERED:
-            out.trusted[k] = False
-        if out.stats.get("lens_missing", [False] * len(names))[k]:
-            warnings.append(
-                f"bundle adjustment: {name}: its residuals grow towards the image corners "
-                f"({out.stats['radial_residual_corner_px'][k]:+.1f} px there): its lens distortion is missing from "
-                "rig.yaml, or wrong"
-            )
-            out.trusted[k] = False
-    if not out.trusted[0]:
-        out.trusted[:] = False
-    if out.stats.get("drift", 0.0) > MAX_DRIFT:
-        warnings.append(
-            f"bundle adjustment: the reconstruction drifts from the metric trajectory (RMS "
-            f"{out.stats['drift']:.1%} of the path length)"
-        )
-        out.trusted[:] = False
-    for k in range(1, len(names)):
-        change = float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ initial[k, :3, :3]))
-        if change > MAX_ROTATION_CHANGE_DEG:  # False for NaN: not checked
-            warnings.append(
-                f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
-                "estimate; not trusted"
-            )
-            out.trusted[k] = False
-    for k in range(1, len(names)):
-        u = out.uncertainty[k]
-        std = math.inf if u is None else float(np.degrees(u.rotation_std).max())
-        if not std <= MAX_ROTATION_STD_DEG or (u is not None and len(u.unobservable) == 3):  # NaN: not determined
-            warnings.append(
-                f"bundle adjustment: {names[k]}: the reconstruction does not determine its extrinsic (rotation "
-                f"1-sigma {std:.2g} deg, {3 if u is None else len(u.unobservable)} of 3 translation directions "
-                "unobservable)"
-            )
-            out.trusted[k] = False
-    for k in np.flatnonzero(~out.trusted[1:]) + 1:
-        warnings.append(f"bundle adjustment: {names[k]}: the on-line estimate is kept")
-    out.trusted[0] = True
-    return warnings
-
-
 def _failed(sequence: Sequence, initial: np.ndarray, index: np.ndarray, warnings: list[str]) -> RigAdjustment:
     C = len(sequence.cameras)
     return RigAdjustment(
@@ -356,83 +258,3 @@ def _median_keypoints(database: Path) -> float:
 
 def _sensor(camera_id: int) -> pycolmap.sensor_t:
     return pycolmap.sensor_t(pycolmap.SensorType.CAMERA, camera_id)
-
-
-def camera_json(adjustment: RigAdjustment, k: int, online: dict) -> dict:
-    """Camera k's (>= 1) JSON object in the format of ``calibrate-poses`` (``online``: the head's, whose
-    rotation-system observability it keeps), with ``source`` ``"bundle_adjustment"``; the head's where not trusted."""
-    if not adjustment.trusted[k]:
-        return online | {"source": "online"}
-    E = adjustment.extrinsics[k]
-    u = adjustment.uncertainty[k]
-    q = rotation_matrix_to_quaternion(torch.from_numpy(E[:3, :3])).numpy()
-    registered = int(adjustment.registered[:, k].sum())
-    observability = dict(online["observability"])
-    if u is not None:
-        weakest = u.unobservable[0] if len(u.unobservable) else _weakest(u.covariance[3:, 3:])
-        observability.update(
-            unobservable_translation_directions=u.unobservable.tolist(), weakest_translation_direction=weakest.tolist()
-        )
-    return {
-        "camera": online["camera"],
-        "rotation": E[:3, :3].tolist(),
-        "quaternion_wxyz": (q if q[0] >= 0 else -q).tolist(),
-        "translation": E[:3, 3].tolist(),
-        "scale": float(adjustment.scale[k]),
-        "time_offset": online["time_offset"],
-        "frames_used": registered,
-        "frames_rejected": len(adjustment.frames) - registered,
-        "rotation_std_deg": None if u is None else np.degrees(u.rotation_std).tolist(),
-        "translation_std": None if u is None else finite_or_null(u.translation_std.tolist()),
-        "scale_std": None,
-        "observability": observability,
-        "residuals": {"reprojection_px": adjustment.stats.get("reprojection_error_px")},
-        "source": "bundle_adjustment",
-    }
-
-
-def _weakest(cov: np.ndarray) -> np.ndarray:
-    lam, V = np.linalg.eigh(cov)
-    return V[:, -1]
-
-
-def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: np.ndarray | None) -> list[dict]:
-    """Per camera k >= 1: the bundle-adjusted extrinsic's errors against the true ``extrinsics`` (C, 4, 4), as
-    :func:`ocalib.calibnet.truth.extrinsic_errors` gives the head's: ``rotation_error_deg``,
-    ``translation_direction_error_deg`` (with the unobservable directions projected out: ``compared_in_plane``; NaN
-    where fewer than two directions are observable), and
-    with ``truth`` (T, C, 4, 4) ground-truth poses: ``metric_scale`` (the result's units -> metres, a Sim(3) fit of
-    camera 0's reconstructed trajectory to its truth; 1 in metres), ``translation_error`` (metres) and
-    ``translation_error_rel_baseline``."""
-    rel = np.linalg.inv(extrinsics[0]) @ extrinsics
-    scale = 1.0
-    ok = adjustment.registered[:, 0]
-    if truth is not None and adjustment.units != "metres" and ok.sum() >= 3:
-        rebased = np.linalg.inv(truth[:1, 0]) @ truth[:, 0]
-        scale = umeyama(adjustment.trajectory[ok, :3, 3], rebased[adjustment.frames[ok], :3, 3])[0]
-    out = []
-    for k in range(1, len(extrinsics)):
-        E, u = adjustment.extrinsics[k], adjustment.uncertainty[k]
-        t, t_true = scale * E[:3, 3], rel[k, :3, 3]
-        project = np.eye(3)
-        if u is not None and len(u.unobservable):
-            project = project - u.unobservable.T @ u.unobservable
-        e = {
-            "camera": k,
-            "rotation_error_deg": float(rotation_angle_deg(E[:3, :3].T @ rel[k, :3, :3])),
-            # A direction needs two observable dimensions to be compared (one left: NaN).
-            "translation_direction_error_deg": angle_deg(project @ t, project @ t_true)
-            if np.linalg.matrix_rank(project) >= 2
-            else math.nan,
-            "compared_in_plane": bool(u is not None and len(u.unobservable)),
-        }
-        if truth is not None:
-            error = float(np.linalg.norm(project @ (t - t_true)))
-            baseline = float(np.linalg.norm(project @ t_true))
-            e.update(
-                metric_scale=scale,
-                translation_error=error,
-                translation_error_rel_baseline=error / baseline if baseline > 0 else math.nan,
-            )
-        out.append(e)
-    return out

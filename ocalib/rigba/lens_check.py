@@ -36,7 +36,7 @@ class RadialResidual:
     def significant(self) -> bool:
         """A lens is missing or wrong: the residual is both larger than :data:`MAX_CORNER_PX` and real."""
         threshold = f_distribution.ppf(1 - FALSE_ALARM, 2, max(2 * self.observations - 2, 1))
-        return abs(self.corner_px) > MAX_CORNER_PX and self.f_statistic > threshold
+        return bool(abs(self.corner_px) > MAX_CORNER_PX and self.f_statistic > threshold)
 
 
 def radial_residual(residuals: np.ndarray, normalised: np.ndarray, focal: np.ndarray, corner: np.ndarray):

@@ -16,7 +16,8 @@ from ocalib.errors import InputError
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.io.poses import describe_invalid, pose_validity, read_poses
 from ocalib.io.timing import interpolate
-from ocalib.rigba.adjust import adjust_rig, adjustment_errors
+from ocalib.rigba.adjust import adjust_rig
+from ocalib.rigba.evaluate import adjustment_errors
 from ocalib.rigba.options import BundleOptions
 
 INTERPOLATE_GAP = 1.25  # frame periods of the metric trajectory bridged by interpolation (as calibrate-poses)

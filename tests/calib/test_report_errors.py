@@ -7,8 +7,9 @@ import math
 import numpy as np
 
 from ocalib.calib.report import errors_table
-from ocalib.rigba.adjust import RigAdjustment, adjustment_errors
 from ocalib.rigba.covariance import ExtrinsicUncertainty
+from ocalib.rigba.evaluate import adjustment_errors
+from ocalib.rigba.result import RigAdjustment
 
 
 def _adjustment(t_estimate: np.ndarray, unobservable: np.ndarray) -> RigAdjustment:

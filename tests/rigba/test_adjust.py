@@ -16,8 +16,9 @@ from ocalib.data.distortion import Distortion, undistort_pixels
 from ocalib.data.layout import open_sequence
 from ocalib.data.rig import read_rig_yaml, write_rig_yaml
 from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.adjust import adjust_rig, adjustment_errors
+from ocalib.rigba.adjust import adjust_rig
 from ocalib.rigba.colmap import colmap_camera, pinhole_params
+from ocalib.rigba.evaluate import adjustment_errors
 from ocalib.rigba.metric_prior import adjust_with_metric_prior
 from ocalib.rigba.options import BundleOptions
 from ocalib.synth import preset, render_sequence
@@ -114,8 +115,9 @@ def test_a_camera_that_does_not_register_keeps_the_heads_estimate(rig, tmp_path)
 def test_an_undetermined_extrinsic_is_not_trusted(rig):
     """A reconstruction that leaves camera 1's rotation loose (1-sigma of degrees) or all its translation directions
     unobservable keeps the head's estimate, with a warning saying so."""
-    from ocalib.rigba.adjust import RigAdjustment, _checks
     from ocalib.rigba.covariance import ExtrinsicUncertainty
+    from ocalib.rigba.result import RigAdjustment
+    from ocalib.rigba.trust import checks as _checks
 
     seq, extrinsics, _ = rig
     for covariance, unobservable in (

@@ -1,0 +1,57 @@
+"""The rig bundle adjustment's extrinsics against the truth (a rendered rig's, or a reference calibration's).
+
+Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); trajectories are camera-to-world (T, C, 4, 4).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ocalib.calibnet.truth import angle_deg
+from ocalib.eval.alignment import umeyama
+from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.rigba.result import RigAdjustment
+
+
+def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: np.ndarray | None) -> list[dict]:
+    """Per camera k >= 1: the bundle-adjusted extrinsic's errors against the true ``extrinsics`` (C, 4, 4), as
+    :func:`ocalib.calibnet.truth.extrinsic_errors` gives the head's: ``rotation_error_deg``,
+    ``translation_direction_error_deg`` (with the unobservable directions projected out: ``compared_in_plane``; NaN
+    where fewer than two directions are observable), and
+    with ``truth`` (T, C, 4, 4) ground-truth poses: ``metric_scale`` (the result's units -> metres, a Sim(3) fit of
+    camera 0's reconstructed trajectory to its truth; 1 in metres), ``translation_error`` (metres) and
+    ``translation_error_rel_baseline``."""
+    rel = np.linalg.inv(extrinsics[0]) @ extrinsics
+    scale = 1.0
+    ok = adjustment.registered[:, 0]
+    if truth is not None and adjustment.units != "metres" and ok.sum() >= 3:
+        rebased = np.linalg.inv(truth[:1, 0]) @ truth[:, 0]
+        scale = umeyama(adjustment.trajectory[ok, :3, 3], rebased[adjustment.frames[ok], :3, 3])[0]
+    out = []
+    for k in range(1, len(extrinsics)):
+        E, u = adjustment.extrinsics[k], adjustment.uncertainty[k]
+        t, t_true = scale * E[:3, 3], rel[k, :3, 3]
+        project = np.eye(3)
+        if u is not None and len(u.unobservable):
+            project = project - u.unobservable.T @ u.unobservable
+        e = {
+            "camera": k,
+            "rotation_error_deg": float(rotation_angle_deg(E[:3, :3].T @ rel[k, :3, :3])),
+            # A direction needs two observable dimensions to be compared (one left: NaN).
+            "translation_direction_error_deg": angle_deg(project @ t, project @ t_true)
+            if np.linalg.matrix_rank(project) >= 2
+            else math.nan,
+            "compared_in_plane": bool(u is not None and len(u.unobservable)),
+        }
+        if truth is not None:
+            error = float(np.linalg.norm(project @ (t - t_true)))
+            baseline = float(np.linalg.norm(project @ t_true))
+            e.update(
+                metric_scale=scale,
+                translation_error=error,
+                translation_error_rel_baseline=error / baseline if baseline > 0 else math.nan,
+            )
+        out.append(e)
+    return out

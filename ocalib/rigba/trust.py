@@ -1,0 +1,86 @@
+"""Whether the rig bundle adjustment's extrinsics can be used: each camera's registered share, the reconstruction's
+pieces and drift from a metric trajectory, a rotation moved far from the head's, an extrinsic the data do not
+determine, a lens missing from rig.yaml. A camera that fails keeps the head's estimate; the warnings say why.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ocalib.data.sequence import Sequence
+from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.rigba.result import RigAdjustment
+
+MAX_ROTATION_CHANGE_DEG = 5.0  # a bundle-adjusted rotation this far from the head's is not trusted
+MIN_REGISTERED = 0.5  # share of a camera's frames below which its extrinsic is not trusted
+WARN_REGISTERED = 0.9  # share below which the missing frames are reported
+MIN_KEYPOINTS = 100  # median keypoints an image below which the images are reported as too poor in features
+MAX_DRIFT = 0.05  # RMS position error over the path length, after the Sim(3) fit to a metric trajectory
+MAX_ROTATION_STD_DEG = 1.0  # a rotation 1-sigma above this (deg, any axis): the images do not determine the camera
+
+
+def checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: list, keypoints: float) -> list[str]:
+    """Warnings on what went wrong, and ``out.trusted`` cleared for the cameras whose extrinsic cannot be used
+    (``initial``: NaN where its rotation is not to be checked against)."""
+    warnings = []
+    names = sequence.names
+    N = len(out.frames)
+    if keypoints < MIN_KEYPOINTS:
+        warnings.append(
+            f"bundle adjustment: {keypoints:.0f} keypoints an image (median): the images are poor in "
+            "texture, the result is weak"
+        )
+    if len(models) > 1:
+        warnings.append(
+            f"bundle adjustment: the reconstruction fell apart into {len(models)} pieces; the largest, "
+            f"{models[0].num_reg_frames()} of {N} frames, is used"
+        )
+    for k, name in enumerate(names):
+        share = out.registered[:, k].mean()
+        if share < WARN_REGISTERED:
+            missing = np.flatnonzero(~out.registered[:, k])
+            warnings.append(
+                f"bundle adjustment: {name}: {N - out.registered[:, k].sum()} of {N} frames did not "
+                f"register (first: frame {out.frames[missing[0]]})"
+            )
+        if share < MIN_REGISTERED:
+            out.trusted[k] = False
+        if out.stats.get("lens_missing", [False] * len(names))[k]:
+            warnings.append(
+                f"bundle adjustment: {name}: its residuals grow towards the image corners "
+                f"({out.stats['radial_residual_corner_px'][k]:+.1f} px there): its lens distortion is missing from "
+                "rig.yaml, or wrong"
+            )
+            out.trusted[k] = False
+    if not out.trusted[0]:
+        out.trusted[:] = False
+    if out.stats.get("drift", 0.0) > MAX_DRIFT:
+        warnings.append(
+            f"bundle adjustment: the reconstruction drifts from the metric trajectory (RMS "
+            f"{out.stats['drift']:.1%} of the path length)"
+        )
+        out.trusted[:] = False
+    for k in range(1, len(names)):
+        change = float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ initial[k, :3, :3]))
+        if change > MAX_ROTATION_CHANGE_DEG:  # False for NaN: not checked
+            warnings.append(
+                f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
+                "estimate; not trusted"
+            )
+            out.trusted[k] = False
+    for k in range(1, len(names)):
+        u = out.uncertainty[k]
+        std = math.inf if u is None else float(np.degrees(u.rotation_std).max())
+        if not std <= MAX_ROTATION_STD_DEG or (u is not None and len(u.unobservable) == 3):  # NaN: not determined
+            warnings.append(
+                f"bundle adjustment: {names[k]}: the reconstruction does not determine its extrinsic (rotation "
+                f"1-sigma {std:.2g} deg, {3 if u is None else len(u.unobservable)} of 3 translation directions "
+                "unobservable)"
+            )
+            out.trusted[k] = False
+    for k in np.flatnonzero(~out.trusted[1:]) + 1:
+        warnings.append(f"bundle adjustment: {names[k]}: the on-line estimate is kept")
+    out.trusted[0] = True
+    return warnings
