@@ -24,7 +24,7 @@ def test_a_radial_distortion_is_found_with_its_size(k1, k2):
     rc2 = CORNER @ CORNER
     expected = (k1 * rc2 + k2 * rc2**2) * np.linalg.norm(CORNER * FOCAL)  # the distortion's displacement there
     assert out.corner_px == pytest.approx(expected, abs=0.1)
-    assert out.significant is (abs(expected) > MAX_CORNER_PX + 0.1)  # a bool (the JSON takes no numpy bool)
+    assert out.significant is bool(abs(expected) > MAX_CORNER_PX + 0.1)  # a bool (the JSON takes no numpy bool)
 
 
 def test_noise_alone_is_not_a_lens():
