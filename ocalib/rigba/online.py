@@ -42,9 +42,7 @@ from ocalib.rigba.features import Features, SiftExtractor, match_features
 from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window, split_statistic
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
-# The window's split test runs only where resections already disagree, a moment chosen by the data: held to 1e-8, one
-# steady candidate of four on 20 held-out rigs came within 1 % of it (48.0 against 48.4); knocks gave 260 and more.
-CONFIRM_FALSE_ALARM = 1e-12
+CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
 MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
 
 
