@@ -175,7 +175,7 @@ def _metric_trajectory(args):
         raise InputError(f"--bundle-adjust-every must be at least 1 frame, got {args.bundle_adjust_every}")
     if args.keyframe_step < 1:
         raise InputError(f"--keyframe-step must be at least 1, got {args.keyframe_step}")
-    if args.metric_noise is not None and not (args.metric_noise > 0 and args.metric_trajectory):
+    if args.metric_noise is not None and not (0 < args.metric_noise < math.inf and args.metric_trajectory):
         raise InputError(
             f"--metric-noise must be a positive number of metres with --metric-trajectory, got {args.metric_noise}"
         )

@@ -36,7 +36,7 @@ from ocalib.rigba.metric_prior import adjust_with_metric_prior
 from ocalib.rigba.options import BundleOptions, MapperOptions
 from ocalib.rigba.result import RigAdjustment
 from ocalib.rigba.trust import checks
-from ocalib.rigba.workspace import Workspace, create_workspace
+from ocalib.rigba.workspace import Workspace, camera_and_frame, create_workspace
 
 
 def adjust_rig(
@@ -104,7 +104,7 @@ def _solve(
     models = map_rig(ws, options)
     prior = False
     if models and metric is not None and options.metric_noise is not None:
-        frame_of = {i: int(Path(image.name).stem) for i, image in models[0].images.items()}
+        frame_of = {i: camera_and_frame(image.name)[1] for i, image in models[0].images.items()}
         prior = adjust_with_metric_prior(
             models[0], ws.camera_ids[0], frame_of, metric, options.metric_noise, options.threads
         )
@@ -154,7 +154,7 @@ def _read(
     row = {int(t): i for i, t in enumerate(index)}
     for image in rec.images.values():
         if image.has_pose:
-            k, t = int(image.name[1 : image.name.index("/")]), int(Path(image.name).stem)
+            k, t = camera_and_frame(image.name)
             poses[row[t], k] = camera_to_world(image)
     registered = ~np.isnan(poses[:, :, 0, 0])
     start = time.perf_counter()

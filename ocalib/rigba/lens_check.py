@@ -39,7 +39,9 @@ class RadialResidual:
         return bool(abs(self.corner_px) > MAX_CORNER_PX and self.f_statistic > threshold)
 
 
-def radial_residual(residuals: np.ndarray, normalised: np.ndarray, focal: np.ndarray, corner: np.ndarray):
+def radial_residual(
+    residuals: np.ndarray, normalised: np.ndarray, focal: np.ndarray, corner: np.ndarray
+) -> RadialResidual:
     """The radial residual of observations ``residuals`` (n, 2) pixels at normalised projections ``normalised``
     (n, 2), with focal lengths ``focal`` (2,) and the farthest image corner ``corner`` (2,) in normalised
     coordinates -> :class:`RadialResidual`."""

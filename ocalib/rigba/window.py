@@ -146,7 +146,7 @@ def split_statistic(
         xyz = _solve(keyframes, points, E, K[sensors], [sizes[k] for k in sensors], o, sensors)
         points.update(zip(obs["ids"].tolist(), xyz))
         errors.append(reprojection_errors(o, poses, E, xyz, K[sensors]) ** 2)
-    variance = float(np.median(errors[1])) / (2 * np.log(2))  # per axis: a chi-square's median, 2 dof
+    variance = max(float(np.median(errors[1])) / (2 * np.log(2)), 1e-12)  # per axis: a chi-square's median, 2 dof
     cap = SPLIT_TRUNCATION * variance
     return float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
 
@@ -177,12 +177,10 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source) -> np.ndarray:
     return np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)])
 
 
-def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source=None) -> pycolmap.Reconstruction:
+def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source) -> pycolmap.Reconstruction:
     """The window as a COLMAP reconstruction: camera k has id k + 1, keyframe i frame id i + 1 and image ids
-    ``i C + k + 1``, point p (of ``obs["ids"]``) id p + 1. Sensor k sees camera ``source[k]``'s keypoints
-    (default: its own)."""
+    ``i C + k + 1``, point p (of ``obs["ids"]``) id p + 1. Sensor k sees camera ``source[k]``'s keypoints."""
     C = len(extrinsics)
-    source = list(range(C)) if source is None else source
     rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
     for k in range(C):

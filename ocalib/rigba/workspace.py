@@ -115,10 +115,16 @@ class Workspace:
         try:
             pycolmap.apply_rig_config([pycolmap.RigConfig(cameras=rig_cameras)], database)
             if not self.camera_ids:
-                ids = {int(im.name[1 : im.name.index("/")]): im.camera_id for im in database.read_all_images()}
+                ids = {camera_and_frame(im.name)[0]: im.camera_id for im in database.read_all_images()}
                 self.camera_ids = [ids[k] for k in range(len(self.sequence.cameras))]
         finally:
             database.close()
+
+
+def camera_and_frame(name: str) -> tuple[int, int]:
+    """``(k, t)`` of a workspace image named ``c{k}/{t:06d}{suffix}``."""
+    camera, file = name.split("/")
+    return int(camera[1:]), int(Path(file).stem)
 
 
 def create_workspace(

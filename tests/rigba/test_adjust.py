@@ -4,7 +4,6 @@ intrinsics held, and each failure said with the head's estimate kept."""
 import math
 import shutil
 from dataclasses import replace
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -21,6 +20,7 @@ from ocalib.rigba.colmap import colmap_camera, pinhole_params
 from ocalib.rigba.evaluate import adjustment_errors
 from ocalib.rigba.metric_prior import adjust_with_metric_prior
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
+from ocalib.rigba.workspace import camera_and_frame
 from ocalib.synth import preset, render_sequence
 
 FRAMES = 60
@@ -179,8 +179,8 @@ def test_a_metric_trajectory_is_held_as_a_prior(rig, tmp_path):
     seq, extrinsics, _ = rig
     adjust_rig(seq, _head_like(extrinsics), frames=30, options=BundleOptions(keyframe_step=1), workdir=tmp_path)
     rec = pycolmap.Reconstruction(next((tmp_path / "sparse").iterdir()))
-    camera_id = next(im.camera_id for im in rec.images.values() if im.name.startswith("c0/"))
-    frame_of = {i: int(Path(im.name).stem) for i, im in rec.images.items()}
+    camera_id = next(im.camera_id for im in rec.images.values() if camera_and_frame(im.name)[0] == 0)
+    frame_of = {i: camera_and_frame(im.name)[1] for i, im in rec.images.items()}
     rig_id = next(iter(rec.rigs))
     sensor = next(iter(rec.rigs[rig_id].non_ref_sensors))
     plain = pycolmap.Reconstruction(rec)
