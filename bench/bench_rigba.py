@@ -68,9 +68,11 @@ def errors_row(e: dict) -> dict:
     }
 
 
-def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: int | None) -> dict:
+def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: int | None, time_offset=None) -> dict:
     start = time.perf_counter()
-    result = calibrate_images(path, frontend=FrontEndOptions(frontend), max_frames=frames, progress=False)
+    result = calibrate_images(
+        path, frontend=FrontEndOptions(frontend), max_frames=frames, progress=False, time_offset=time_offset
+    )
     online = time.perf_counter() - start
     metric = result.sequence.cameras[0].poses
     with PeakMemory() as memory:
@@ -89,6 +91,7 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
         "stage_peak_mb": memory.peak,
         "stage_seconds_per_frame": stage / frames,
         "stats": b.stats,
+        "time_offsets": None if result.sequence.pairing is None else result.sequence.pairing.offsets.tolist(),
     }
 
 

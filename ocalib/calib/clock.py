@@ -7,7 +7,7 @@ Convention: a time offset is ADDED to camera 1's timestamps to put them on camer
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -179,6 +179,19 @@ def refine_time_offset(
         if curvature > 0:
             best += 0.5 * (a - c) / curvature * (candidates[1] - candidates[0])
     return best
+
+
+def find_time_offset(times0, poses0, times1, poses1, names=("camera 0", "camera 1")) -> tuple[float, OffsetQuality]:
+    """Clock offset between two cameras of one rig, to well below a frame -> (offset seconds, OffsetQuality).
+
+    The angular speeds' correlation (:func:`estimate_time_offset`), refined by the rig's rotation constraint within
+    two frame periods (:func:`refine_time_offset`). Shapes and errors as :func:`estimate_time_offset`.
+    Convention: ``t0 = t1 + offset``.
+    """
+    coarse, quality = estimate_time_offset(times0, poses0, times1, poses1, names=names)
+    period = lambda t: float(np.median(np.diff(t))) if len(t) > 1 else 0.0  # noqa: E731
+    offset = refine_time_offset(times0, poses0, times1, poses1, coarse, 2 * max(period(times0), period(times1)))
+    return offset, replace(quality, angular_speed_offset=coarse)
 
 
 def _speed_signal(times, poses, name: str):

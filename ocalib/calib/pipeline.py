@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ocalib.calib.absolute import AbsoluteCalibrator
 from ocalib.calib.batch import batch_calibrate
 from ocalib.calib.change import first_change, step_size
-from ocalib.calib.clock import estimate_time_offset, refine_time_offset
+from ocalib.calib.clock import find_time_offset
 from ocalib.calib.gating import Gates
 from ocalib.calib.handeye import row_statistics
 from ocalib.calib.online import OnlineCalibrator
@@ -112,7 +112,7 @@ def load_rig(
     if times is not None and len(times) != len(files):
         raise InputError(f"--times: {len(times)} times files for {len(files)} pose files; give one per pose file")
     trajs = [read_poses(f, format, None if times is None else times[c]) for c, f in enumerate(files)]
-    offsets = _offset_specs(time_offset, len(files) - 1)
+    offsets = offset_specs(time_offset, len(files) - 1)
     timed = [t.times is not None for t in trajs]
 
     if not any(timed):
@@ -143,7 +143,7 @@ def load_rig(
     return rig
 
 
-def _offset_specs(time_offset, cameras: int) -> list[float | str | None]:
+def offset_specs(time_offset, cameras: int) -> list[float | str | None]:
     """--time-offset values -> one per camera 1..K: a float, "auto" or None."""
     if time_offset is None:
         return [None] * cameras
@@ -165,11 +165,8 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
     resolved, quality, pairs, tolerances, unpaired = [0.0], [None], [], [], []
     for f, t, spec in zip(files[1:], trajs[1:], offsets):
         q = None
-        if spec == "auto":  # the angular speeds' correlation, then the rig's rotation constraint within 2 frames
-            coarse, q = estimate_time_offset(t0, trajs[0].poses, t.times, t.poses, names=(files[0], f))
-            radius = 2 * max(period(t0), period(t.times))
-            spec = refine_time_offset(t0, trajs[0].poses, t.times, t.poses, coarse, radius)
-            q = replace(q, angular_speed_offset=coarse)
+        if spec == "auto":
+            spec, q = find_time_offset(t0, trajs[0].poses, t.times, t.poses, names=(files[0], f))
         resolved.append(float(spec or 0.0))
         quality.append(q)
         names = (files[0], f)

@@ -23,9 +23,10 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
+from ocalib.calib.clock import find_time_offset
 from ocalib.calib.online import OnlineCalibrator
 from ocalib.calib.options import MOTION_CHOICES, HeadOptions
-from ocalib.calib.pipeline import RigPoses
+from ocalib.calib.pipeline import RigPoses, offset_specs
 from ocalib.calib.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
 from ocalib.calib.result import Calibration
 from ocalib.calibnet.net import OnlineCalibrationNet
@@ -33,6 +34,7 @@ from ocalib.calibnet.truth import extrinsic_errors
 from ocalib.data.layout import open_sequence
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import check_motion
+from ocalib.data.synchronise import clocks, own_clocks, synchronise
 from ocalib.errors import InputError, deferred_interrupts
 from ocalib.frontend import FrontEndOptions, build_frontend
 from ocalib.io.jsonable import finite_or_null
@@ -70,6 +72,9 @@ class ImageCalibration:
         figures; ``units`` says what the translations are in."""
         doc = self.run.result_json()
         doc["units"] = "camera 0's front-end units"
+        if self.sequence is not None and self.sequence.pairing is not None:
+            pairing, names = self.sequence.pairing, self.sequence.names
+            doc["synchronisation"] = [{"camera": names[k]} | pairing.camera_json(k) for k in range(1, len(names))]
         online = doc["extrinsics"]
         errors = self.errors
         if self.bundle is not None or self.rig is not None:
@@ -119,29 +124,23 @@ def _replaced_said(warnings: list[str], extrinsics: list[dict]) -> list[str]:
     return out
 
 
-def calibrate_images(
+def open_calibration_sequence(
     path: str | Path,
     cameras: list[str] | None = None,
-    frontend: FrontEndOptions = FrontEndOptions(),
-    head: HeadOptions = HeadOptions(refine="unobservable"),
-    device: str = "cpu",
-    max_frames: int | None = None,
     intrinsics: str | None = None,
-    progress: bool | None = None,
-    on_frame=None,
-) -> ImageCalibration:
-    """Calibrate cameras 1..C-1 of the sequence at ``path`` against camera 0 (the first of ``cameras``).
+    max_frames: int | None = None,
+    time_offset: list[float | str] | None = None,
+    frontend: FrontEndOptions = FrontEndOptions(),
+    device: str = "cpu",
+) -> Sequence:
+    """The sequence at ``path`` as :func:`calibrate_images` calibrates it: at least two cameras, at most
+    ``max_frames`` frames, and, where the cameras have clocks of their own or ``time_offset`` is given, its frames
+    paired in time (:func:`ocalib.data.synchronise.synchronise`).
 
-    frontend: which front end and its settings (:class:`~ocalib.frontend.FrontEndOptions`). head: the head's
-    (``refine`` defaults to ``"unobservable"``: a monocular front end's translation directions must not move an
-    observable rotation, see :data:`~ocalib.calib.solve.REFINE_MODES`). max_frames: use only the first frames.
-    intrinsics: a file for layouts without them. on_frame(t, estimate): called after every frame (e.g. TensorBoard).
-    progress: a tqdm bar with the current estimate (None: on a terminal; elsewhere a line on stderr every
-    ``TRACE_EVERY`` frames).
+    time_offset: one value for every camera k >= 1, or one per camera: seconds, or ``"auto"``: estimated from the
+    front end's rotations over the frames as they are (a first pass of ``frontend``), as ``calibrate-poses`` does
+    from trajectories. Convention: ``t0 = tk + offset``.
     """
-    frontend, head = frontend.resolved(), head.checked(solvers=("exact", "rls"))
-    if head.motion not in MOTION_CHOICES:
-        raise InputError(f"motion {head.motion!r} is for pose files; from images: {', '.join(MOTION_CHOICES)}")
     sequence = open_sequence(path, cameras, intrinsics)
     if len(sequence.cameras) < 2:
         raise InputError(
@@ -150,6 +149,66 @@ def calibrate_images(
     frames = len(sequence) if max_frames is None else min(len(sequence), max_frames)
     if frames < MIN_FRAMES:
         raise InputError(f"{path}: {frames} frames is too short to calibrate (at least {MIN_FRAMES})")
+    if time_offset is None and not own_clocks(sequence):
+        return sequence
+    specs = offset_specs(time_offset, len(sequence.cameras) - 1)
+    auto, estimates = [s == "auto" for s in specs], [None] * len(sequence.cameras)
+    if any(auto):
+        check_motion(sequence)
+        found, quality = _estimate_offsets(sequence, frontend.resolved(), device, frames)
+        specs = [f if a else s for f, s, a in zip(found, specs, auto)]
+        estimates = [None] + [q if a else None for q, a in zip(quality, auto)]
+    sequence = synchronise(sequence, [s or 0.0 for s in specs], frames, estimates)
+    if len(sequence) < MIN_FRAMES:
+        raise InputError(f"{path}: {len(sequence)} frames pair in time, too few to calibrate (at least {MIN_FRAMES})")
+    return sequence
+
+
+def _estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
+    """Each camera k's clock offset from the front end's rotations over the first ``frames`` frames as they are
+    -> (offsets, OffsetQuality) per camera k >= 1 (see :func:`ocalib.calib.clock.find_time_offset`)."""
+    front_end = build_frontend(sequence, frontend, device)
+    net = OnlineCalibrationNet(front_end, OnlineCalibrator(len(sequence.cameras))).to(device)
+    net.head.load_kernel()
+    _, _, trajectory = _stream(net, front_end.frames(sequence), frames, None, None, "finding time offsets")
+    stamps = clocks(sequence)
+    found = [
+        find_time_offset(stamps[0][:frames], trajectory[:, 0], t[:frames], trajectory[:, k], (sequence.names[0], name))
+        for k, (t, name) in enumerate(zip(stamps[1:], sequence.names[1:]), 1)
+    ]
+    return [f for f, _ in found], [q for _, q in found]
+
+
+def calibrate_images(
+    path: str | Path | Sequence,
+    cameras: list[str] | None = None,
+    frontend: FrontEndOptions = FrontEndOptions(),
+    head: HeadOptions = HeadOptions(refine="unobservable"),
+    device: str = "cpu",
+    max_frames: int | None = None,
+    intrinsics: str | None = None,
+    progress: bool | None = None,
+    on_frame=None,
+    time_offset: list[float | str] | None = None,
+) -> ImageCalibration:
+    """Calibrate cameras 1..C-1 of the sequence at ``path`` against camera 0 (the first of ``cameras``).
+
+    path: a sequence folder, or a sequence :func:`open_calibration_sequence` opened (``cameras``, ``intrinsics``
+    and ``time_offset`` are then not used). frontend: which front end and its settings
+    (:class:`~ocalib.frontend.FrontEndOptions`). head: the head's (``refine`` defaults to ``"unobservable"``: a
+    monocular front end's translation directions must not move an observable rotation, see
+    :data:`~ocalib.calib.solve.REFINE_MODES`). max_frames: use only the first frames. intrinsics: a file for layouts
+    without them. time_offset: for cameras without a shared clock (see :func:`open_calibration_sequence`).
+    on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the current
+    estimate (None: on a terminal; elsewhere a line on stderr every ``TRACE_EVERY`` frames).
+    """
+    frontend, head = frontend.resolved(), head.checked(solvers=("exact", "rls"))
+    if head.motion not in MOTION_CHOICES:
+        raise InputError(f"motion {head.motion!r} is for pose files; from images: {', '.join(MOTION_CHOICES)}")
+    if not isinstance(path, Sequence):
+        path = open_calibration_sequence(path, cameras, intrinsics, max_frames, time_offset, frontend, device)
+    sequence, path = path, path.path
+    frames = len(sequence) if max_frames is None else min(len(sequence), max_frames)
     check_motion(sequence)
     front_end = build_frontend(sequence, frontend, device)
     C = len(sequence.cameras)
@@ -159,12 +218,14 @@ def calibrate_images(
     final, trace, trajectory = _stream(net, front_end.frames(sequence), frames, progress, on_frame)
     times = sequence.times[:frames] if sequence.times is not None else np.arange(frames, dtype=np.float64)
     trace = {"frame": np.arange(frames), "time": times} | trace
+    pairing = sequence.pairing
     rig = RigPoses(
         files=sequence.names,
         poses=trajectory,
         times=times,
-        lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)),
-        time_offsets=[None] * C,
+        lines=np.tile(np.arange(1, frames + 1)[:, None], (1, C)) if pairing is None else pairing.frames[:frames] + 1,
+        time_offsets=[None] * C if pairing is None else pairing.offsets.tolist(),
+        offset_quality=[None] * C if pairing is None else list(pairing.estimates or [None] * C),
     )
     notes, warnings = front_end.report(sequence.names, frames, final)
     settings = frontend.settings() | head.settings() | {"frames": frames, "max_dt": None, "sequence": str(path)}
@@ -180,8 +241,9 @@ def calibrate_images(
     return ImageCalibration(run, errors, None if errors is None else np.stack(extrinsics[1:]), sequence)
 
 
-def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame):
-    """Run ``net`` on items 0..frames-1 of ``dataset`` -> (last estimate, trace columns, trajectories (T, C, 4, 4))."""
+def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame, desc: str = "calibrating"):
+    """Run ``net`` on items 0..frames-1 of ``dataset`` -> (last estimate, trace columns, trajectories (T, C, 4, 4));
+    ``desc`` names the work on the progress bar."""
     loader = DataLoader(
         torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1, prefetch_factor=4
     )
@@ -189,7 +251,7 @@ def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame)
     start = time.perf_counter()
     with (
         torch.inference_mode(),
-        tqdm(total=frames, unit="frame", disable=None if progress is None else not progress, desc="calibrating") as bar,
+        tqdm(total=frames, unit="frame", disable=None if progress is None else not progress, desc=desc) as bar,
     ):
         with deferred_interrupts():  # the loader's worker leaves Ctrl-C to this process
             loaded = iter(loader)
@@ -206,7 +268,7 @@ def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame)
                 bar.set_postfix_str(progress_text(last), refresh=False)
                 if bar.disable and progress is None:  # not a terminal: a line now and then, for a log
                     rate = (t + 1) / max(time.perf_counter() - start, 1e-9)
-                    print(f"calibrating: {t + 1}/{frames} frames ({rate:.1f} frame/s)", file=sys.stderr, flush=True)
+                    print(f"{desc}: {t + 1}/{frames} frames ({rate:.1f} frame/s)", file=sys.stderr, flush=True)
     trace = {k: torch.cat([c[k] for c in chunks]).double().numpy() for k in chunks[0]}
     values = {f.name: getattr(last, f.name) for f in fields(Calibration)}
     last = Calibration(**{k: None if v is None else v.cpu() for k, v in values.items()})

@@ -41,6 +41,15 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     )
     p.add_argument("--max-frames", type=int, metavar="N", help="use only the first N frames")
     p.add_argument("--intrinsics", metavar="FILE", help="intrinsics file for layouts without one (image folders)")
+    p.add_argument(
+        "--time-offset",
+        nargs="+",
+        metavar="SECONDS|auto",
+        help="cameras without a shared clock: the offset added to camera k's timestamps (t0 = tk + offset), one "
+        "value for all cameras or one per camera; 'auto' estimates it from the front end's rotations (a first pass "
+        "over the frames). Each camera-0 frame is then paired with every camera's nearest frame in time. Cameras "
+        "with their own <name>/times.txt are paired by their stamps even without it",
+    )
     ba = p.add_argument_group("rig bundle adjustment (after the on-line pass: the translation from the images)")
     ba.add_argument(
         "--bundle-adjust",
@@ -102,10 +111,14 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from ocalib.calib.report import print_warnings, summary
-    from ocalib.calibnet.run import calibrate_images
+    from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
 
     frontend, head = frontend_options(args), head_options(args)
-    metric, rig = _metric_trajectory(args)
+    _check_numbers(args)
+    sequence = open_calibration_sequence(
+        args.sequence, args.cameras, args.intrinsics, args.max_frames, args.time_offset, frontend, args.device
+    )
+    metric, rig = _metric_trajectory(args, sequence)
     writer = None
     if args.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
@@ -119,7 +132,7 @@ def run(args) -> int:
 
     try:
         result = calibrate_images(
-            args.sequence, args.cameras, frontend, head, args.device, args.max_frames, args.intrinsics, progress=None,
+            sequence, None, frontend, head, args.device, args.max_frames, progress=None,
             on_frame=on_frame if rig is not None or writer is not None else None,
         )  # fmt: skip
     finally:
@@ -168,9 +181,8 @@ def run(args) -> int:
     return 0
 
 
-def _metric_trajectory(args):
-    """The --metric-trajectory at the frames to calibrate, read before the on-line pass so that bad input costs no
-    work, and the on-line rig estimator that runs on it (None, None without it)."""
+def _check_numbers(args) -> None:
+    """The numeric options checked before any work."""
     if args.bundle_adjust_every is not None and args.bundle_adjust_every < 1:
         raise InputError(f"--bundle-adjust-every must be at least 1 frame, got {args.bundle_adjust_every}")
     if args.keyframe_step < 1:
@@ -179,6 +191,11 @@ def _metric_trajectory(args):
         raise InputError(
             f"--metric-noise must be a positive number of metres with --metric-trajectory, got {args.metric_noise}"
         )
+
+
+def _metric_trajectory(args, sequence):
+    """The --metric-trajectory at the frames of ``sequence`` to calibrate, read before the on-line pass so that bad
+    input costs no work, and the on-line rig estimator that runs on it (None, None without it)."""
     if not args.metric_trajectory:
         return None, None
     if not args.bundle_adjust and not args.online_rig:
@@ -186,12 +203,10 @@ def _metric_trajectory(args):
             "--metric-trajectory is for the on-line rig estimator and the bundle adjustment: drop --no-online-rig "
             "or --no-bundle-adjust"
         )
-    from ocalib.data.layout import open_sequence
     from ocalib.rigba.online import OnlineRigOptions
     from ocalib.rigba.stage import read_metric_trajectory
     from ocalib.rigba.stream import RigStream
 
-    sequence = open_sequence(args.sequence, args.cameras, args.intrinsics)
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
     metric = read_metric_trajectory(args.metric_trajectory, sequence, frames)
     rig = RigStream(sequence, metric, OnlineRigOptions(keyframe_step=args.keyframe_step)) if args.online_rig else None

@@ -10,6 +10,7 @@ cameras:
     T_cam0_cam: [[...4 rows of 4...]]            # optional: the true pose of this camera in camera 0's frame
     change: {frame: F, T_cam0_cam: [[...]]}      # optional: the camera was moved; its true pose from frame F on
     distortion: {model: opencv, coeffs: [k1, k2, p1, p2, k3]}   # optional, or {model: fisheye, coeffs: [k1..k4]}
+    time_offset: 0.7                             # optional: the true clock offset of this camera, seconds
 ```
 
 Convention: ``T_cam0_cam`` maps points of this camera into camera 0 (``p_cam0 = R p_cam + t``); it is
@@ -20,6 +21,8 @@ and nothing is compared against it. Where another camera has one, camera 0's may
 and the change's ``T_cam0_cam`` for frames ``F ..``; it needs the camera's ``T_cam0_cam``, ``F >= 1``, and
 camera 0 (the rig frame) cannot have one. ``distortion`` is the lens's (:mod:`ocalib.data.distortion`, OpenCV's
 models); K is then the intrinsics of the distorted images, and of their undistorted view; none is a pinhole.
+``time_offset`` is the truth of a camera on a clock of its own (``DIR/<name>/times.txt``): the seconds added to its
+stamps to put them on camera 0's clock, ``t0 = tk + time_offset``; known for rendered rigs only.
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ class CameraSpec:
     T_cam0_cam: np.ndarray | None = None  # (4, 4) float64, the true extrinsic where known (at frame 0)
     change: ExtrinsicChange | None = None  # the true extrinsic from a later frame on, where the camera moved
     distortion: Distortion | None = None  # the lens's, None for a pinhole
+    time_offset: float | None = None  # seconds, the true t0 - tk of a camera on its own clock, where known
 
 
 @dataclass
@@ -78,6 +82,7 @@ def write_rig_yaml(path: str | Path, rig: RigSpec) -> None:
             | ({} if c.T_cam0_cam is None else {"T_cam0_cam": np.asarray(c.T_cam0_cam, dtype=float).tolist()})
             | ({} if c.change is None else {"change": _change_dict(c.change)})
             | ({} if c.distortion is None else {"distortion": c.distortion.as_dict()})
+            | ({} if c.time_offset is None else {"time_offset": float(c.time_offset)})
             for c in rig.cameras
         ],
     }
@@ -109,6 +114,15 @@ def _read_change(data, first: bool, has_T: bool, where: str) -> ExtrinsicChange:
     return ExtrinsicChange(frame, T)
 
 
+def _read_time_offset(value, where: str) -> float | None:
+    """A camera's ``time_offset`` entry: None, or finite seconds; :class:`InputError` naming ``where`` otherwise."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise InputError(f"{where}: time_offset must be a finite number of seconds, got {value!r}")
+    return float(value)
+
+
 def read_rig_yaml(path: str | Path) -> RigSpec:
     """Read ``rig.yaml``; every problem is an :class:`InputError` naming the file and field."""
     path = Path(path)
@@ -134,6 +148,7 @@ def read_rig_yaml(path: str | Path) -> RigSpec:
         if c.get("change") is not None:
             cam.change = _read_change(c["change"], i == 0, T is not None, f"{where} ({cam.name})")
         cam.distortion = read_distortion(c.get("distortion"), f"{where} ({cam.name})")
+        cam.time_offset = _read_time_offset(c.get("time_offset"), f"{where} ({cam.name})")
         cameras.append(cam)
     if cameras[0].T_cam0_cam is None and any(c.T_cam0_cam is not None for c in cameras[1:]):
         cameras[0].T_cam0_cam = np.eye(4)

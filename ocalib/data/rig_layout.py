@@ -6,6 +6,7 @@ DIR/times.txt                     # optional: one time (s) a line; else frame / 
 DIR/<name>/images/000000.png ...
 DIR/<name>/depth/000000.png ...   # optional: uint16, metres x 256, 0 = no surface
 DIR/<name>/poses.txt              # optional: KITTI, camera-to-world, one world frame
+DIR/<name>/times.txt              # optional: the camera's own stamps (s), where it is not triggered with the others
 ```
 
 Convention: as :mod:`ocalib.data.rig` and :mod:`ocalib.data.sequence`.
@@ -22,6 +23,7 @@ from ocalib.data.rig import read_rig_yaml
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.errors import InputError
 from ocalib.io.poses import read_kitti
+from ocalib.io.timing import increasing
 
 
 def open_rig(path: str | Path) -> Sequence:
@@ -40,6 +42,7 @@ def open_rig(path: str | Path) -> Sequence:
                 spec.T_cam0_cam,
                 change=spec.change,
                 distortion=spec.distortion,
+                time_offset=spec.time_offset,
             )
         )
     sequence = Sequence(path.name, path, "rig", cameras)  # checks the cameras' frame counts first
@@ -57,6 +60,10 @@ def open_rig(path: str | Path) -> Sequence:
                     f"{folder / 'depth'}: depth frames do not match {folder / 'images'} "
                     f"({len(cam.depth)} vs {len(cam.images)} files)"
                 )
+        if (folder / "times.txt").is_file():
+            cam.times = increasing(read_numbers(folder / "times.txt", 1)[:, 0], str(folder / "times.txt"))
+            if len(cam.times) != len(cam.images):
+                raise InputError(f"{folder / 'times.txt'}: {len(cam.times)} times for {len(cam.images)} images")
         if (folder / "poses.txt").is_file():
             cam.poses = read_kitti(folder / "poses.txt")
             if len(cam.poses) != len(cam.images):

@@ -3,7 +3,8 @@
 Convention: poses are camera-to-world 4x4 float64 (one world frame per sequence); ``T_cam0_cam`` is the
 pose of a camera in the frame of the sequence's first camera (``p_cam0 = R p_cam + t``), the identity
 for that camera; K (3, 3) float64 in pixels (integer pixel centres) at the image size ``size`` (H, W).
-Frame t of every camera is the same instant. A camera's ``change`` (:class:`~ocalib.data.rig.ExtrinsicChange`)
+Frame t of every camera is the same instant, unless a camera has stamps of its own (``times``, on its own clock):
+:func:`ocalib.data.synchronise.synchronise` then pairs the frames. A camera's ``change`` (:class:`~ocalib.data.rig.ExtrinsicChange`)
 is its true ``T_cam0_cam`` from frame ``change.frame`` on, where it was moved mid-sequence; ``T_cam0_cam``
 holds before that frame. A camera's ``distortion`` is its lens's (None: a pinhole); :meth:`Camera.read` gives its frames
 as the front ends see them, undistorted for K.
@@ -11,6 +12,7 @@ as the front ends see them, undistorted for K.
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -21,6 +23,9 @@ from ocalib.data.distortion import Distortion, undistort_image
 from ocalib.data.image_io import decode_image, image_tensor, read_image, resize_image
 from ocalib.data.rig import ExtrinsicChange
 from ocalib.errors import InputError
+
+if typing.TYPE_CHECKING:
+    from ocalib.data.synchronise import Pairing
 
 
 @dataclass
@@ -37,6 +42,8 @@ class Camera:
     depth_scale: float = 256.0
     change: ExtrinsicChange | None = None  # the true extrinsic from a later frame on, where the camera moved
     distortion: Distortion | None = None  # the lens's, None for a pinhole
+    times: np.ndarray | None = None  # (N,) seconds on the camera's own clock, where it has one
+    time_offset: float | None = None  # the true t0 - t of its clock, seconds, where known (rendered rigs)
 
     def __len__(self) -> int:
         return len(self.images)
@@ -59,6 +66,7 @@ class Sequence:
     layout: str
     cameras: list[Camera]
     times: np.ndarray | None = None
+    pairing: Pairing | None = None  # how the frames were paired, where the cameras had clocks of their own
 
     def __post_init__(self):
         if not self.cameras:
@@ -68,7 +76,7 @@ class Sequence:
             if len(cam) != len(first):
                 raise InputError(_count_mismatch(first, cam))
         for cam in self.cameras:
-            for what, items in (("poses", cam.poses), ("depth maps", cam.depth)):
+            for what, items in (("poses", cam.poses), ("depth maps", cam.depth), ("timestamps", cam.times)):
                 if items is not None and len(items) != len(cam):
                     raise InputError(f"{self.path}: camera {cam.name} has {len(cam)} images but {len(items)} {what}")
         if self.times is not None and len(self.times) != len(first):

@@ -87,16 +87,19 @@ def _trace(result: ImageCalibration) -> None:
 
 def read_metric_trajectory(path, sequence: Sequence, frames: int) -> np.ndarray:
     """Camera 0's trajectory in metres at the sequence's first ``frames`` frames (frames, 4, 4), from a KITTI file
-    (one pose a frame) or a timestamped file (TUM, EuRoC: interpolated at the sequence's timestamps, as
+    (one pose a frame of camera 0, before any pairing in time) or a timestamped file (TUM, EuRoC: interpolated at the sequence's timestamps, as
     ``calibrate-poses`` does). Every problem is an :class:`InputError` naming the file."""
     trajectory = read_poses(path)
     if trajectory.times is None:
-        if len(trajectory) != len(sequence):
+        pairing = sequence.pairing
+        count = len(sequence) if pairing is None else int(pairing.counts[0])
+        if len(trajectory) != count:
             raise InputError(
-                f"{path}: {len(trajectory)} poses for the {len(sequence)} frames of {sequence.path}; a "
+                f"{path}: {len(trajectory)} poses for the {count} frames of {sequence.path}; a "
                 "file without timestamps (KITTI) must hold one pose per frame"
             )
-        poses, lines = trajectory.poses[:frames], trajectory.lines[:frames]
+        at = np.arange(frames) if pairing is None else pairing.frames[:frames, 0]  # camera 0's frames kept
+        poses, lines = trajectory.poses[at], trajectory.lines[at]
     else:
         if sequence.times is None:
             raise InputError(f"{path}: timestamped poses, but {sequence.path} has no timestamps to meet them at")

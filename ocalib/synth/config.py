@@ -18,6 +18,10 @@ A camera other than camera 0 may be knocked out of place mid-sequence: ``change:
 A camera may have a lens: ``distortion: {model: opencv, coeffs: [k1, k2, p1, p2, k3]}`` or ``{model: fisheye,
 coeffs: [k1, k2, k3, k4]}`` (OpenCV's models, :mod:`ocalib.data.distortion`); it is rendered exactly (a ray per
 pixel) and written into rig.yaml. It must be invertible over the image (no ray folding back).
+
+A camera other than camera 0 may capture late, on a clock of its own: ``time_offset: S`` (seconds, ``0 <= S <=
+MAX_TIME_OFFSET``) renders its frame i at ``i / frame_rate + S`` on camera 0's clock, while its own ``times.txt``
+says ``i / frame_rate``; the truth ``t0 = tk + S`` is written into rig.yaml.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from ocalib.errors import InputError, read_text
 
 TRAJECTORIES = ("drive", "handheld", "lds")  # see ocalib.synth.trajectory; options: speed (m/s), height (m)
 CHANGE_KEYS = ("frame", "rotation_deg", "position")
+MAX_TIME_OFFSET = 2.0  # seconds: the route rendered has room for the rig to drive on this long
 
 
 def mounting(rotation_deg, position) -> np.ndarray:
@@ -62,6 +67,7 @@ class CameraConfig:
     rotation_deg: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     change: dict | None = None  # {frame: F, rotation_deg: [3], position: [3]}: the mounting from frame F on
     distortion: Distortion | None = None  # the lens's ({model, coeffs} in a config), None for a pinhole
+    time_offset: float = 0.0  # seconds this camera captures late: its frame i at i / frame_rate + time_offset
 
     def K(self, height: int, width: int) -> np.ndarray:
         """(3, 3) float64 pixel intrinsics at this size (integer pixel centres)."""
@@ -140,6 +146,13 @@ def validate(cfg: SynthConfig, where: str = "config") -> SynthConfig:
         raise InputError(f"{where}: camera 0 ({c0.name}) defines the rig frame: its position and rotation must be 0")
     if c0.change is not None:
         raise InputError(f"{where}: camera 0 ({c0.name}) defines the rig frame: it cannot have a change")
+    if c0.time_offset != 0:
+        raise InputError(f"{where}: camera 0 ({c0.name}) defines the clock: its time_offset must be 0")
+    for c in cfg.cameras[1:]:
+        if not (_is_number(c.time_offset) and 0 <= c.time_offset <= MAX_TIME_OFFSET):
+            raise InputError(
+                f"{where}: camera {c.name}: time_offset must be seconds in [0, {MAX_TIME_OFFSET}], got {c.time_offset!r}"
+            )
     for c in cfg.cameras[1:]:
         if c.change is not None:
             _check_change(c, cfg.frames, where)
@@ -222,6 +235,7 @@ def config_from_dict(data, where: str = "config") -> SynthConfig:
             c.fx, c.fy, c.cx, c.cy = (float(v) for v in (c.fx, c.fy, c.cx, c.cy))
             c.position = [float(v) for v in c.position]
             c.rotation_deg = [float(v) for v in c.rotation_deg]
+            c.time_offset = float(c.time_offset)
         if not isinstance(cfg.trajectory, dict):
             raise TypeError("trajectory must be a mapping")
     except (TypeError, ValueError) as err:

@@ -54,6 +54,7 @@ def rig_spec(cfg: SynthConfig) -> RigSpec:
             c.T_cam0_cam(),
             None if c.change is None else ExtrinsicChange(c.change["frame"], c.T_cam0_cam(c.change["frame"])),
             c.distortion,
+            c.time_offset if any(d.time_offset for d in cfg.cameras) else None,
         )
         for c in cfg.cameras
     ]
@@ -61,13 +62,21 @@ def rig_spec(cfg: SynthConfig) -> RigSpec:
 
 
 def camera_poses(cfg: SynthConfig) -> np.ndarray:
-    """World poses (K, N, 4, 4) float64 of every camera: ``pose_cam0[t] @ T_cam0_cam(t)``."""
+    """World poses (K, N, 4, 4) float64 of every camera: ``pose_cam0[t] @ T_cam0_cam(t)``, camera 0's pose taken at
+    the camera's own capture time (its ``time_offset`` late)."""
     opts = {k: v for k, v in cfg.trajectory.items() if k != "kind"}
     unknown = set(opts) - {"speed", "height"}
     if unknown:
         raise InputError(f"trajectory: unknown option(s) {', '.join(sorted(unknown))} (options: speed, height)")
-    cam0 = trajectory(cfg.trajectory["kind"], cfg.frames, cfg.frame_rate, cfg.seed, **opts)
-    return np.stack([cam0 @ c.extrinsics(cfg.frames) for c in cfg.cameras])
+    frames = np.arange(cfg.frames)
+    kind = cfg.trajectory["kind"]
+    return np.stack(
+        [
+            trajectory(kind, cfg.frames, cfg.frame_rate, cfg.seed, **opts, at=frames + c.time_offset * cfg.frame_rate)
+            @ c.extrinsics(cfg.frames)
+            for c in cfg.cameras
+        ]
+    )
 
 
 def world_for(cfg: SynthConfig, poses: np.ndarray) -> World:

@@ -114,9 +114,23 @@ def _march(s, v, frames, dt, substeps=10):
 
 
 def trajectory(
-    kind: str, frames: int, frame_rate: float, seed: int, speed: float | None = None, height: float | None = None
+    kind: str,
+    frames: int,
+    frame_rate: float,
+    seed: int,
+    speed: float | None = None,
+    height: float | None = None,
+    at: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Camera-0 poses (frames, 4, 4) float64 for ``kind`` in drive | handheld | lds."""
+    """Camera-0 poses (frames, 4, 4) float64 for ``kind`` in drive | handheld | lds.
+
+    at: (M,) frame indices, fractional and past the last frame allowed, where to sample instead (-> (M, 4, 4)):
+    between frames the rig's position and angles are linear in time. ``at = arange(frames)`` gives the default.
+    """
+    if at is not None:
+        at = np.asarray(at, dtype=np.float64)
+        if not (np.isfinite(at).all() and at.min() >= 0):
+            raise InputError("trajectory: sample indices must be finite and >= 0")
     defaults = {"drive": (8.0, 1.65), "handheld": (1.4, 1.5), "lds": (3.0, 1.5)}
     if kind not in defaults:
         raise InputError(f"unknown trajectory kind {kind!r} (kinds: {', '.join(defaults)})")
@@ -130,6 +144,15 @@ def trajectory(
 
     dt = 1.0 / frame_rate
     xy, heading, kappa = route(rng(0), speed * 1.3 * frames * dt + 2 * PITCH)
+    frames = frames if at is None else max(frames, int(np.ceil(at.max())) + 1)  # the same route, driven on
+    channels = _channels(kind, frames, dt, speed, height, xy, heading, kappa, rng)
+    if at is not None:
+        channels = [np.interp(at, np.arange(frames), c) for c in channels]
+    return _pose(np.stack(channels[:2], 1), *channels[2:])
+
+
+def _channels(kind, frames, dt, speed, height, xy, heading, kappa, rng) -> list[np.ndarray]:
+    """The rig's x, y, z, yaw, pitch, roll (frames,) each along the route ``xy, heading, kappa``."""
     lateral = {"drive": -1.5, "handheld": 0.0, "lds": 0.0}[kind]
     xy = xy + lateral * np.stack([-np.sin(heading), np.cos(heading)], 1)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
@@ -144,7 +167,7 @@ def trajectory(
         pitch = 0.008 * np.sin(2 * math.pi * sf / 23.0 + rng.uniform(0, 6)) + 0.004 * np.sin(2 * math.pi * sf / 6.1)
         roll = -0.012 * vel**2 * k + 0.005 * np.sin(2 * math.pi * sf / 17.0 + rng.uniform(0, 6))
         z = height + 0.01 * np.sin(2 * math.pi * sf / 9.0)
-        return _pose(np.stack([x, y], 1), z, h, pitch, roll)
+        return [x, y, z, h, pitch, roll]
     left = np.stack([-np.sin(h), np.cos(h)], 1)
     if kind == "handheld":
         step_hz = 1.8 * rng.uniform(0.9, 1.1)
@@ -154,7 +177,8 @@ def trajectory(
         yaw = h + _smooth_noise(rng, t, math.radians(20))
         pitch = _smooth_noise(rng, t, math.radians(8)) + 0.01 * np.sin(phase)
         roll = _smooth_noise(rng, t, math.radians(5)) + 0.01 * np.sin(phase / 2)
-        return _pose(np.stack([x, y], 1) + side[:, None] * left, z, yaw, pitch, roll)
+        xy = np.stack([x, y], 1) + side[:, None] * left
+        return [xy[:, 0], xy[:, 1], z, yaw, pitch, roll]
     # lds: x_{t+1} = A x_t + B w_t per degree of freedom, state (offset, rate), stiffness w0, damping c.
     sigma = np.array([1.0, 0.3, 0.5, math.radians(25), math.radians(15), math.radians(30)])
     w0, c = 2 * math.pi / 4.0, 0.6
@@ -168,7 +192,7 @@ def trajectory(
     z = np.clip(height + out[:, 1], 0.5, 3.0)
     fwd = np.stack([np.cos(h), np.sin(h)], 1)
     pos = np.stack([x, y], 1) + lat[:, None] * left + np.clip(out[:, 2], -1, 1)[:, None] * fwd
-    return _pose(pos, z, h + out[:, 5], out[:, 4], out[:, 3])
+    return [pos[:, 0], pos[:, 1], z, h + out[:, 5], out[:, 4], out[:, 3]]
 
 
 def turned_deg(poses: np.ndarray) -> float:

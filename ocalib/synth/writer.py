@@ -3,6 +3,7 @@
 ```
 DIR/rig.yaml                      # ocalib.data.rig.write_rig_yaml
 DIR/times.txt                     # one timestamp (s) a line
+DIR/<name>/times.txt              # where a camera has a clock of its own (a time_offset): its own stamps
 DIR/<name>/images/000000.png ...  # 8-bit RGB
 DIR/<name>/depth/000000.png ...   # uint16, metres x 256, 0 = no surface
 DIR/<name>/poses.txt              # KITTI, camera-to-world, one world frame
@@ -41,7 +42,8 @@ def write_frame(out: Path, camera: str, index: int, image: Tensor, depth: Tensor
 
 
 def write_header(out: Path, rig: RigSpec, times: np.ndarray, poses: np.ndarray) -> None:
-    """Create the folders and write rig.yaml, times.txt and each camera's poses (K, N, 4, 4)."""
+    """Create the folders and write rig.yaml, times.txt and each camera's poses (K, N, 4, 4); where the cameras
+    have clocks of their own (a ``time_offset``), each camera's stamps ``times`` on its clock too."""
     out.mkdir(parents=True, exist_ok=True)
     write_rig_yaml(out / "rig.yaml", rig)
     np.savetxt(out / "times.txt", times, fmt="%.6f")
@@ -49,3 +51,5 @@ def write_header(out: Path, rig: RigSpec, times: np.ndarray, poses: np.ndarray) 
         (out / cam.name / "images").mkdir(parents=True, exist_ok=True)
         (out / cam.name / "depth").mkdir(parents=True, exist_ok=True)
         write_kitti(out / cam.name / "poses.txt", p)
+        if cam.time_offset is not None:
+            np.savetxt(out / cam.name / "times.txt", times, fmt="%.6f")

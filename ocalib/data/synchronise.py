@@ -1,0 +1,115 @@
+"""Cameras on clocks of their own, paired into synchronised frames: each frame of camera 0 with the nearest frame of
+every other camera in time, after the camera's clock offset.
+
+Convention: a time offset is ADDED to camera k's stamps to put them on camera 0's clock, ``t0 = tk + offset``;
+a pair's residual is ``t0 - (tk + offset)``: what is left of the offset after the nearest frame is taken.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import reduce
+
+import numpy as np
+
+from ocalib.data.rig import ExtrinsicChange
+from ocalib.data.sequence import Sequence
+from ocalib.errors import InputError
+from ocalib.io.timing import associate
+
+
+@dataclass(frozen=True)
+class Pairing:
+    """How a sequence's frames were paired.
+
+    offsets (C,) seconds, 0 for camera 0; frames (M, C) int: each camera's own frame index of every paired frame;
+    residuals (M, C) seconds, ``t0 - (tk + offset)``; counts (C,): each camera's frames before pairing;
+    estimates: per camera, how an estimated offset scored (:class:`ocalib.calib.clock.OffsetQuality`), else None.
+    """
+
+    offsets: np.ndarray
+    frames: np.ndarray
+    residuals: np.ndarray
+    counts: np.ndarray
+    estimates: tuple = ()
+
+    def camera_json(self, k: int) -> dict:
+        """Camera k's offset, its pairs and what is left of the offset in them, for the result JSON."""
+        r = np.abs(self.residuals[:, k])
+        return {
+            "time_offset": float(self.offsets[k]),
+            "source": "estimated" if k < len(self.estimates) and self.estimates[k] is not None else "given",
+            "pairs": len(r),
+            "unpaired_frames": int(self.counts[k] - len(r)),
+            "pair_residual_median_s": float(np.median(r)),
+            "pair_residual_max_s": float(r.max()),
+        }
+
+
+def clocks(sequence: Sequence) -> list[np.ndarray] | None:
+    """Every camera's stamps on its own clock (N,) (the sequence's where a camera has none), or None where the
+    sequence has no timestamps at all."""
+    if sequence.times is None and all(c.times is None for c in sequence.cameras):
+        return None
+    shared = sequence.times if sequence.times is not None else sequence.cameras[0].times
+    return [shared if c.times is None else c.times for c in sequence.cameras]
+
+
+def own_clocks(sequence: Sequence) -> bool:
+    """Whether a camera has stamps of its own: its frames are then paired by time, not by index."""
+    return any(c.times is not None for c in sequence.cameras)
+
+
+def synchronise(sequence: Sequence, offsets, frames: int | None = None, estimates: tuple = ()) -> Sequence:
+    """The sequence with each of camera 0's first ``frames`` frames (default all) paired with every camera's nearest
+    frame in time, within half camera 0's median frame period; only frames every camera pairs are kept.
+
+    offsets: (C,) or (C - 1,) seconds, one per camera k >= 1 (camera 0's is 0). The result's cameras have M
+    frames each (images, poses, depth, the frame of a change, re-indexed), its ``times`` camera 0's, and its
+    ``pairing`` (:class:`Pairing`, with ``estimates``) says how. InputError, naming the cameras, where no frame pairs.
+    """
+    stamps = clocks(sequence)
+    if stamps is None:
+        raise InputError(f"{sequence.path}: no timestamps, so no frames to pair in time (a time offset needs them)")
+    offsets = np.asarray(offsets, dtype=np.float64)
+    offsets = np.concatenate([[0.0], offsets]) if len(offsets) == len(sequence.cameras) - 1 else offsets
+    t0 = stamps[0][: frames or len(stamps[0])]
+    period = float(np.median(np.diff(t0))) if len(t0) > 1 else 1.0
+    names = sequence.names
+    pairs = [
+        associate(t0, t, period / 2, o, names=(names[0], n)) for t, o, n in zip(stamps[1:], offsets[1:], names[1:])
+    ]
+    kept = reduce(np.intersect1d, [i0 for i0, _ in pairs], np.arange(len(t0)))
+    if len(kept) < 2:
+        raise InputError(
+            f"{sequence.path}: {len(kept)} frame(s) of {names[0]} pair with a frame of every camera within half a frame "
+            f"period ({period / 2:.6g} s) at time offsets {', '.join(f'{o:+.6g} s' for o in offsets[1:])}"
+        )
+    index = np.stack([kept] + [i1[np.searchsorted(i0, kept)] for i0, i1 in pairs], 1)
+    residuals = t0[kept, None] - (np.stack([t[j] for t, j in zip(stamps, index.T)], 1) + offsets)
+    cameras = [_reindexed(c, index[:, k]) for k, c in enumerate(sequence.cameras)]
+    counts = np.array([len(c) for c in sequence.cameras])
+    pairing = Pairing(offsets, index, residuals, counts, tuple(estimates))
+    return replace(sequence, cameras=cameras, times=t0[kept], pairing=pairing)
+
+
+def _reindexed(cam, frames: np.ndarray):
+    """Camera ``cam`` at its frames ``frames`` (M,), without a clock of its own (its frames now are camera 0's)."""
+    change, T = cam.change, cam.T_cam0_cam
+    if change is not None:
+        after = np.flatnonzero(frames >= change.frame)
+        if not len(after):  # moved after the last frame kept
+            change = None
+        elif after[0] == 0:  # moved before the first frame kept
+            change, T = None, change.T_cam0_cam
+        else:
+            change = ExtrinsicChange(int(after[0]), change.T_cam0_cam)
+    return replace(
+        cam,
+        T_cam0_cam=T,
+        images=[cam.images[j] for j in frames],
+        poses=None if cam.poses is None else cam.poses[frames],
+        depth=None if cam.depth is None else [cam.depth[j] for j in frames],
+        times=None,
+        change=change,
+    )

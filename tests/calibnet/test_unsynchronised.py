@@ -1,0 +1,44 @@
+"""``ocalib calibrate`` on a rig whose second camera captures late on a clock of its own: the offset found from the
+front end's rotations, against the renderer's truth."""
+
+import dataclasses
+import json
+
+import pytest
+import torch
+
+from ocalib.cli import main
+from ocalib.synth import preset, render_sequence
+
+torch.set_num_threads(1)
+LATE = 0.05  # seconds: half a frame at 10 Hz
+
+
+@pytest.fixture(scope="module")
+def late(tmp_path_factory):
+    """A 100-frame hand-held rig at 48x160 whose camera 1 captures LATE seconds after camera 0."""
+    cfg = preset("handheld").with_overrides(frames=100, height=48, width=160, seed=1003)
+    cameras = [cfg.cameras[0], dataclasses.replace(cfg.cameras[1], time_offset=LATE)]
+    return render_sequence(cfg.with_overrides(cameras=cameras), tmp_path_factory.mktemp("late") / "seq", progress=False)
+
+
+def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
+    out = tmp_path / "r.json"
+    argv = ["calibrate", "--sequence", str(late), "--frontend", "opencv", "--no-bundle-adjust", "--out", str(out)]
+    assert main([*argv, "--time-offset", "auto"]) == 0
+    doc = json.loads(out.read_text())
+    found = doc["extrinsics"][0]["time_offset"]
+    assert abs(found - LATE) < 0.01, found  # a tenth of a frame
+    sync = doc["synchronisation"][0]
+    assert sync["camera"] == "cam1" and sync["source"] == "estimated" and sync["time_offset"] == found
+    # every camera-1 frame i pairs with camera 0's frame i: what is left of the offset is all of it
+    assert sync["pairs"] == 100 and sync["pair_residual_median_s"] == pytest.approx(found, abs=1e-9)
+    assert doc["time_offset_estimates"][0]["correlation"] > 0.5
+
+    assert main([*argv, "--time-offset", "0.3"]) == 0  # given, three frames: camera 0's first three have no pair
+    doc = json.loads(out.read_text())
+    assert doc["synchronisation"][0] | {"pair_residual_median_s": 0, "pair_residual_max_s": 0} == {
+        "camera": "cam1", "time_offset": 0.3, "source": "given", "pairs": 97, "unpaired_frames": 3,
+        "pair_residual_median_s": 0, "pair_residual_max_s": 0,
+    }  # fmt: skip
+    assert doc["synchronisation"][0]["pair_residual_max_s"] < 1e-9
