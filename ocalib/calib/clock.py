@@ -7,7 +7,7 @@ Convention: a time offset is ADDED to camera 1's timestamps to put them on camer
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -32,6 +32,10 @@ MIN_CORRELATION = 0.5
 MIN_DISTINCTNESS = 2.0
 MIN_SEPARATION = 1e-3
 MIN_MOTIONS = 10
+# find_time_offset: the correlation's peaks the rig's rotation constraint chooses among, and how many times lower
+# the chosen one's rotation residual must be than any other's
+CANDIDATES = 5
+MIN_RESIDUAL_RATIO = 2.0
 REFINE_MOTION_SECONDS = 0.5  # refine_time_offset: the length of the motions compared (longer: a lag shows more)
 
 
@@ -58,6 +62,8 @@ class OffsetQuality:
     unrelated recordings bring it close to ``correlation``. overlap: seconds of motion the two cameras
     share at the offset. step: seconds between samples of the coarse correlation grid.
     angular_speed_offset: set where the offset was then refined (:func:`refine_time_offset`).
+    residual_ratio: set by :func:`find_time_offset`: how much worse the rotations agree at the next candidate offset
+    (inf: no other candidate).
     """
 
     correlation: float
@@ -65,6 +71,7 @@ class OffsetQuality:
     overlap: float
     step: float
     angular_speed_offset: float | None = None  # the correlation's own answer, before a refinement (if any)
+    residual_ratio: float | None = None  # find_time_offset: the next candidate's rotation residual over the chosen's
 
 
 def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "camera 1")):
@@ -78,18 +85,11 @@ def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "cam
     flat (no rotation), or the peak is weak or ambiguous (see MIN_CORRELATION, MIN_DISTINCTNESS).
     Convention: ``t0 = t1 + offset`` (ADD the offset to times1).
     """
-    m0, w0 = _speed_signal(times0, poses0, names[0])
-    m1, w1 = _speed_signal(times1, poses1, names[1])
-    step = min(np.median(np.diff(m0)), np.median(np.diff(m1))) / 2
-    step = max(step, max(m0[-1] - m0[0], m1[-1] - m1[0]) / 2**20)  # bounds the FFT size
-    g0 = m0[0] + step * np.arange(int((m0[-1] - m0[0]) / step) + 1)
-    g1 = m1[0] + step * np.arange(int((m1[-1] - m1[0]) / step) + 1)
-    x, y = np.interp(g0, m0, w0), np.interp(g1, m1, w1)
-    lags, ncc, counts = _normalised_xcorr(x, y)
-    ncc[counts < MIN_OVERLAP * min(len(x), len(y))] = -np.inf
+    xc = _correlation(times0, poses0, times1, poses1, names)
+    g0, x, m0, m1, w1, ncc, step = xc.g0, xc.x, xc.m0, xc.m1, xc.w1, xc.ncc, xc.step
     best = int(np.argmax(ncc))
     runner_up, second = _runner_up(ncc, best)
-    coarse = g0[0] - g1[0] + lags[best] * step
+    coarse = xc.offsets[best]
 
     # Fine search: correlate the camera-0 grid with camera 1's speed interpolated at the shifted times.
     fine = coarse + np.linspace(-step, step, 21)
@@ -114,7 +114,7 @@ def estimate_time_offset(times0, poses0, times1, poses1, names=("camera 0", "cam
             "give --time-offset SECONDS"
         )
     if 1 - runner_up < max(MIN_DISTINCTNESS * (1 - peak), MIN_SEPARATION):
-        other = g0[0] - g1[0] + lags[second] * step
+        other = xc.offsets[second]
         raise InputError(
             f"ambiguous time offset between {names[0]} and {names[1]}: the normalised correlation of their angular "
             f"speeds is {found}, but {runner_up:.3f} at offset {other:+.6f} s. The motion may be repetitive or the "
@@ -136,39 +136,16 @@ def refine_time_offset(
 ) -> float:
     """Refine a clock offset by the rig's own rotation constraint -> offset (s).
 
-    For each candidate in ``offset +- radius``, camera 1 is interpolated at camera 0's stamps (:func:`interpolate`)
-    and the motions of both cameras over ``motion_seconds`` give the hand-eye rotation blocks
-    ``A = L(q0) - R(q1)``; a rigid rig has a rotation ``dq`` with ``A dq = 0`` for all of them, so the smallest
-    eigenvalue of their mean Gram matrix (the residual of the best ``dq``) is least at the true offset. A lag
+    The rotation residual (:func:`rotation_residual`) is least at the true offset; it is scored at ``steps``
+    candidates in ``offset +- radius``. A lag
     ``d`` leaves each pair of motions differing by about ``(w(t + T) - w(t)) d`` (angular velocity ``w``,
     motion length ``T``): unlike the angular speed, this sees the axes too, and is not biased by the noise of
     short motions. The best candidate is refined by a parabola through its neighbours; with too few motions at
     every candidate the offset comes back as it was. Convention:
     ``t0 = t1 + offset``; poses camera-to-world, times strictly increasing seconds.
     """
-    poses0 = np.asarray(poses0, dtype=np.float64)
-    period = float(np.median(np.diff(times1)))
-    gap = max(1, int(round(motion_seconds / float(np.median(np.diff(times0))))))
     candidates = offset + np.linspace(-radius, radius, steps)
-    scores = []
-    for candidate in candidates:
-        try:
-            i0, p1, _ = interpolate(times0, times1, poses1, INTERPOLATION_MAX_DT_PERIODS * period, candidate)
-        except InputError:
-            scores.append(np.inf)
-            continue
-        p0, p1 = torch.from_numpy(poses0[i0]), torch.from_numpy(p1)
-        same = torch.from_numpy(np.flatnonzero(i0[gap:] - i0[:-gap] == gap))  # over consecutive camera-0 frames
-        m0 = (invert_pose(p0[same]) @ p0[same + gap]).numpy()  # rigid inverse: garbage poses give garbage, not errors
-        m1 = (invert_pose(p1[same]) @ p1[same + gap]).numpy()
-        ok = pose_validity(m0) & pose_validity(m1)
-        if ok.sum() < MIN_MOTIONS:
-            scores.append(np.inf)
-            continue
-        q0 = rotation_matrix_to_quaternion(torch.from_numpy(m0[ok, :3, :3]))
-        A = rotation_block(q0, rotation_matrix_to_quaternion(torch.from_numpy(m1[ok, :3, :3])))
-        scores.append(float(torch.linalg.eigvalsh((A.mT @ A).mean(0))[0]))
-    scores = np.asarray(scores)
+    scores = np.array([rotation_residual(times0, poses0, times1, poses1, c, motion_seconds) for c in candidates])
     if not np.isfinite(scores).any():  # too few motions at every candidate: nothing to refine with
         return float(offset)
     k = int(np.argmin(scores))
@@ -181,17 +158,112 @@ def refine_time_offset(
     return best
 
 
+def rotation_residual(times0, poses0, times1, poses1, offset: float, motion_seconds=REFINE_MOTION_SECONDS) -> float:
+    """How far the two cameras' rotations are from a rigid rig's at clock offset ``offset`` (inf: too few motions).
+
+    Camera 1 is interpolated at camera 0's stamps (:func:`interpolate`); the motions of both cameras over
+    ``motion_seconds`` give the hand-eye rotation blocks ``A = L(q0) - R(q1)``, and a rigid rig has a rotation ``dq``
+    with ``A dq = 0`` for all of them: the smallest eigenvalue of their mean Gram matrix (the residual of the best
+    ``dq``) is returned. Convention: ``t0 = t1 + offset``; poses camera-to-world, times strictly increasing seconds.
+    """
+    poses0 = np.asarray(poses0, dtype=np.float64)
+    period = float(np.median(np.diff(times1)))
+    gap = max(1, int(round(motion_seconds / float(np.median(np.diff(times0))))))
+    try:
+        i0, p1, _ = interpolate(times0, times1, poses1, INTERPOLATION_MAX_DT_PERIODS * period, offset)
+    except InputError:
+        return np.inf
+    p0, p1 = torch.from_numpy(poses0[i0]), torch.from_numpy(p1)
+    same = torch.from_numpy(np.flatnonzero(i0[gap:] - i0[:-gap] == gap))  # over consecutive camera-0 frames
+    m0 = (invert_pose(p0[same]) @ p0[same + gap]).numpy()  # rigid inverse: garbage poses give garbage, not errors
+    m1 = (invert_pose(p1[same]) @ p1[same + gap]).numpy()
+    ok = pose_validity(m0) & pose_validity(m1)
+    if ok.sum() < MIN_MOTIONS:
+        return np.inf
+    q0 = rotation_matrix_to_quaternion(torch.from_numpy(m0[ok, :3, :3]))
+    A = rotation_block(q0, rotation_matrix_to_quaternion(torch.from_numpy(m1[ok, :3, :3])))
+    return float(torch.linalg.eigvalsh((A.mT @ A).mean(0))[0])
+
+
 def find_time_offset(times0, poses0, times1, poses1, names=("camera 0", "camera 1")) -> tuple[float, OffsetQuality]:
     """Clock offset between two cameras of one rig, to well below a frame -> (offset seconds, OffsetQuality).
 
-    The angular speeds' correlation (:func:`estimate_time_offset`), refined by the rig's rotation constraint within
-    two frame periods (:func:`refine_time_offset`). Shapes and errors as :func:`estimate_time_offset`.
-    Convention: ``t0 = t1 + offset``.
+    The angular speeds' correlation (as :func:`estimate_time_offset`) proposes its ``CANDIDATES`` highest peaks
+    (each at least ``MIN_CORRELATION``); each is refined by the rig's rotation constraint within two frame periods
+    (:func:`refine_time_offset`), and the one whose rotations agree best (:func:`rotation_residual`) is the answer.
+    Unlike the speed, the constraint sees the rotation axes: a walker's steps repeat the speed, not the rotations.
+    InputError where the speed is flat, no peak is strong enough, or another candidate's residual is within
+    ``MIN_RESIDUAL_RATIO`` of the best's. Shapes as :func:`estimate_time_offset`. Convention: ``t0 = t1 + offset``.
     """
-    coarse, quality = estimate_time_offset(times0, poses0, times1, poses1, names=names)
-    period = lambda t: float(np.median(np.diff(t))) if len(t) > 1 else 0.0  # noqa: E731
-    offset = refine_time_offset(times0, poses0, times1, poses1, coarse, 2 * max(period(times0), period(times1)))
-    return offset, replace(quality, angular_speed_offset=coarse)
+    c = _correlation(times0, poses0, times1, poses1, names)
+    period = max(float(np.median(np.diff(t))) for t in (times0, times1))
+    peaks = _peaks(c.ncc, max(1, int(2 * period / c.step)))
+    if not len(peaks):
+        raise InputError(
+            f"no clear time offset between {names[0]} and {names[1]}: the normalised correlation of their angular "
+            f"speeds is at most {np.max(c.ncc):.3f}, below {MIN_CORRELATION}; give --time-offset SECONDS"
+        )
+    refined = [refine_time_offset(times0, poses0, times1, poses1, c.offsets[i], 2 * period) for i in peaks]
+    residuals = np.array([rotation_residual(times0, poses0, times1, poses1, o) for o in refined])
+    order = np.argsort(residuals)
+    best = order[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = float(residuals[order[1]] / residuals[best]) if len(order) > 1 else np.inf
+    if not ratio >= MIN_RESIDUAL_RATIO:
+        second = order[1]
+        raise InputError(
+            f"ambiguous time offset between {names[0]} and {names[1]}: their rotations agree about as well at "
+            f"{refined[best]:+.6f} s (residual {residuals[best]:.3g}) as at {refined[second]:+.6f} s "
+            f"({residuals[second]:.3g}); the motion may be repetitive; give --time-offset SECONDS"
+        )
+    runner_up, _ = _runner_up(c.ncc, peaks[best])
+    overlap = min(c.m0[-1], c.m1[-1] + refined[best]) - max(c.m0[0], c.m1[0] + refined[best])
+    quality = OffsetQuality(float(c.ncc[peaks[best]]), runner_up, overlap, c.step, c.offsets[peaks[best]], ratio)
+    return float(refined[best]), quality
+
+
+@dataclass(frozen=True)
+class _Correlation:
+    """The angular speeds' normalised correlation over lags: ``offsets`` (L,) seconds and ``ncc`` (L,) (-inf where
+    the overlap is too short), the speeds (camera 0 on its grid ``g0``: ``x``; camera 1 as sampled: ``m1``, ``w1``;
+    ``m0`` camera 0's sample times), the grid's ``step``."""
+
+    offsets: np.ndarray
+    ncc: np.ndarray
+    step: float
+    g0: np.ndarray
+    x: np.ndarray
+    m0: np.ndarray
+    m1: np.ndarray
+    w1: np.ndarray
+
+
+def _correlation(times0, poses0, times1, poses1, names) -> _Correlation:
+    """Both angular speeds resampled on uniform grids of one step, every lag scored by FFT with the normalised
+    correlation over the overlap."""
+    m0, w0 = _speed_signal(times0, poses0, names[0])
+    m1, w1 = _speed_signal(times1, poses1, names[1])
+    step = min(np.median(np.diff(m0)), np.median(np.diff(m1))) / 2
+    step = max(step, max(m0[-1] - m0[0], m1[-1] - m1[0]) / 2**20)  # bounds the FFT size
+    g0 = m0[0] + step * np.arange(int((m0[-1] - m0[0]) / step) + 1)
+    g1 = m1[0] + step * np.arange(int((m1[-1] - m1[0]) / step) + 1)
+    x, y = np.interp(g0, m0, w0), np.interp(g1, m1, w1)
+    lags, ncc, counts = _normalised_xcorr(x, y)
+    ncc[counts < MIN_OVERLAP * min(len(x), len(y))] = -np.inf
+    return _Correlation(g0[0] - g1[0] + lags * step, ncc, float(step), g0, x, m0, m1, w1)
+
+
+def _peaks(ncc: np.ndarray, separation: int) -> np.ndarray:
+    """Indices of the ``CANDIDATES`` highest local maxima of ``ncc`` at least ``MIN_CORRELATION``, each at least
+    ``separation`` samples from a higher one."""
+    inner = (ncc[1:-1] >= ncc[:-2]) & (ncc[1:-1] >= ncc[2:]) & (ncc[1:-1] >= MIN_CORRELATION)
+    chosen: list[int] = []
+    for i in np.flatnonzero(inner)[np.argsort(-ncc[1:-1][inner])] + 1:
+        if all(abs(i - j) >= separation for j in chosen):
+            chosen.append(int(i))
+        if len(chosen) == CANDIDATES:
+            break
+    return np.asarray(chosen, dtype=int)
 
 
 def _speed_signal(times, poses, name: str):

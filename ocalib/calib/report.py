@@ -74,6 +74,7 @@ class CalibrationRun:
                 "runner_up": q.runner_up,
                 "overlap_s": q.overlap,
                 "angular_speed_offset": q.angular_speed_offset,
+                "rotation_residual_ratio": q.residual_ratio,
             }
             for f, o, q in zip(self.rig.files, self.rig.time_offsets, self.rig.offset_quality)
             if q is not None

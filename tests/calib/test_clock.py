@@ -9,7 +9,7 @@ import pytest
 import torch
 from timed_rigs import make_rig
 
-from ocalib.calib.clock import _runner_up, angular_speed, estimate_time_offset, refine_time_offset
+from ocalib.calib.clock import _runner_up, angular_speed, estimate_time_offset, find_time_offset, refine_time_offset
 from ocalib.errors import InputError
 from ocalib.io.poses import read_poses, write_tum
 from ocalib.io.timing import associate
@@ -87,6 +87,33 @@ def test_offset_of_a_repeating_motion_is_ambiguous(noise):
     found, other = (float(x) for x in re.findall(r"at offset ([-+\d.]+) s", str(err.value))[:2])
     repeats = abs(found - other) / (10 * np.pi)  # the two peaks lie a whole number of repeats apart
     assert round(repeats) >= 1 and abs(repeats - round(repeats)) < 0.02
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.002])
+def test_the_rotation_constraint_chooses_among_repeats_of_the_speed(noise):
+    """The motion above, whose angular speed repeats but whose rotations do not, on a rig with an extrinsic: the
+    speeds alone are ambiguous, the rig's rotation constraint is not, and finds the offset within a fifth of a frame."""
+    g = torch.Generator().manual_seed(1)
+    X = random_rig(g).numpy()
+    t0, t1, offset = np.arange(0, 60, 1 / 30), np.arange(0.007, 60, 1 / 20), 1234.5678
+    p0 = add_noise(torch.from_numpy(_repeating(t0))[:, None], noise, g)[:, 0].numpy()
+    p1 = add_noise(torch.from_numpy(_repeating(t1) @ X)[:, None], noise, g)[:, 0].numpy()
+    with pytest.raises(InputError, match="ambiguous time offset"):
+        estimate_time_offset(t0, p0, t1 - offset, p1)
+    found, quality = find_time_offset(t0, p0, t1 - offset, p1)
+    assert abs(found - offset) < 0.2 * FRAME
+    assert quality.residual_ratio > 10  # with noise the speeds correlate better at the wrong lag (0.90 vs 0.89)
+
+
+def test_rotations_that_repeat_leave_the_offset_ambiguous():
+    """Every rotation repeats each 5 s: no constraint can tell the lags 5 s apart, and the answer is an error."""
+    t0, t1 = np.arange(0, 40, 1 / 30), np.arange(0.007, 40, 1 / 20)
+    periodic = lambda t: np.stack([cv2.Rodrigues(np.array([0.6, 0.5, 0.4]) * np.sin(2 * np.pi * s / 5 + np.array(
+        [0.0, 1.0, 2.0])))[0] for s in t])  # noqa: E731  # fmt: skip
+    pose = lambda R: np.concatenate([np.concatenate([R, np.zeros((len(R), 3, 1))], 2),
+                                     np.tile([[[0.0, 0, 0, 1]]], (len(R), 1, 1))], 1)  # noqa: E731  # fmt: skip
+    with pytest.raises(InputError, match="ambiguous time offset .*: their rotations agree about as well at"):
+        find_time_offset(t0, pose(periodic(t0)), t1 - 100.0, pose(periodic(t1)))
 
 
 @pytest.mark.parametrize("seed", [12, 15, 17])
