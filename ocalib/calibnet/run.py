@@ -219,6 +219,8 @@ def calibrate_images(
     times = sequence.times[:frames] if sequence.times is not None else np.arange(frames, dtype=np.float64)
     trace = {"frame": np.arange(frames), "time": times} | trace
     pairing = sequence.pairing
+    if pairing is not None:  # per frame and camera k: what is left of the offset in the pair, t0 - (tk + offset)
+        trace["pair_residual_s"] = pairing.residuals[:frames, 1:]
     rig = RigPoses(
         files=sequence.names,
         poses=trajectory,

@@ -4,6 +4,7 @@ front end's rotations, against the renderer's truth."""
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -25,14 +26,18 @@ def late(tmp_path_factory):
 def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
     out = tmp_path / "r.json"
     argv = ["calibrate", "--sequence", str(late), "--frontend", "opencv", "--no-bundle-adjust", "--out", str(out)]
-    assert main([*argv, "--time-offset", "auto"]) == 0
+    trace = tmp_path / "t.csv"
+    assert main([*argv, "--time-offset", "auto", "--trace", str(trace), "--plot", str(tmp_path / "p.png")]) == 0
     doc = json.loads(out.read_text())
+    header = trace.read_text().splitlines()[0].split(",")
+    residuals = np.loadtxt(trace, delimiter=",", skiprows=1)[:, header.index("pair_residual_s")]
     found = doc["extrinsics"][0]["time_offset"]
     assert abs(found - LATE) < 0.01, found  # a tenth of a frame
     sync = doc["synchronisation"][0]
     assert sync["camera"] == "cam1" and sync["source"] == "estimated" and sync["time_offset"] == found
     # every camera-1 frame i pairs with camera 0's frame i: what is left of the offset is all of it
     assert sync["pairs"] == 100 and sync["pair_residual_median_s"] == pytest.approx(found, abs=1e-9)
+    np.testing.assert_allclose(residuals, -found, atol=1e-9)  # per frame in the trace: t0 - (t1 + offset)
     assert doc["time_offset_estimates"][0]["correlation"] > 0.5
 
     assert main([*argv, "--time-offset", "0.3"]) == 0  # given, three frames: camera 0's first three have no pair
