@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from ocalib.calibnet.run import open_calibration_sequence
 from ocalib.cli import main
 from ocalib.synth import preset, render_sequence
 
@@ -40,10 +41,9 @@ def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
     np.testing.assert_allclose(residuals, -found, atol=1e-9)  # per frame in the trace: t0 - (t1 + offset)
     assert doc["time_offset_estimates"][0]["correlation"] > 0.5
 
-    assert main([*argv, "--time-offset", "0.3"]) == 0  # given, three frames: camera 0's first three have no pair
-    doc = json.loads(out.read_text())
-    assert doc["synchronisation"][0] | {"pair_residual_median_s": 0, "pair_residual_max_s": 0} == {
-        "camera": "cam1", "time_offset": 0.3, "source": "given", "pairs": 97, "unpaired_frames": 3,
+    given = open_calibration_sequence(late, time_offset=[0.3]).pairing  # three frames: camera 0's first three unpaired
+    assert given.camera_json(1) | {"pair_residual_median_s": 0, "pair_residual_max_s": 0} == {
+        "time_offset": 0.3, "source": "given", "pairs": 97, "unpaired_frames": 3,
         "pair_residual_median_s": 0, "pair_residual_max_s": 0,
     }  # fmt: skip
-    assert doc["synchronisation"][0]["pair_residual_max_s"] < 1e-9
+    assert given.camera_json(1)["pair_residual_max_s"] < 1e-9
