@@ -12,6 +12,12 @@ the distribution's median, when above 1. Over the quantile at ``false_alarm`` on
 in a row is a candidate change; the caller confirms it (:meth:`ExtrinsicTrack.accept`: the track restarts from the
 keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
 
+:meth:`ExtrinsicTrack.drifted` catches what the keyframes' test misses where the window follows a change within a
+few keyframes (they then agree with it): each window estimate, before it is fused, against the track, ``d^T (P +
+P_w)^-1 d`` with ``d`` the innovation from the track's ``E`` to ``E_w``; the track holds the windows before it, so on a
+steady rig the statistic sits well under a chi-square with 6 degrees of freedom, and over its quantile at
+``DRIFT_FALSE_ALARM`` on ``persistence`` windows in a row the track moves to the window's estimate.
+
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_ref`` with ``d`` =
 (rotation rad, translation) in camera 0's axes; rig poses camera-to-world (4, 4).
 """
@@ -32,6 +38,7 @@ HISTORY = 30  # steady keyframes whose statistics give the overdispersion
 MIN_HISTORY = 10  # steady keyframes needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 CHI2_MEDIAN = float(chi2_distribution.median(6))
+DRIFT_FALSE_ALARM = 1e-6  # drifted's level; steady rigs stay far below it (docs/results-rig-online.md)
 
 
 @dataclass
@@ -50,6 +57,7 @@ class ExtrinsicTrack:
     candidate: np.ndarray | None = None
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     _pending: list = field(default_factory=list)
+    _drifting: list = field(default_factory=list)
 
     def fuse(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
         """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6)."""
@@ -61,6 +69,31 @@ class ExtrinsicTrack:
         cov = np.linalg.pinv(info, hermitian=True)
         self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
         self.covariance = cov
+
+    def drifted(self, frame: int, extrinsic: np.ndarray, covariance: np.ndarray) -> Change | None:
+        """Test the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) at keyframe ``frame`` against the
+        track, before it is fused -> the change it completes, if any, already accepted: the track then holds the
+        window's estimate, uninformed. The change's frame is the first window of the run over the level (the change
+        happened before it)."""
+        if self.extrinsic is None:
+            return None
+        d = innovation(self.extrinsic, extrinsic)
+        try:
+            statistic = float(d @ np.linalg.solve(self.covariance + covariance, d))
+        except np.linalg.LinAlgError:
+            return None
+        if not statistic > chi2_distribution.ppf(1 - DRIFT_FALSE_ALARM, 6):
+            self._drifting.clear()
+            return None
+        self._drifting.append(frame)
+        if len(self._drifting) < self.persistence:
+            return None
+        before = self.extrinsic
+        self.candidate = extrinsic.copy()
+        change = Change(self._drifting[0], frame, *step_size(before[:3, :3], before[:3, 3], extrinsic[:3, :3],
+                                                             extrinsic[:3, 3]))  # fmt: skip
+        self.accept(change)
+        return change
 
     @property
     def disagrees(self) -> bool:
@@ -110,6 +143,7 @@ class ExtrinsicTrack:
     def dismiss(self) -> None:
         """Forget the pending candidate: the keyframes that disagreed were wrong, not the window."""
         self._pending.clear()
+        self._drifting.clear()
         self.candidate = None
 
 

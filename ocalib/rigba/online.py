@@ -140,6 +140,10 @@ class OnlineRigEstimator:
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None:
                     self.window_covariance[k] = with_unobservable(u.covariance, u.unobservable)
+                    drift = self.tracks[k].drifted(frame, self.extrinsics[k], self.window_covariance[k])
+                    if drift is not None:
+                        self._forget_before(k, drift.frame)
+                        changes.append((k, drift))
                     self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
         registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)

@@ -12,7 +12,7 @@ from scipy.stats import chi2
 from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.change import ExtrinsicTrack, information, innovation
+from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturbed
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
@@ -152,6 +152,28 @@ def test_the_change_test_gives_no_alarm_on_a_steady_camera_and_finds_a_step(seed
         and found[0].detected == 150 + track.persistence - 1
     )
     assert abs(found[0].rotation_change_deg - 2.0) < 0.2 and abs(found[0].translation_change - 0.05) < 0.02
+    assert np.degrees(np.linalg.norm(innovation(track.extrinsic, after)[:3])) < 0.2
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_window_that_follows_a_step_is_caught_drifting_from_the_track(seed):
+    """Windows whose estimates scatter by their covariance about the mounting: no alarm in 100 steady windows; windows
+    that moved with the camera (the keyframes' test then sees nothing) are caught on the second, and the track
+    takes the window's estimate."""
+    rng = np.random.default_rng(seed)
+    before, after = _mounting([0, 90, 0], [0.9, 0, 0]), _mounting([0, 91, 0], [0.92, 0, 0])
+    covariance = np.diag([1e-6] * 3 + [1e-4] * 3)  # 0.06 deg, 1 cm
+    track = ExtrinsicTrack(overlap=10)
+    changes = []
+    for t in range(110):
+        window = perturbed(before if t < 100 else after, rng.multivariate_normal(np.zeros(6), covariance))
+        change = track.drifted(t, window, covariance)
+        changes.append(change)
+        track.fuse(window, covariance)
+    assert not any(changes[:100]), "a false alarm"
+    found = [c for c in changes if c is not None]
+    assert len(found) == 1 and found[0].frame == 100 and found[0].detected == 100 + track.persistence - 1
+    assert track.changes == found and abs(found[0].rotation_change_deg - 1.0) < 0.3
     assert np.degrees(np.linalg.norm(innovation(track.extrinsic, after)[:3])) < 0.2
 
 
