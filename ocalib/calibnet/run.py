@@ -45,6 +45,7 @@ if typing.TYPE_CHECKING:
 
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
+SYNC_WARNING = 0.1  # frames: paired frames further apart than this (median) are warned about
 
 
 @dataclass
@@ -75,6 +76,7 @@ class ImageCalibration:
         if self.sequence is not None and self.sequence.pairing is not None:
             pairing, names = self.sequence.pairing, self.sequence.names
             doc["synchronisation"] = [{"camera": names[k]} | pairing.camera_json(k) for k in range(1, len(names))]
+            doc["warnings"] = doc["warnings"] + _pairing_warnings(self.sequence)
         online = doc["extrinsics"]
         errors = self.errors
         if self.bundle is not None or self.rig is not None:
@@ -108,6 +110,22 @@ class ImageCalibration:
             doc["ground_truth_errors"] = finite_or_null(errors)
         doc["warnings"] = _replaced_said(doc["warnings"], doc["extrinsics"])
         return doc
+
+
+def _pairing_warnings(sequence: Sequence) -> list[str]:
+    """A warning per camera whose frames pair with camera 0's more than ``SYNC_WARNING`` of a frame apart: a frame's
+    rig pose is camera 0's, so the camera is seen where the rig was that much earlier or later."""
+    period = float(np.median(np.diff(sequence.times)))
+    out = []
+    for k, name in enumerate(sequence.names[1:], 1):
+        gap = float(np.median(np.abs(sequence.pairing.residuals[:, k])))
+        if gap > SYNC_WARNING * period:
+            out.append(
+                f"{name}: its frames pair with {sequence.names[0]}'s {gap:.3f} s ({gap / period:.2f} frames) apart: "
+                "its translation is biased by the rig's motion in that time, badly so where the lever arm is short "
+                "against the rig's speed; trigger the cameras together, or record at a higher frame rate"
+            )
+    return out
 
 
 def _replaced_said(warnings: list[str], extrinsics: list[dict]) -> list[str]:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from ocalib.calibnet.run import open_calibration_sequence
+from ocalib.calibnet.run import _pairing_warnings, open_calibration_sequence
 from ocalib.cli import main
 from ocalib.synth import preset, render_sequence
 
@@ -40,6 +40,7 @@ def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
     assert sync["pairs"] == 100 and sync["pair_residual_median_s"] == pytest.approx(found, abs=1e-9)
     np.testing.assert_allclose(residuals, -found, atol=1e-9)  # per frame in the trace: t0 - (t1 + offset)
     assert doc["time_offset_estimates"][0]["correlation"] > 0.5
+    assert any(w.startswith("cam1: its frames pair with cam0's 0.0") for w in doc["warnings"]), doc["warnings"]
 
     given = open_calibration_sequence(late, time_offset=[0.3]).pairing  # three frames: camera 0's first three unpaired
     assert given.camera_json(1) | {"pair_residual_median_s": 0, "pair_residual_max_s": 0} == {
@@ -47,3 +48,4 @@ def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
         "pair_residual_median_s": 0, "pair_residual_max_s": 0,
     }  # fmt: skip
     assert given.camera_json(1)["pair_residual_max_s"] < 1e-9
+    assert _pairing_warnings(open_calibration_sequence(late, time_offset=[0.3])) == []  # whole frames: no gap left
