@@ -227,6 +227,8 @@ def calibrate_images(
         path = open_calibration_sequence(path, cameras, intrinsics, max_frames, time_offset, frontend, device)
     sequence, path = path, path.path
     frames = len(sequence) if max_frames is None else min(len(sequence), max_frames)
+    if frames < MIN_FRAMES or len(sequence.cameras) < 2:
+        raise InputError(f"{path}: {frames} frames of {len(sequence.cameras)} camera(s): too little to calibrate")
     check_motion(sequence)
     front_end = build_frontend(sequence, frontend, device)
     C = len(sequence.cameras)
