@@ -13,6 +13,7 @@ camera-k units into camera-0 units; a time offset is ADDED to camera k's timesta
 from __future__ import annotations
 
 import contextlib
+import math
 from dataclasses import dataclass, field, fields, replace
 from functools import reduce
 from pathlib import Path
@@ -150,7 +151,9 @@ def offset_specs(time_offset, cameras: int) -> list[float | str | None]:
     try:
         values = [v if v == "auto" else float(v) for v in time_offset]
     except ValueError:
-        raise InputError(f"--time-offset: expected seconds or 'auto', got {' '.join(map(str, time_offset))}") from None
+        values = [math.nan]
+    if not all(v == "auto" or math.isfinite(v) for v in values):
+        raise InputError(f"--time-offset: expected seconds or 'auto', got {' '.join(map(str, time_offset))}")
     if len(values) == 1:
         return values * cameras
     if len(values) != cameras:
