@@ -70,12 +70,18 @@ class ImageCalibration:
         saying whose: the bundle adjustment's where it is trusted and the camera did not move mid-run, else the
         on-line rig estimator's, else the head's; ``online_extrinsics`` the head's, ``rig_estimator`` the on-line
         estimator's final state and cost, ``changes`` the changes it found, ``bundle_adjustment`` the adjustment's
-        figures; ``units`` says what the translations are in."""
+        figures, ``synchronisation`` how cameras on clocks of their own were paired (with the true offset where
+        the layout knows it); ``units`` says what the translations are in."""
         doc = self.run.result_json()
         doc["units"] = "camera 0's front-end units"
         if self.sequence is not None and self.sequence.pairing is not None:
-            pairing, names = self.sequence.pairing, self.sequence.names
-            doc["synchronisation"] = [{"camera": names[k]} | pairing.camera_json(k) for k in range(1, len(names))]
+            pairing, cameras = self.sequence.pairing, self.sequence.cameras
+            doc["synchronisation"] = [
+                {"camera": cameras[k].name} | pairing.camera_json(k) for k in range(1, len(cameras))
+            ]
+            for entry, cam in zip(doc["synchronisation"], cameras[1:]):
+                if cam.time_offset is not None:  # the truth, where the layout knows it (rendered rigs)
+                    entry["true_time_offset"] = cam.time_offset - (cameras[0].time_offset or 0.0)
             doc["warnings"] = doc["warnings"] + _pairing_warnings(self.sequence)
         online = doc["extrinsics"]
         errors = self.errors

@@ -36,6 +36,7 @@ def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
     assert abs(found - LATE) < 0.01, found  # a tenth of a frame
     sync = doc["synchronisation"][0]
     assert sync["camera"] == "cam1" and sync["source"] == "estimated" and sync["time_offset"] == found
+    assert sync["true_time_offset"] == LATE  # from rig.yaml
     # every camera-1 frame i pairs with camera 0's frame i: what is left of the offset is all of it
     assert sync["pairs"] == 100 and sync["pair_residual_median_s"] == pytest.approx(found, abs=1e-9)
     np.testing.assert_allclose(residuals, -found, atol=1e-9)  # per frame in the trace: t0 - (t1 + offset)
