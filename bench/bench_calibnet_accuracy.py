@@ -25,8 +25,8 @@ from common import add_sequence_arguments, write_json
 
 from ocalib.calib.pipeline import RigPoses, calibrate_rig
 from ocalib.calibnet.run import calibrate_images
-from ocalib.calibnet.truth import extrinsic_errors
 from ocalib.data.layout import open_sequence
+from ocalib.eval.calibration_metrics import extrinsic_errors
 from ocalib.frontend import FrontEndOptions
 from ocalib.sim.trajectory import add_noise
 from ocalib.synth import preset, render_sequence

@@ -20,10 +20,10 @@ from bench_calibnet_accuracy import ensure
 from bench_rigba import errors_row
 from common import add_sequence_arguments, write_json
 
+from ocalib.calibnet.bundle import refine_calibration
 from ocalib.calibnet.run import calibrate_images
 from ocalib.frontend import FrontEndOptions
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
-from ocalib.rigba.stage import refine_calibration
 
 KEYS = ("rotation_deg", "direction_deg", "translation_rel_baseline")
 

@@ -26,10 +26,10 @@ import torch
 from bench_calibnet_accuracy import ensure
 from common import add_sequence_arguments, write_json
 
+from ocalib.calibnet.bundle import refine_calibration
 from ocalib.calibnet.run import calibrate_images
 from ocalib.frontend import FRONTENDS, FrontEndOptions
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
-from ocalib.rigba.stage import refine_calibration
 
 DEFAULT = ["handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001", "front-left-1002"]
 

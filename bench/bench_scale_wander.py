@@ -5,7 +5,7 @@ solved from that (and from the steps' directions). A front end whose scale wande
 in each camera, hides it. For each held-out sequence (rendered when missing, as in ``bench_calibnet_accuracy.py``)
 this runs ``calibrate`` with the front end's own scale (``--scale head``: no normalisation; OpenCV VO's is its
 own) and, per frame t and camera k, the log ratio of the front end's step length to the true one, ``e_k(t)``. Over
-25-frame windows (a turn; :func:`ocalib.calibnet.truth.scale_wander`):
+25-frame windows (a turn; :func:`ocalib.eval.calibration_metrics.scale_wander`):
 
 - *wander*: std of the windowed mean of ``e_1 - e_0`` (the scale of camera 1 against camera 0);
 - *signal*: std of the windowed mean of ``log(|t_1| / |t_0|)`` of the true steps (the lever arm);
@@ -26,8 +26,8 @@ from bench_calibnet_accuracy import DEFAULT, ensure
 from common import write_json
 
 from ocalib.calibnet.run import calibrate_images
-from ocalib.calibnet.truth import WANDER_WINDOW, scale_wander, step_length_errors
 from ocalib.data.layout import open_sequence
+from ocalib.eval.calibration_metrics import WANDER_WINDOW, scale_wander, step_length_errors
 from ocalib.frontend import FRONTENDS, FrontEndOptions
 
 

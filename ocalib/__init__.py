@@ -28,7 +28,7 @@ _PUBLIC = {
     "HeadOptions": "ocalib.calib.options",
     "calibrate_files": "ocalib.calib.pipeline",
     "calibrate_images": "ocalib.calibnet.run",
-    "refine_calibration": "ocalib.rigba.stage",
+    "refine_calibration": "ocalib.calibnet.bundle",
     "OnlineRigEstimator": "ocalib.rigba.online",
     "open_sequence": "ocalib.data.layout",
 }

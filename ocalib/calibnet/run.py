@@ -30,12 +30,12 @@ from ocalib.calib.pipeline import RigPoses, offset_specs
 from ocalib.calib.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
 from ocalib.calib.result import Calibration
 from ocalib.calibnet.net import OnlineCalibrationNet
-from ocalib.calibnet.truth import extrinsic_errors
 from ocalib.data.layout import open_sequence
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import check_motion
 from ocalib.data.synchronise import clocks, own_clocks, synchronise
 from ocalib.errors import InputError, deferred_interrupts
+from ocalib.eval.calibration_metrics import extrinsic_errors
 from ocalib.frontend import FrontEndOptions, build_frontend
 from ocalib.io.jsonable import finite_or_null
 
@@ -52,10 +52,10 @@ SYNC_WARNING = 0.1  # frames: paired frames further apart than this (median) are
 class ImageCalibration:
     """:func:`calibrate_images`'s outcome: the run (JSON, trace, warnings), the ground-truth errors, where the
     on-line rig estimator ran (:class:`ocalib.rigba.stream.RigStream`) its states and errors, and where the rig
-    bundle adjustment ran (:func:`ocalib.rigba.stage.refine_calibration`) its result and errors."""
+    bundle adjustment ran (:func:`ocalib.calibnet.bundle.refine_calibration`) its result and errors."""
 
     run: CalibrationRun
-    errors: list[dict] | None  # per camera k >= 1, see :func:`ocalib.calibnet.truth.extrinsic_errors`
+    errors: list[dict] | None  # per camera k >= 1, see :func:`ocalib.eval.calibration_metrics.extrinsic_errors`
     truth: np.ndarray | None = None  # (K, 4, 4) the true T_cam0_camk of cameras k >= 1 at frame 0, where known
     sequence: Sequence | None = None  # the sequence calibrated (its first settings["frames"] frames)
     bundle: RigAdjustment | None = None  # the rig bundle adjustment's result

@@ -141,8 +141,8 @@ def run(args) -> int:
     if rig is not None:
         rig.attach(result)
     if args.bundle_adjust:
+        from ocalib.calibnet.bundle import refine_calibration
         from ocalib.rigba.options import FeatureOptions, MapperOptions
-        from ocalib.rigba.stage import refine_calibration
 
         threads = 1 if args.repeatable else -1
         options = BundleOptions(
@@ -203,8 +203,8 @@ def _metric_trajectory(args, sequence):
             "--metric-trajectory is for the on-line rig estimator and the bundle adjustment: drop --no-online-rig "
             "or --no-bundle-adjust"
         )
+    from ocalib.data.metric_trajectory import read_metric_trajectory
     from ocalib.rigba.online import OnlineRigOptions
-    from ocalib.rigba.stage import read_metric_trajectory
     from ocalib.rigba.stream import RigStream
 
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)

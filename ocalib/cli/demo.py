@@ -68,7 +68,7 @@ def run(args) -> int:
     result = calibrate_images(sequence, frontend=frontend, device=args.device, on_frame=rig)
     rig.attach(result)
     if args.bundle_adjust:
-        from ocalib.rigba.stage import refine_calibration
+        from ocalib.calibnet.bundle import refine_calibration
 
         refine_calibration(result, metric)
     doc = result.result_json()

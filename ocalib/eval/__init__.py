@@ -1,4 +1,5 @@
-"""Evaluating ego-motion models: depth and pose metrics, Sim(3) alignment, the prediction loop, plots.
+"""Evaluating against the truth: depth and pose metrics, Sim(3) alignment, a calibration's errors, the prediction loop,
+plots.
 
 Names are imported lazily so that the metrics stay free of torch and matplotlib until used.
 """

@@ -19,13 +19,13 @@ import cv2
 import numpy as np
 
 from ocalib.data.image_io import read_depth
+from ocalib.data.model_view import ModelView, model_view
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
 from ocalib.eval.pose_metrics import invert, pose_metrics
 from ocalib.geometry.pose import chain_motions
 from ocalib.inference.predict import FramePrediction, PredictOptions, predict_frames
-from ocalib.inference.view import ModelView, model_view
 from ocalib.io.jsonable import finite_or_null
 
 

@@ -57,7 +57,7 @@ class NetworkFrontEnd(FrontEnd):
             frame), and the depth's inverse tilt solved with it (:func:`~ocalib.frontend.align.align_translation`).
             Camera k's own refined rotation is kept, so the calibration's rotation rows stay independent of R_X; on
             planar motion R_X^T R_0 R_X does not depend on the unobservable yaw (docs/results-calibrate.md).
-        views: each camera's :class:`~ocalib.inference.view.ModelView`, for :meth:`frames`.
+        views: each camera's :class:`~ocalib.data.model_view.ModelView`, for :meth:`frames`.
     """
 
     def __init__(
@@ -94,7 +94,7 @@ class NetworkFrontEnd(FrontEnd):
 
     @classmethod
     def for_sequence(cls, sequence: Sequence, options, device: str = "cpu") -> NetworkFrontEnd:
-        from ocalib.inference.view import model_view
+        from ocalib.data.model_view import model_view
         from ocalib.models import load_model
 
         model = load_model(options.checkpoint).to(device)
@@ -105,7 +105,7 @@ class NetworkFrontEnd(FrontEnd):
         return front_end.to(device)
 
     def frames(self, sequence: Sequence) -> Dataset:
-        from ocalib.inference.view import FrameImages
+        from ocalib.data.model_view import FrameImages
 
         return FrameImages(sequence, self.views)
 

@@ -59,3 +59,12 @@ def chain_motions(motions: np.ndarray) -> np.ndarray:
     for t, motion in enumerate(motions, 1):
         poses[t] = poses[t - 1] @ motion
     return poses
+
+
+UNOBSERVABLE_AXIS_SHARE = 0.1  # an axis with this share of an unobservable direction has no std (a car's y, not x)
+
+
+def touched_axes(directions: np.ndarray, share: float = UNOBSERVABLE_AXIS_SHARE) -> np.ndarray:
+    """(3,) bool: the axes that any of the unit ``directions`` (n, 3) has a share over ``share`` of (none for n = 0);
+    with unobservable translation directions, the axes whose 1-sigma is not a measurement."""
+    return (np.abs(np.asarray(directions, dtype=float).reshape(-1, 3)) > share).any(0)

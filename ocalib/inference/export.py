@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ocalib.data.model_view import model_view
 from ocalib.data.sequence import Sequence
 from ocalib.geometry.pose import chain_motions
 from ocalib.inference.predict import PredictOptions, predict_frames
-from ocalib.inference.view import model_view
 from ocalib.io.poses import write_kitti
 
 

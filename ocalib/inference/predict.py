@@ -2,7 +2,7 @@
 
 :func:`predict_frames` yields, frame by frame, every camera's depth map and motion ``T_{t-1,t}``
 (:func:`~ocalib.geometry.pose.chain_motions` turns the motions into a trajectory). Images reach the model through
-a :class:`~ocalib.inference.view.ModelView`.
+a :class:`~ocalib.data.model_view.ModelView`.
 
 Convention: ``T_{t-1,t}`` is the pose of frame t's camera in frame t-1's camera frame (``p_{t-1} = T p_t``,
 ``model.pose(target=t-1, source=t)``), identity for frame 0; chained, ``P_t = P_{t-1} T_{t-1,t}`` is
@@ -19,12 +19,12 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
+from ocalib.data.model_view import FrameImages, model_view
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import check_motion
 from ocalib.errors import InputError
 from ocalib.frontend.align import StreamAligner
 from ocalib.geometry.pose import invert_pose
-from ocalib.inference.view import FrameImages, model_view
 
 
 @dataclass(frozen=True)

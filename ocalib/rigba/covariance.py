@@ -23,11 +23,10 @@ import numpy as np
 import pycolmap
 import scipy.sparse as sp
 
-from ocalib.geometry.pose import cross_matrix
+from ocalib.geometry.pose import cross_matrix, touched_axes
 from ocalib.rigba.colmap import to_matrix
 
 UNOBSERVABLE = 1e-6  # information below this share of the best-known translation direction's: unobservable
-UNOBSERVABLE_AXIS_SHARE = 0.1  # an axis with this share of an unobservable direction has no std (a car's y, not x)
 WEAK_SHARE = 0.1  # a translation direction whose 1-sigma exceeds this share of the lever arm's length: unobservable
 DAMPING = (
     1e-12  # relative damping of each point's 3x3 information, against exact singularity (1e-9 moved the result 3 %)
@@ -52,14 +51,9 @@ class ExtrinsicUncertainty:
     @property
     def translation_std(self) -> np.ndarray:
         """(3,) along camera 0's axes; inf along an axis an unobservable direction has a share of (over
-        ``UNOBSERVABLE_AXIS_SHARE``)."""
+        ``ocalib.geometry.pose.UNOBSERVABLE_AXIS_SHARE``)."""
         std = np.sqrt(np.clip(np.diag(self.covariance)[3:], 0, None))  # an unobservable axis: 0 up to rounding
-        touched = (
-            (np.abs(self.unobservable) > UNOBSERVABLE_AXIS_SHARE).any(0)
-            if len(self.unobservable)
-            else np.zeros(3, bool)
-        )
-        return np.where(touched, np.inf, std)
+        return np.where(touched_axes(self.unobservable), np.inf, std)
 
 
 @dataclass

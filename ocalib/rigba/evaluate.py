@@ -9,15 +9,15 @@ import math
 
 import numpy as np
 
-from ocalib.calibnet.truth import angle_deg
 from ocalib.eval.alignment import umeyama
+from ocalib.eval.calibration_metrics import angle_deg
 from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.rigba.result import RigAdjustment
 
 
 def adjustment_errors(adjustment: RigAdjustment, extrinsics: np.ndarray, truth: np.ndarray | None) -> list[dict]:
     """Per camera k >= 1: the bundle-adjusted extrinsic's errors against the true ``extrinsics`` (C, 4, 4), as
-    :func:`ocalib.calibnet.truth.extrinsic_errors` gives the head's: ``rotation_error_deg``,
+    :func:`ocalib.eval.calibration_metrics.extrinsic_errors` gives the head's: ``rotation_error_deg``,
     ``translation_direction_error_deg`` (with the unobservable directions projected out: ``compared_in_plane``; NaN
     where fewer than two directions are observable), and
     with ``truth`` (T, C, 4, 4) ground-truth poses: ``metric_scale`` (the result's units -> metres, a Sim(3) fit of

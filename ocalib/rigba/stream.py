@@ -15,9 +15,9 @@ import numpy as np
 import torch
 
 from ocalib.calib.result import Calibration
-from ocalib.calibnet.truth import angle_deg
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
+from ocalib.eval.calibration_metrics import angle_deg
 from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions, RigState

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from ocalib.geometry.angles import angles_text, rotation_error_deg
+from ocalib.geometry.pose import touched_axes
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.viz.figure import save_figure
 
@@ -197,16 +198,14 @@ def _bundle_row(
 ) -> None:
     """The rig bundle adjustment's translation at the frames where it ran (markers), the truth dashed (when in
     metres), and its rotation's error against the truth in the title. Its ``unobservable`` translation directions
-    (n, 3) are named in the panel, and the axes they have a share in (over ``UNOBSERVABLE_AXIS_SHARE``, as the
+    (n, 3) are named in the panel, and the axes they have a share in (:func:`~ocalib.geometry.pose.touched_axes`, as the
     result's 1-sigma counts them) are labelled unobservable and drawn faint: their values are not measurements."""
-    from ocalib.rigba.covariance import UNOBSERVABLE_AXIS_SHARE
-
     t, q = trace["bundle_translation"][:, k], trace["bundle_quaternion"][:, k]
     ran = np.isfinite(t[:, 0])
     title = f"rig bundle adjustment: translation ({units or 'its units'})"
     metric_truth = truth is not None and units == "metres"
     unobservable = np.zeros((0, 3)) if unobservable is None else unobservable
-    loose = (np.abs(unobservable) > UNOBSERVABLE_AXIS_SHARE).any(0) if len(unobservable) else np.zeros(3, bool)
+    loose = touched_axes(unobservable)
     for i in range(3):
         label = (
             f"t{AXES[i]}" + (f" = {t[ran][-1, i]:+.4f}" if ran.any() else "") + (" (unobservable)" if loose[i] else "")

@@ -88,11 +88,11 @@ def test_calibrate_with_alignment(tiny, tmp_path):
 
 
 def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
-    """truth.extrinsic_errors on the true extrinsics as the estimate and the true trajectories: zero errors,
+    """calibration_metrics.extrinsic_errors on the true extrinsics as the estimate and the true trajectories: zero errors,
     metric scale 1 (an independent check of the error conventions)."""
     from ocalib.calib.online import OnlineCalibrator
-    from ocalib.calibnet.truth import extrinsic_errors
     from ocalib.data import open_sequence
+    from ocalib.eval.calibration_metrics import extrinsic_errors
 
     _, seq, _ = tiny
     sequence = open_sequence(seq)

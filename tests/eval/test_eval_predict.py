@@ -12,12 +12,12 @@ import torch
 from ocalib.cli import main
 from ocalib.data.image_io import read_depth
 from ocalib.data.layout import open_sequence
+from ocalib.data.model_view import model_view
 from ocalib.errors import InputError
 from ocalib.eval.evaluate import evaluate_stream
 from ocalib.eval.pose_metrics import invert
 from ocalib.geometry.pose import chain_motions
 from ocalib.inference.predict import FramePrediction, PredictOptions, predict_frames
-from ocalib.inference.view import model_view
 from ocalib.io.poses import read_kitti
 from ocalib.models import EgoMotionModel, load_model, save_model
 from ocalib.synth.presets import preset
@@ -360,9 +360,9 @@ def test_align_in_predict_is_the_stream_alignment(seq, depth):
     the previous aligned motion as a prior, whatever the batching (frame 3 pairs with the previous batch's last
     frame), with or without the depth output (which shares the maps). The shipped checkpoint: an untrained
     network's corrections exceed the accepted rotation."""
+    from ocalib.data.model_view import FrameImages
     from ocalib.frontend.align import StreamAligner
     from ocalib.geometry.pose import invert_pose
-    from ocalib.inference.view import FrameImages
 
     model, sequence = load_model(None), open_sequence(seq)
     predictions = list(predict_frames(model, sequence, options=PredictOptions(batch_size=3, depth=depth, align=True)))

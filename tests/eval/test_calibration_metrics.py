@@ -1,4 +1,4 @@
-"""ocalib.calibnet.truth.scale_wander against closed forms on synthetic car rigs (ocalib.sim)."""
+"""ocalib.eval.calibration_metrics.scale_wander against closed forms on synthetic car rigs (ocalib.sim)."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from ocalib.calibnet.truth import scale_wander
+from ocalib.eval.calibration_metrics import scale_wander
 from ocalib.geometry.pose import make_pose
 from ocalib.sim.trajectory import car_trajectory, rig_trajectories, so3_exp
 
