@@ -16,7 +16,9 @@ given (as CamOdoCal holds the odometry); what the images must give is each camer
    camera from the candidate's frame on (:func:`ocalib.rigba.window.split_statistic`): a few resections misled
    by their points are not a move;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
-   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track.
+   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track; a camera whose
+   observations span fewer than ``MIN_SPAN`` keyframes (at the start, after a change) is held where it is: so short
+   a stretch of motion lets the adjustment throw it metres off.
 
 The estimator starts from the on-line head's rotations and zero lever arms; its translations are in metres.
 
@@ -43,6 +45,7 @@ from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window, split_sta
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
 CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
+MIN_SPAN = 10  # keyframes a camera's observations must span before the window moves its extrinsic
 MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
 
 
@@ -110,6 +113,7 @@ class OnlineRigEstimator:
         ]
         self.frames_seen = 0
         self.keyframes_unregistered = 0
+        self.dismissed: list[tuple[int, int, float]] = []  # candidates the window did not confirm: camera, frame, ratio
 
     def update(self, frame: int, images: list[np.ndarray], pose: np.ndarray) -> RigState | None:
         """Consume frame ``frame``: ``images`` one per camera, ``pose`` (4, 4) camera 0's metric camera-to-world
@@ -136,9 +140,10 @@ class OnlineRigEstimator:
         changes = [(k, change) for k, change in candidates if self._confirmed(k, change)]
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
-            window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes)
+            held = self._held()
+            window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held)
             for k, u in enumerate(window.uncertainty, start=1):
-                if u is not None:
+                if u is not None and k not in held:
                     self.window_covariance[k] = with_unobservable(u.covariance, u.unobservable)
                     drift = self.tracks[k].drifted(frame, self.extrinsics[k], self.window_covariance[k])
                     if drift is not None:
@@ -277,18 +282,29 @@ class OnlineRigEstimator:
 
     def _confirmed(self, k: int, change: Change) -> bool:
         """Whether the window confirms camera k's candidate ``change``; confirmed, the camera loses its observations
-        from before it, and its track takes the next windows' estimates (the window starts from where it was: a few
-        single-keyframe measurements are a poor start, and a false alarm then costs little)."""
+        from before it, and it restarts from the candidate's rotation with the lever arm it had (a knock turns a
+        camera more than it moves it; two resections place it poorly), held until its new observations span
+        ``MIN_SPAN`` keyframes; its track then takes the next windows' estimates."""
         track = self.tracks[k]
         statistic = split_statistic(
             list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, k, change.frame
         )
         if not statistic > chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6):  # NaN: too little to confirm
             track.dismiss()
+            self.dismissed.append((k, change.detected, statistic))
             return False
+        lever_arm = self.extrinsics[k][:3, 3].copy()
         track.accept(change)
+        self.extrinsics[k][:3, :3] = track.extrinsic[:3, :3]
+        self.extrinsics[k][:3, 3] = track.extrinsic[:3, 3] = lever_arm
         self._forget_before(k, change.frame)
         return True
+
+    def _held(self) -> frozenset[int]:
+        """The cameras whose observations span fewer than ``MIN_SPAN`` of the window's keyframes (after the start or a
+        change): too short a stretch of the rig's motion to place them, their extrinsic is held."""
+        span = np.sum([[bool((ids >= 0).any()) for ids in kf.point_ids] for kf in self.keyframes], axis=0)
+        return frozenset(int(k) for k in np.flatnonzero(span < MIN_SPAN) if k > 0)
 
     def _forget_before(self, k: int, frame: int) -> None:
         """Drop camera k's observations before ``frame``: they saw the camera where it no longer is."""

@@ -133,7 +133,8 @@ class RigStream:
 
     def result_json(self) -> dict:
         """The estimator's final state and cost: per camera k >= 1 its extrinsic (metres) with 1-sigma, the
-        keyframes, the seconds per keyframe (median) and per frame."""
+        keyframes, the seconds per keyframe (median) and per frame, and the candidate changes the window dismissed
+        (the frame they were raised at and the split test's likelihood ratio)."""
         final, seconds = self.final, [s.seconds for s in self.states]
         doc = {
             "units": "metres",
@@ -144,6 +145,10 @@ class RigStream:
             "seconds_per_frame": float(np.sum(seconds) / max(1, self.estimator.frames_seen)) if seconds else None,
             "window_keyframes": self.options.window,
             "keyframe_step": self.options.keyframe_step,
+            "dismissed_changes": [
+                {"camera": self.sequence.names[k], "frame": frame, "split_statistic": _finite(statistic)}
+                for k, frame, statistic in ([] if self.estimator is None else self.estimator.dismissed)
+            ],
             "extrinsics": [],
         }
         if final is None:

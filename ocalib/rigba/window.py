@@ -94,15 +94,17 @@ def adjust_window(
     extrinsics: np.ndarray,
     K: np.ndarray,
     sizes: list[tuple[int, int]],
+    held: frozenset[int] = frozenset(),
 ) -> WindowResult:
-    """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity),
-    the keyframes' poses held. K (C, 3, 3) and ``sizes`` (C,) of (height, width) per camera. Outlying observations
-    are dropped from the keyframes afterwards (their ``point_ids`` set to -1)."""
+    """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity;
+    so do those of the cameras in ``held``), the keyframes' poses held. K (C, 3, 3) and ``sizes`` (C,) of (height,
+    width) per camera. Outlying observations are dropped from the keyframes afterwards (their ``point_ids`` set to
+    -1)."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
-    xyz = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)))
+    xyz = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held)
     for pid, x in zip(obs["ids"], xyz):
         points[int(pid)] = x
     poses = np.stack([kf.pose for kf in keyframes])
@@ -151,9 +153,10 @@ def split_statistic(
     return float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
 
 
-def _solve(keyframes, points, extrinsics, K, sizes, obs, source) -> np.ndarray:
-    """Adjust the window's points and rig sensors (robust loss; sensor k sees camera ``source[k]``), the intrinsics and
-    the rig's poses held: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of ``obs["ids"]``."""
+def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset()) -> np.ndarray:
+    """Adjust the window's points and rig sensors (robust loss; sensor k sees camera ``source[k]``; those in ``held``
+    stay), the intrinsics and the rig's poses held: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of
+    ``obs["ids"]``."""
     rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source)
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.images:
@@ -162,6 +165,8 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source) -> np.ndarray:
         config.set_constant_cam_intrinsics(k + 1)
     for i in range(len(keyframes)):
         config.set_constant_rig_from_world_pose(i + 1)
+    for k in held:
+        config.set_constant_sensor_from_rig_pose(_sensor(k))
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
     options.refine_sensor_from_rig = True
