@@ -95,9 +95,10 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
     ba.add_argument(
         "--repeatable",
-        action="store_true",
-        help="COLMAP on one thread: the same input gives the same extrinsic to the digit (about 1.3x the bundle "
-        "adjustment's time on 2 cores); on several threads it varies from run to run",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="COLMAP on one thread (default): the same input gives the same extrinsic bit for bit; "
+        "--no-repeatable runs it on every core, faster, and the result then moves from run to run",
     )
     ba.add_argument(
         "--online-rig",

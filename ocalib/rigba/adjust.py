@@ -84,6 +84,7 @@ def adjust_rig(
                 }
             )
     out.stats.update(seconds=time.perf_counter() - start, **{f"{k}_seconds": v for k, v in ws.seconds.items()})
+    out.stats.update(threads=options.mapper.threads, repeatable=options.mapper.threads == options.features.threads == 1)
     if every:
         out.stats["stream"] = stream
     return out

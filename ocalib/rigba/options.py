@@ -20,7 +20,7 @@ class FeatureOptions:
     peak_threshold: float = 0.002  # SIFT's contrast threshold (COLMAP's default 0.0067 finds ~20 % fewer keypoints)
     overlap: int = 5
     cross_camera: bool = False  # also match camera j's images to camera k's (cameras that share a view, e.g. stereo)
-    threads: int = -1
+    threads: int = 1  # 1: the same images give the same matches (on more, the mapper's result moves from run to run)
 
 
 @dataclass(frozen=True)
@@ -29,8 +29,8 @@ class MapperOptions:
 
     kind: str = "global"  # one of MAPPERS
     refine_intrinsics: bool = False  # hold K as given (the default); True refines focal lengths and principal points
-    threads: int = -1
-    seed: int = 0  # COLMAP's RANSAC and initial choices: a fixed seed gives a repeatable result
+    threads: int = 1  # 1: the same input gives the same result bit for bit (on more, it moves from run to run)
+    seed: int = 0  # COLMAP's RANSAC and initial choices
     metric_noise: float | None = None  # metres per axis: a metric trajectory's positions as priors so weighed in a
     # last adjustment (None: a Sim(3) fit to it only)
 

@@ -19,7 +19,7 @@ from ocalib.rigba.adjust import adjust_rig
 from ocalib.rigba.colmap import colmap_camera, pinhole_params
 from ocalib.rigba.evaluate import adjustment_errors
 from ocalib.rigba.metric_prior import adjust_with_metric_prior
-from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
+from ocalib.rigba.options import BundleOptions
 from ocalib.rigba.workspace import camera_and_frame
 from ocalib.synth import preset, render_sequence
 
@@ -206,11 +206,10 @@ def test_a_metric_trajectory_is_held_as_a_prior(rig, tmp_path):
     assert rotation_angle_deg(after[:, :3].T @ before[:, :3]) < 0.05
 
 
-def test_one_thread_gives_the_same_extrinsic_to_the_digit(rig):
-    """COLMAP on one thread (``calibrate --repeatable``): two runs on the same frames agree exactly."""
+def test_the_default_gives_the_same_extrinsic_bit_for_bit(rig):
+    """COLMAP on one thread (the default, ``calibrate --repeatable``): two runs on the same frames agree exactly, and
+    the JSON says so."""
     seq, extrinsics, truth = rig
-    one = BundleOptions(FeatureOptions(threads=1), MapperOptions(threads=1))
-    first, second = (
-        adjust_rig(seq, _head_like(extrinsics), frames=30, metric=_metric(truth), options=one) for _ in range(2)
-    )
+    first, second = (adjust_rig(seq, _head_like(extrinsics), frames=30, metric=_metric(truth)) for _ in range(2))
     np.testing.assert_array_equal(first.extrinsics, second.extrinsics)
+    assert first.stats["repeatable"] and first.stats["threads"] == 1
