@@ -27,9 +27,10 @@ from bench_calibnet_accuracy import ensure
 from common import add_sequence_arguments, write_json
 
 from ocalib.calibnet.bundle import refine_calibration
-from ocalib.calibnet.run import calibrate_images
+from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
 from ocalib.frontend import FRONTENDS, FrontEndOptions
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
+from ocalib.rigba.stream import RigStream
 
 DEFAULT = ["handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001", "front-left-1002"]
 
@@ -68,13 +69,20 @@ def errors_row(e: dict) -> dict:
     }
 
 
-def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: int | None, time_offset=None) -> dict:
+def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: int | None, time_offset=None,
+        online_rig: bool = False) -> dict:  # fmt: skip
+    """``ocalib calibrate``'s on-line pass (with the on-line rig estimator where ``online_rig``) and the bundle
+    adjustment, camera 0's rendered poses the metric trajectory."""
     start = time.perf_counter()
-    result = calibrate_images(
-        path, frontend=FrontEndOptions(frontend), max_frames=frames, progress=False, time_offset=time_offset
-    )
+    sequence = open_calibration_sequence(path, max_frames=frames, time_offset=time_offset,
+                                         frontend=FrontEndOptions(frontend))  # fmt: skip
+    metric = sequence.cameras[0].poses[:frames]
+    rig = RigStream(sequence, metric) if online_rig else None
+    result = calibrate_images(sequence, frontend=FrontEndOptions(frontend), max_frames=frames, progress=False,
+                              on_frame=rig)  # fmt: skip
+    if rig is not None:
+        rig.attach(result)
     online = time.perf_counter() - start
-    metric = result.sequence.cameras[0].poses
     with PeakMemory() as memory:
         start = time.perf_counter()
         refine_calibration(result, metric, options, every=every, progress=False)
@@ -82,6 +90,7 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
     b = result.bundle
     return {
         "head": errors_row(result.errors[0]),
+        "rig_estimator": None if result.rig_errors is None else errors_row(result.rig_errors[0]),
         "bundle": errors_row(result.bundle_errors[0]),
         "trusted": bool(b.trusted[1]),
         "warnings": b.warnings,

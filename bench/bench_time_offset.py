@@ -2,10 +2,11 @@
 offset found (``--time-offset auto``) and with the offset ignored, against the synchronised render of the same seed.
 
 Each late render is ``ocalib synth`` of the preset with camera 1's ``time_offset`` (its own ``times.txt`` says the
-frames are synchronised); each run is ``ocalib calibrate``'s on-line pass (network front end) and the rig bundle
-adjustment with camera 0's rendered poses as the metric trajectory (:func:`bench_rigba.run`). Reported per run: the
-offset found and its error in frames, the bundle adjustment's rotation error (deg), translation direction error (deg;
-in the ground plane on cars) and translation error over the baseline, and whether it was trusted.
+frames are synchronised); each run is ``ocalib calibrate``'s on-line pass (network front end) with the on-line rig
+estimator, and the rig bundle adjustment, with camera 0's rendered poses as the metric trajectory
+(:func:`bench_rigba.run`). Reported per run: the offset found and its error in frames, the on-line rig estimator's
+and the bundle adjustment's rotation error (deg), translation direction error (deg; in the ground plane on cars)
+and translation error over the baseline, and whether the adjustment was trusted.
 
     python bench/bench_time_offset.py [--sequences handheld-1001 front-left-1008] [--offsets 0.7 0.05 0.03]
 """
@@ -53,9 +54,8 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(2)
     results = {}
-    print(
-        f"{'sequence':16} {'late s':>6} {'run':8} {'found s':>8} {'err fr':>6} {'rot':>6} {'dir':>6} {'t/b':>6} trusted"
-    )
+    print(f"{'sequence':16} {'late s':>6} {'run':8} {'found s':>8} {'err fr':>6} {'estimator rot/dir/t':>20} "
+          f"{'BA rot':>6} {'dir':>6} {'t/b':>6} trusted")  # fmt: skip
     for name in args.sequences:
         runs = [("synchronised", 0.0, ensure(Path(args.root), name, args.frames), None)]
         for offset in args.offsets:
@@ -63,15 +63,19 @@ def main() -> None:
             runs += [("auto", offset, path, ["auto"]), ("ignored", offset, path, [0.0])]
         rows = results[name] = []
         for mode, offset, path, spec in runs:
-            r = run(path, "network", args.frames, BundleOptions(), None, spec)
+            r = run(path, "network", args.frames, BundleOptions(), None, spec, online_rig=True)
             found = None if r["time_offsets"] is None else r["time_offsets"][1]
             row = {"mode": mode, "true_offset_s": offset, "found_offset_s": found}
             row["offset_error_frames"] = None if found is None else abs(found - offset) * 10.0
             row |= {key: r["bundle"][key] for key in KEYS} | {"trusted": r["trusted"], "head": r["head"]}
+            row["rig_estimator"] = r["rig_estimator"]
             rows.append(row)
             err = "" if found is None else f"{found:8.4f} {row['offset_error_frames']:6.2f}"
-            print(f"{name:16} {offset:6.2f} {mode:8} {err:>15} {row['rotation_deg']:6.2f} {row['direction_deg']:6.1f} "
-                  f"{row['translation_rel_baseline']:6.2f} {row['trusted']}", flush=True)  # fmt: skip
+            e = r["rig_estimator"]
+            rig = "" if e is None else " / ".join(f"{e[key]:.2f}" for key in KEYS)
+            print(f"{name:16} {offset:6.2f} {mode:8} {err:>15} {rig:>20} {row['rotation_deg']:6.2f} "
+                  f"{row['direction_deg']:6.1f} {row['translation_rel_baseline']:6.2f} {row['trusted']}",
+                  flush=True)  # fmt: skip
         write_json(args.out, {"frames": args.frames, "frame_rate": 10.0, "results": results})
 
 

@@ -67,8 +67,9 @@ class ImageCalibration:
 
     def result_json(self) -> dict:
         """The JSON of ``calibrate-poses``. ``extrinsics`` hold the best final result per camera, its ``source``
-        saying whose: the bundle adjustment's where it is trusted and the camera did not move mid-run, else the
-        on-line rig estimator's, else the head's; ``online_extrinsics`` the head's, ``rig_estimator`` the on-line
+        saying whose: the bundle adjustment's where it is trusted, the camera did not move mid-run and its frames
+        pair with camera 0's within ``SYNC_WARNING`` of a frame, else the on-line rig estimator's (which places each
+        image at the rig's pose when it was captured), else the head's; ``online_extrinsics`` the head's, ``rig_estimator`` the on-line
         estimator's final state and cost, ``changes`` the changes it found, ``bundle_adjustment`` the adjustment's
         figures, ``synchronisation`` how cameras on clocks of their own were paired (with the true offset where
         the layout knows it); ``units`` says what the translations are in."""
@@ -82,7 +83,7 @@ class ImageCalibration:
             for entry, cam in zip(doc["synchronisation"], cameras[1:]):
                 if cam.time_offset is not None:  # the truth, where the layout knows it (rendered rigs)
                     entry["true_time_offset"] = cam.time_offset - (cameras[0].time_offset or 0.0)
-            doc["warnings"] = doc["warnings"] + _pairing_warnings(self.sequence)
+            doc["warnings"] = doc["warnings"] + _pairing_warnings(self.sequence, self.rig is not None)
         online = doc["extrinsics"]
         errors = self.errors
         if self.bundle is not None or self.rig is not None:
@@ -105,8 +106,9 @@ class ImageCalibration:
             errors = self.bundle_errors
         rig = doc.get("rig_estimator", {}).get("extrinsics", [])
         moved = {c["camera"] for c in doc.get("changes", [])}
+        apart = {self.sequence.names[k] for k in _apart(self.sequence)} if self.sequence is not None else set()
         for k, estimate in enumerate(rig):
-            if doc["extrinsics"][k].get("source") != "bundle_adjustment" or estimate["camera"] in moved:
+            if doc["extrinsics"][k].get("source") != "bundle_adjustment" or estimate["camera"] in moved | apart:
                 keys = ("rotation", "quaternion_wxyz", "translation", "rotation_std_deg", "translation_std", "source")
                 doc["extrinsics"][k] = online[k] | {key: estimate[key] for key in keys}
                 doc["units"] = "metres"
@@ -118,19 +120,35 @@ class ImageCalibration:
         return doc
 
 
-def _pairing_warnings(sequence: Sequence) -> list[str]:
-    """A warning per camera whose frames pair with camera 0's more than ``SYNC_WARNING`` of a frame apart: a frame's
-    rig pose is camera 0's, so the camera is seen where the rig was that much earlier or later."""
+def _apart(sequence: Sequence) -> list[int]:
+    """The cameras whose frames pair with camera 0's more than ``SYNC_WARNING`` of a frame apart (median)."""
+    if sequence.pairing is None:
+        return []
+    period = float(np.median(np.diff(sequence.times)))
+    gaps = np.median(np.abs(sequence.pairing.residuals), axis=0)
+    return [k for k in range(1, len(gaps)) if gaps[k] > SYNC_WARNING * period]
+
+
+def _pairing_warnings(sequence: Sequence, placed: bool = False) -> list[str]:
+    """A warning per camera of :func:`_apart`: the head and the bundle adjustment take a frame's rig pose as camera
+    0's, so the camera is seen where the rig was that much earlier or later; ``placed``: the on-line rig estimator
+    ran, which places each image at the rig's pose when it was captured."""
     period = float(np.median(np.diff(sequence.times)))
     out = []
-    for k, name in enumerate(sequence.names[1:], 1):
+    for k in _apart(sequence):
         gap = float(np.median(np.abs(sequence.pairing.residuals[:, k])))
-        if gap > SYNC_WARNING * period:
-            out.append(
-                f"{name}: its frames pair with {sequence.names[0]}'s {gap:.3f} s ({gap / period:.2f} frames) apart: "
-                "its translation is biased by the rig's motion in that time, badly so where the lever arm is short "
-                "against the rig's speed; trigger the cameras together, or record at a higher frame rate"
-            )
+        cause = (
+            "the head's and the bundle adjustment's translations are biased by the rig's motion in that time; the "
+            "on-line rig estimator's, which places each image at the rig's pose when it was captured, is the result"
+            if placed
+            else "its translation is biased by the rig's motion in that time, badly so where the lever arm is short "
+            "against the rig's speed; give --metric-trajectory (the on-line rig estimator places each image at its "
+            "own capture time), trigger the cameras together, or record at a higher frame rate"
+        )
+        out.append(
+            f"{sequence.names[k]}: its frames pair with {sequence.names[0]}'s {gap:.3f} s ({gap / period:.2f} "
+            f"frames) apart: {cause}"
+        )
     return out
 
 

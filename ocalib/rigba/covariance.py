@@ -59,8 +59,9 @@ class ExtrinsicUncertainty:
 @dataclass
 class Observations:
     """The reconstruction's observations as arrays: per observation its camera index (0 = reference), frame index,
-    point index, pixel (2,); per frame its rig_from_world (F, 4, 4); per point xyz (P, 3); per camera its
-    sensor_from_rig (C, 4, 4) and pinhole (fx, fy, cx, cy) (C, 4)."""
+    point index, pixel (2,); per frame its rig_from_world (F, 4, 4), or (F, C, 4, 4) where each camera captured its
+    image of the frame at a pose of its own (cameras without a shared trigger; the frame's perturbation moves them
+    all); per point xyz (P, 3); per camera its sensor_from_rig (C, 4, 4) and pinhole (fx, fy, cx, cy) (C, 4)."""
 
     camera: np.ndarray
     frame: np.ndarray
@@ -159,7 +160,7 @@ def _block_diagonal(J_p: sp.csr_matrix, P: int) -> sp.csr_matrix:
 def _gauge_columns(obs: Observations, C: int) -> np.ndarray:
     """The columns the gauge fixes: the first frame's 6, and the scale through the translation coordinate of the frame
     farthest from it that the scale moves most."""
-    T = obs.rig_from_world
+    T = obs.rig_from_world if obs.rig_from_world.ndim == 3 else obs.rig_from_world[:, 0]
     centres = -np.einsum("fji,fj->fi", T[:, :3, :3], T[:, :3, 3])
     far = int(np.argmax(np.linalg.norm(centres - centres[0], axis=1)))
     direction = T[far, :3, :3] @ (centres[far] - centres[0])  # how the scale moves the far frame's translation
@@ -170,7 +171,7 @@ def _gauge_columns(obs: Observations, C: int) -> np.ndarray:
 def _jacobians(obs: Observations):
     """Per observation the reprojection Jacobians (N, 2, 6) extrinsic, (N, 2, 6) frame, (N, 2, 3) point and the
     residuals (2N,). Perturbations are on the left: ``T <- exp(dxi) T`` with ``dxi = (w, v)``."""
-    T_f = obs.rig_from_world[obs.frame]
+    T_f = obs.rig_from_world[obs.frame] if obs.rig_from_world.ndim == 3 else obs.rig_from_world[obs.frame, obs.camera]
     T_s = obs.sensor_from_rig[obs.camera]
     Y = np.einsum("nij,nj->ni", T_f[:, :3, :3], obs.xyz[obs.point]) + T_f[:, :3, 3]  # rig coordinates
     Pc = np.einsum("nij,nj->ni", T_s[:, :3, :3], Y) + T_s[:, :3, 3]  # camera coordinates

@@ -116,14 +116,17 @@ class OnlineRigEstimator:
         self.dismissed: list[tuple[int, int, float]] = []  # candidates the window did not confirm: camera, frame, ratio
 
     def update(self, frame: int, images: list[np.ndarray], pose: np.ndarray) -> RigState | None:
-        """Consume frame ``frame``: ``images`` one per camera, ``pose`` (4, 4) camera 0's metric camera-to-world
-        pose. Returns the state after a keyframe, None for the frames between."""
+        """Consume frame ``frame``: ``images`` one per camera, ``pose`` camera 0's metric camera-to-world pose (4, 4),
+        or (C, 4, 4) the rig's pose when each camera captured its image (cameras without a shared trigger: the
+        trajectory interpolated at each one's capture time). Returns the state after a keyframe, None for the frames
+        between."""
         self.frames_seen += 1
         if (self.frames_seen - 1) % self.options.keyframe_step:
             return None
         start = time.perf_counter()
         features = [self._features(image, k) for k, image in enumerate(images)]
-        kf = Keyframe(frame, np.asarray(pose, np.float64).copy(), features, [np.full(len(f), -1) for f in features])
+        poses = np.broadcast_to(np.asarray(pose, np.float64), (len(images), 4, 4)).copy()
+        kf = Keyframe(frame, poses, features, [np.full(len(f), -1) for f in features])
         measured = {}
         if self.keyframes:
             recent = list(self.keyframes)[-self.options.match_previous :]
@@ -191,10 +194,10 @@ class OnlineRigEstimator:
             for (i, pid), inlier in zip(where, inliers):
                 if inlier:
                     kf.point_ids[k][i] = pid
-            extrinsic = np.linalg.inv(kf.pose) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
+            extrinsic = np.linalg.inv(kf.poses[k]) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
             info = np.full((6, 6), np.nan)
             if inliers.sum() >= self.options.min_test_inliers:
-                info = information(np.asarray(xy)[inliers], np.asarray(xyz)[inliers], self.K[k], kf.pose, extrinsic)
+                info = information(np.asarray(xy)[inliers], np.asarray(xyz)[inliers], self.K[k], kf.poses[k], extrinsic)
             measured[k] = extrinsic, info
         return measured
 
@@ -203,7 +206,7 @@ class OnlineRigEstimator:
         resection does while it disagrees with the window (so that a knocked camera's new points are where it now
         looks, and the next keyframes measure the new mounting instead of the old one their points would give)."""
         return [
-            np.linalg.inv(kf.pose @ (measured[k][0] if k in measured and self.tracks[k].disagrees else E))
+            np.linalg.inv(kf.poses[k] @ (measured[k][0] if k in measured and self.tracks[k].disagrees else E))
             for k, E in enumerate(self.extrinsics)
         ]
 
@@ -224,7 +227,7 @@ class OnlineRigEstimator:
                 fresh = pid < 0
                 if not fresh.any():
                     continue
-                old_from_world = np.linalg.inv(previous.pose @ self.extrinsics[k])
+                old_from_world = np.linalg.inv(previous.poses[k] @ self.extrinsics[k])
                 uv = previous.features[k].keypoints[j[fresh]], features.keypoints[i[fresh]]
                 X, ok = self._points(old_from_world, new_from_world, k, *uv)
                 ids = self._next_point + np.arange(int(ok.sum()))

@@ -1,8 +1,9 @@
 """The sliding window of the on-line rig estimator: its keyframes, their 3-D points, and one bundle adjustment of
 them on COLMAP, with every camera's ``sensor_from_rig`` free.
 
-A :class:`Keyframe` holds the rig's pose at one frame and each camera's features, with the 3-D point each keypoint
-observes (-1: none). :func:`adjust_window` builds a COLMAP reconstruction of the window (one rig, camera 0 its
+A :class:`Keyframe` holds, per camera, the rig's pose when that camera captured its image (one pose for all where the
+cameras are triggered together; the rig's pose at each camera's own capture time where they are not), its features
+and the 3-D point each keypoint observes (-1: none). :func:`adjust_window` builds a COLMAP reconstruction of the window (one rig, camera 0 its
 reference; intrinsics and the rig's metric poses held), solves for the points and the extrinsics with a robust
 loss, drops the observations that stay far off, and returns the extrinsics' uncertainty
 (:mod:`ocalib.rigba.covariance`).
@@ -32,11 +33,12 @@ MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts f
 
 @dataclass
 class Keyframe:
-    """One frame of the window: ``frame`` index, the rig's ``pose`` (4, 4), per camera its ``features`` and
-    ``point_ids`` (N_k,) int64 (the 3-D point each keypoint observes, -1 for none)."""
+    """One frame of the window: ``frame`` index, ``poses`` (C, 4, 4) the rig's pose when each camera captured its
+    image, per camera its ``features`` and ``point_ids`` (N_k,) int64 (the 3-D point each keypoint observes, -1 for
+    none)."""
 
     frame: int
-    pose: np.ndarray
+    poses: np.ndarray
     features: list[Features]
     point_ids: list[np.ndarray]
 
@@ -79,8 +81,8 @@ def reprojection_errors(
     obs: dict[str, np.ndarray], poses: np.ndarray, extrinsics: np.ndarray, xyz: np.ndarray, K: np.ndarray
 ) -> np.ndarray:
     """(N,) pixel error of each observation of ``obs`` (see :func:`observations`); inf behind the camera.
-    poses (F, 4, 4), extrinsics (C, 4, 4), xyz (P, 3), K (C, 3, 3)."""
-    cam_from_world = np.linalg.inv(poses[obs["frame"]] @ extrinsics[obs["camera"]])
+    poses (N, 4, 4) the rig's at each observation, extrinsics (C, 4, 4), xyz (P, 3), K (C, 3, 3)."""
+    cam_from_world = np.linalg.inv(poses @ extrinsics[obs["camera"]])
     p = np.einsum("nij,nj->ni", cam_from_world[:, :3, :3], xyz[obs["point"]]) + cam_from_world[:, :3, 3]
     uv = np.einsum("nij,nj->ni", K[obs["camera"]], p)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -107,8 +109,8 @@ def adjust_window(
     xyz = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held)
     for pid, x in zip(obs["ids"], xyz):
         points[int(pid)] = x
-    poses = np.stack([kf.pose for kf in keyframes])
-    error = reprojection_errors(obs, poses, extrinsics, xyz, K)
+    poses = np.stack([kf.poses for kf in keyframes])  # (F, C, 4, 4)
+    error = reprojection_errors(obs, poses[obs["frame"], obs["camera"]], extrinsics, xyz, K)
     outlier = ~(error < MAX_ERROR_PX)
     for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
         keyframes[i].point_ids[k][j] = -1
@@ -139,7 +141,7 @@ def split_statistic(
     before = (obs["camera"] == camera) & ~after
     if min(after.sum(), before.sum()) < MIN_SPLIT_OBSERVATIONS:
         return float("nan")
-    poses = np.stack([kf.pose for kf in keyframes])
+    poses = np.stack([kf.poses for kf in keyframes])[obs["frame"], obs["camera"]]  # the rig's at each observation
     source = list(range(C)) + [camera]
     split = dict(obs, camera=np.where(after, C, obs["camera"]))
     errors, E, points = [], extrinsics.copy(), dict(points)
@@ -163,8 +165,8 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
         config.add_image(image_id)
     for k in range(len(extrinsics)):
         config.set_constant_cam_intrinsics(k + 1)
-    for i in range(len(keyframes)):
-        config.set_constant_rig_from_world_pose(i + 1)
+    for frame_id in rec.frames:
+        config.set_constant_rig_from_world_pose(frame_id)
     for k in held:
         config.set_constant_sensor_from_rig_pose(_sensor(k))
     options = pycolmap.BundleAdjustmentOptions()
@@ -183,8 +185,9 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
 
 
 def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source) -> pycolmap.Reconstruction:
-    """The window as a COLMAP reconstruction: camera k has id k + 1, keyframe i frame id i + 1 and image ids
-    ``i C + k + 1``, point p (of ``obs["ids"]``) id p + 1. Sensor k sees camera ``source[k]``'s keypoints."""
+    """The window as a COLMAP reconstruction: camera k has id k + 1; keyframe i's image of sensor k has id
+    ``i C + k + 1``, in a frame of its own (same id) at the rig's pose when camera ``source[k]`` captured it (the
+    frames' poses are held); point p (of ``obs["ids"]``) id p + 1. Sensor k sees camera ``source[k]``'s keypoints."""
     C = len(extrinsics)
     rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
@@ -199,19 +202,18 @@ def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source) -> pyc
             rig.add_sensor(_sensor(k), to_rigid(np.linalg.inv(extrinsics[k])))
     rec.add_rig(rig)
     for i, kf in enumerate(keyframes):
-        frame = pycolmap.Frame(frame_id=i + 1, rig_id=1)
-        frame.rig_from_world = to_rigid(np.linalg.inv(kf.pose))
         for k in range(C):
+            frame = pycolmap.Frame(frame_id=i * C + k + 1, rig_id=1)
+            frame.rig_from_world = to_rigid(np.linalg.inv(kf.poses[source[k]]))
             frame.add_data_id(pycolmap.data_t(_sensor(k), i * C + k + 1))
-        rec.add_frame(frame)
-        for k in range(C):
+            rec.add_frame(frame)
             image = pycolmap.Image(
                 name=f"c{k}/{kf.frame:06d}",
                 keypoints=kf.features[source[k]].keypoints + 0.5,
                 camera_id=k + 1,
                 image_id=i * C + k + 1,
             )
-            image.frame_id = i + 1
+            image.frame_id = i * C + k + 1
             rec.add_image(image)
     order = np.argsort(obs["point"], kind="stable")
     starts = np.searchsorted(obs["point"][order], np.arange(len(obs["ids"]) + 1))

@@ -30,11 +30,17 @@ def _mounting(rotation_deg, position) -> np.ndarray:
     return E
 
 
-def _window(rng, truth: np.ndarray, moved: np.ndarray | None = None, at: int = 8, sigma_px: float = 0.3):
+def _rig_pose(i: float) -> np.ndarray:
+    """The test rig's pose at keyframe ``i`` (fractional: between keyframes), camera-to-world (4, 4)."""
+    return _mounting(np.degrees([0.02 * i, 0.05 * i, 0.01 * i]), [0.1 * i, 0.02 * i, 0.2 * i])
+
+
+def _window(rng, truth, moved=None, at: int = 8, sigma_px: float = 0.3, late: float = 0.0):
     """12 keyframes of a two-camera rig (extrinsics ``truth`` (2, 4, 4)), 150 points in front of each camera at
-    the first, seen only by it, observed with ``sigma_px`` noise; camera 1 at ``moved`` from keyframe ``at`` on.
-    -> keyframes, points (their positions off by 5 cm), poses."""
-    poses = [_mounting(np.degrees([0.02 * i, 0.05 * i, 0.01 * i]), [0.1 * i, 0.02 * i, 0.2 * i]) for i in range(12)]
+    the first, seen only by it, observed with ``sigma_px`` noise; camera 1 at ``moved`` from keyframe ``at`` on,
+    capturing ``late`` keyframes after camera 0 (each keyframe holds both capture poses).
+    -> keyframes, points (their positions off by 5 cm)."""
+    poses = [_rig_pose(i) for i in range(12)]
     points, keyframes = {}, []
     world = []
     for k in range(2):
@@ -44,17 +50,17 @@ def _window(rng, truth: np.ndarray, moved: np.ndarray | None = None, at: int = 8
         world.append(rays @ cam[:3, :3].T + cam[:3, 3])
         points.update({150 * k + j: X + rng.normal(0, 0.05, 3) for j, X in enumerate(world[k])})
     for i, pose in enumerate(poses):
-        features, ids = [], []
+        features, ids, captured = [], [], np.stack([pose, _rig_pose(i + late)])
         for k in range(2):
             mounting = moved if (k == 1 and moved is not None and i >= at) else truth[k]
-            T = np.linalg.inv(pose @ mounting)
+            T = np.linalg.inv(captured[k] @ mounting)
             p = world[k] @ T[:3, :3].T + T[:3, 3]
             uv = p @ K.T
             xy = uv[:, :2] / uv[:, 2:] + rng.normal(0, sigma_px, (150, 2))
             inside = (p[:, 2] > 0) & (xy >= 0).all(1) & (xy < [416, 128]).all(1)
             features.append(Features(xy, np.zeros((150, 128), np.float32)))
             ids.append(np.where(inside, 150 * k + np.arange(150), -1))
-        keyframes.append(Keyframe(i, pose, features, ids))
+        keyframes.append(Keyframe(i, captured, features, ids))
     return keyframes, points
 
 
@@ -86,6 +92,24 @@ def test_a_held_camera_keeps_its_extrinsic_while_the_others_are_adjusted():
     np.testing.assert_allclose(held, start, atol=1e-12)
     adjust_window(*_window(np.random.default_rng(2), truth), free, np.stack([K, K]), [(128, 416)] * 2)
     assert np.linalg.norm(free[1, :3, 3] - truth[1, :3, 3]) < 0.5 * np.linalg.norm(truth[1, :3, 3])
+
+
+def test_a_camera_captured_late_is_adjusted_at_its_own_capture_pose():
+    """Camera 1 captures half a keyframe after camera 0 (the rig moves 11 cm, about the lever arm, in between): the
+    window placing it at its own capture pose recovers the extrinsic; placed at camera 0's, it is a lever arm off."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    start = truth.copy()
+    start[1, :3, 3] = 0.0
+    errors = []
+    for own_pose in (True, False):
+        keyframes, points = _window(np.random.default_rng(3), truth, late=0.5)
+        for kf in keyframes if not own_pose else ():
+            kf.poses[1] = kf.poses[0]
+        E = start.copy()
+        for _ in range(3):
+            adjust_window(keyframes, points, E, np.stack([K, K]), [(128, 416)] * 2)
+        errors.append(np.linalg.norm(E[1, :3, 3] - truth[1, :3, 3]) / np.linalg.norm(truth[1, :3, 3]))
+    assert errors[0] < 0.3 and errors[1] > 1.0, errors
 
 
 def test_the_split_window_tells_a_moved_camera_from_a_steady_one():

@@ -1,0 +1,59 @@
+"""The on-line rig estimator's stage in ``ocalib calibrate``: each camera's image placed at the rig's pose when that
+camera captured it, where the cameras run on clocks of their own."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ocalib.data.synchronise import Pairing
+from ocalib.rigba.stream import RigStream, capture_poses
+
+
+def _trajectory(times: np.ndarray) -> np.ndarray:
+    """A rig driving along x at 8 m/s while turning at 20 deg/s about y: poses (N, 4, 4) at ``times``."""
+    out = np.tile(np.eye(4), (len(times), 1, 1))
+    out[:, :3, :3] = Rotation.from_rotvec(np.radians(20.0) * times[:, None] * [0, 1, 0]).as_matrix()
+    out[:, 0, 3] = 8.0 * times
+    return out
+
+
+def test_a_late_camera_is_placed_at_the_rigs_pose_when_it_captured():
+    times = np.arange(20) / 10.0
+    late = np.where(np.arange(20) % 2, 0.05, -0.04)  # camera 1's capture, seconds after camera 0's (either way)
+    pairing = Pairing(np.array([0.0, 0.05]), np.tile(np.arange(20)[:, None], (1, 2)), np.c_[np.zeros(20), -late],
+                      np.array([20, 20]))  # fmt: skip
+    sequence = SimpleNamespace(cameras=[None, None], names=["cam0", "cam1"], times=times, pairing=pairing)
+    poses = capture_poses(sequence, _trajectory(times))
+    np.testing.assert_array_equal(poses[:, 0], _trajectory(times))  # camera 0's as given
+    inside = (times + late >= 0) & (times + late <= times[-1])  # camera 0's frames bracket the capture
+    np.testing.assert_allclose(poses[inside, 1], _trajectory(times + late)[inside], atol=1e-9)
+    np.testing.assert_array_equal(poses[~inside, 1], _trajectory(times)[~inside])  # outside: camera 0's
+
+
+def test_synchronised_cameras_share_the_rigs_pose():
+    times = np.arange(5) / 10.0
+    sequence = SimpleNamespace(cameras=[None, None, None], names=["a", "b", "c"], times=times, pairing=None)
+    poses = capture_poses(sequence, _trajectory(times))
+    assert poses.shape == (5, 3, 4, 4) and (poses == _trajectory(times)[:, None]).all()
+
+
+def test_the_final_errors_leave_out_the_axes_the_data_do_not_inform():
+    """A car's camera height (its 1-sigma over a tenth of the lever arm, as the bundle adjustment's rule) is not
+    compared: 1 m off in y, exact in x and z, is no error; the same estimate with every axis pinned is compared in
+    3-D (against a hand computation)."""
+    truth = np.stack([np.eye(4), np.eye(4)])
+    truth[1, :3, 3] = [1.2, 0.3, -0.5]
+    E = truth.copy()
+    E[1, 1, 3] += 1.0
+    std = np.zeros((2, 6))
+    std[1, 3:] = 0.01, 0.2, 0.01  # the lever arm 1.4 m: 0.2 m is over a tenth
+    (car,) = RigStream.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth)
+    assert car["compared_in_plane"] and car["translation_error"] == 0 and car["translation_direction_error_deg"] == 0
+    std[1, 4] = 0.01
+    (informed,) = RigStream.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth)
+    assert not informed["compared_in_plane"] and informed["translation_error"] == 1.0
+    a, b = E[1, :3, 3], truth[1, :3, 3]
+    expected = np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)))
+    assert informed["translation_direction_error_deg"] == pytest.approx(expected)
