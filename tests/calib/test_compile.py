@@ -10,10 +10,11 @@ from ocalib.calib.online import OnlineCalibrator
 
 def test_head_compiles_to_one_graph_with_the_eager_result(generator):
     poses, _, _ = lds_rig(generator, frames=24, noise=0.01)
-    eager, compiled = OnlineCalibrator(2, backend="torch"), OnlineCalibrator(2)  # the compiled graph is PyTorch
-    step = torch.compile(compiled, fullgraph=True, dynamic=False)  # raises on any graph break
     with torch.inference_mode(), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        # made in inference mode, as the buffers each step writes: one graph serves every frame (no recompile)
+        eager, compiled = OnlineCalibrator(2, backend="torch"), OnlineCalibrator(2)  # the compiled graph is PyTorch
+        step = torch.compile(compiled, fullgraph=True, dynamic=False)  # raises on any graph break
         for t in range(len(poses)):
             a, b = eager(poses[t]), step(poses[t])
     assert not [w for w in caught if "lru_cache" in str(w.message)]  # constants are traced, not cached, when compiling
