@@ -83,7 +83,8 @@ class ImageCalibration:
             for entry, cam in zip(doc["synchronisation"], cameras[1:]):
                 if cam.time_offset is not None:  # the truth, where the layout knows it (rendered rigs)
                     entry["true_time_offset"] = cam.time_offset - (cameras[0].time_offset or 0.0)
-            doc["warnings"] = doc["warnings"] + _pairing_warnings(self.sequence, self.rig is not None)
+            placed = self.rig is not None and self.rig.final is not None  # the estimator ran and has a result
+            doc["warnings"] = doc["warnings"] + _pairing_warnings(self.sequence, placed)
         online = doc["extrinsics"]
         errors = self.errors
         if self.bundle is not None or self.rig is not None:
