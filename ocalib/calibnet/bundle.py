@@ -1,5 +1,5 @@
-"""The rig bundle adjustment (:mod:`ocalib.rigba`) as the stage after the on-line pass of ``ocalib calibrate``: it starts from the head's
-rotations and the front end's trajectories, and leaves its result beside the head's.
+"""The rig bundle adjustment (:mod:`ocalib.rigba`) as the stage after the on-line pass of ``ocalib calibrate``: it
+starts from the head's rotations and the front end's trajectories, and leaves its result beside the head's.
 
 Convention: as :mod:`ocalib.rigba.adjust`; ``metric`` is camera 0's camera-to-world trajectory in metres at the
 sequence's frames (T, 4, 4).

@@ -69,10 +69,10 @@ class ImageCalibration:
         """The JSON of ``calibrate-poses``. ``extrinsics`` hold the best final result per camera, its ``source``
         saying whose: the bundle adjustment's where it is trusted, the camera did not move mid-run and its frames
         pair with camera 0's within ``SYNC_WARNING`` of a frame, else the on-line rig estimator's (which places each
-        image at the rig's pose when it was captured), else the head's; ``online_extrinsics`` the head's, ``rig_estimator`` the on-line
-        estimator's final state and cost, ``changes`` the changes it found, ``bundle_adjustment`` the adjustment's
-        figures, ``synchronisation`` how cameras on clocks of their own were paired (with the true offset where
-        the layout knows it); ``units`` says what the translations are in."""
+        image at the rig's pose when it was captured), else the head's; ``online_extrinsics`` the head's,
+        ``rig_estimator`` the on-line estimator's final state and cost, ``changes`` the changes it found,
+        ``bundle_adjustment`` the adjustment's figures, ``synchronisation`` how cameras on clocks of their own were
+        paired (with the true offset where the layout knows it); ``units`` says what the translations are in."""
         doc = self.run.result_json()
         doc["units"] = "camera 0's front-end units"
         if self.sequence is not None and self.sequence.pairing is not None:

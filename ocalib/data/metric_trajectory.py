@@ -17,8 +17,8 @@ INTERPOLATE_GAP = 1.25  # frame periods of the metric trajectory bridged by inte
 
 def read_metric_trajectory(path, sequence: Sequence, frames: int) -> np.ndarray:
     """Camera 0's trajectory in metres at the sequence's first ``frames`` frames (frames, 4, 4), from a KITTI file
-    (one pose a frame of camera 0, before any pairing in time) or a timestamped file (TUM, EuRoC: interpolated at the sequence's timestamps, as
-    ``calibrate-poses`` does). Every problem is an :class:`InputError` naming the file."""
+    (one pose a frame of camera 0, before any pairing in time) or a timestamped file (TUM, EuRoC: interpolated at the
+    sequence's timestamps, as ``calibrate-poses`` does). Every problem is an :class:`InputError` naming the file."""
     trajectory = read_poses(path)
     if trajectory.times is None:
         pairing = sequence.pairing

@@ -3,9 +3,9 @@ them on COLMAP, with every camera's ``sensor_from_rig`` free.
 
 A :class:`Keyframe` holds, per camera, the rig's pose when that camera captured its image (one pose for all where the
 cameras are triggered together; the rig's pose at each camera's own capture time where they are not), its features
-and the 3-D point each keypoint observes (-1: none). :func:`adjust_window` builds a COLMAP reconstruction of the window (one rig, camera 0 its
-reference; intrinsics and the rig's metric poses held), solves for the points and the extrinsics with a robust
-loss, drops the observations that stay far off, and returns the extrinsics' uncertainty
+and the 3-D point each keypoint observes (-1: none). :func:`adjust_window` builds a COLMAP reconstruction of the
+window (one rig, camera 0 its reference; intrinsics and the rig's metric poses held), solves for the points and the
+extrinsics with a robust loss, drops the observations that stay far off, and returns the extrinsics' uncertainty
 (:mod:`ocalib.rigba.covariance`).
 
 Convention: poses are the rig's (camera 0's) camera-to-world (4, 4); ``extrinsics`` (C, 4, 4) are ``T_cam0_camk``
