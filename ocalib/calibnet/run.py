@@ -121,13 +121,14 @@ class ImageCalibration:
         return doc
 
 
-def _apart(sequence: Sequence) -> list[int]:
-    """The cameras whose frames pair with camera 0's more than ``SYNC_WARNING`` of a frame apart (median)."""
+def _apart(sequence: Sequence) -> dict[int, float]:
+    """The cameras whose frames pair with camera 0's more than ``SYNC_WARNING`` of a frame apart -> their median gap
+    (seconds)."""
     if sequence.pairing is None:
-        return []
+        return {}
     period = float(np.median(np.diff(sequence.times)))
     gaps = np.median(np.abs(sequence.pairing.residuals), axis=0)
-    return [k for k in range(1, len(gaps)) if gaps[k] > SYNC_WARNING * period]
+    return {k: float(gaps[k]) for k in range(1, len(gaps)) if gaps[k] > SYNC_WARNING * period}
 
 
 def _pairing_warnings(sequence: Sequence, placed: bool = False) -> list[str]:
@@ -136,8 +137,7 @@ def _pairing_warnings(sequence: Sequence, placed: bool = False) -> list[str]:
     ran, which places each image at the rig's pose when it was captured."""
     period = float(np.median(np.diff(sequence.times)))
     out = []
-    for k in _apart(sequence):
-        gap = float(np.median(np.abs(sequence.pairing.residuals[:, k])))
+    for k, gap in _apart(sequence).items():
         cause = (
             "the head's and the bundle adjustment's translations are biased by the rig's motion in that time; the "
             "on-line rig estimator's, which places each image at the rig's pose when it was captured, is the result"

@@ -51,7 +51,7 @@ def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
     assert given.camera_json(1)["pair_residual_max_s"] < 1e-9
     assert _pairing_warnings(open_calibration_sequence(late, time_offset=[0.3])) == []  # whole frames: no gap left
     half = open_calibration_sequence(late, time_offset=[LATE])  # pairs half a frame apart: camera 1 is flagged
-    assert _apart(half) == [1] and _apart(open_calibration_sequence(late, time_offset=[0.3])) == []
+    assert list(_apart(half)) == [1] and _apart(open_calibration_sequence(late, time_offset=[0.3])) == {}
     (placed,) = _pairing_warnings(half, placed=True)  # with the on-line rig estimator, its result is the one kept
     assert (
         placed.startswith("cam1: its frames pair with cam0's 0.050 s (0.50 frames) apart") and "estimator's" in placed
