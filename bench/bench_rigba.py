@@ -88,11 +88,18 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
         refine_calibration(result, metric, options, every=every, progress=False)
         stage = time.perf_counter() - start
     b = result.bundle
+    names = sequence.names[1:]
+    rig_errors = result.rig_errors or [None] * len(names)
     return {
         "head": errors_row(result.errors[0]),
         "rig_estimator": None if result.rig_errors is None else errors_row(result.rig_errors[0]),
         "bundle": errors_row(result.bundle_errors[0]),
         "trusted": bool(b.trusted[1]),
+        "cameras": {  # every camera k >= 1 (the rows above are camera 1's)
+            name: {"head": errors_row(h), "rig_estimator": None if r is None else errors_row(r),
+                   "bundle": errors_row(e), "trusted": bool(t)}
+            for name, h, r, e, t in zip(names, result.errors, rig_errors, result.bundle_errors, b.trusted[1:])
+        },  # fmt: skip
         "warnings": b.warnings,
         "online_seconds": online,
         "stage_seconds": stage,
@@ -114,6 +121,7 @@ def main() -> None:
     p.add_argument("--overlap", type=int, default=FeatureOptions().overlap, help="frames each frame is matched to")
     p.add_argument("--threads", type=int, default=-1, help="COLMAP's threads (-1: all)")
     p.add_argument("--every", type=int, help="the streaming variant: a run after every N frames")
+    p.add_argument("--online-rig", action="store_true", help="run the on-line rig estimator in the on-line pass too")
     p.add_argument("--out", default="bench/results/rigba.json")
     args = p.parse_args()
     torch.set_num_threads(2)
@@ -128,7 +136,8 @@ def main() -> None:
     for name in args.sequences:
         path = ensure(Path(args.root), name, args.frames)
         for frontend in args.frontends:
-            r = results.setdefault(path.name, {})[frontend] = run(path, frontend, args.frames, options, args.every)
+            r = results.setdefault(path.name, {})[frontend] = run(path, frontend, args.frames, options, args.every,
+                                                               online_rig=args.online_rig)
             cell = lambda e: (
                 f"{e['rotation_deg']:6.2f} {e['direction_deg']:6.1f} "  # noqa: E731
                 f"{np.nan if e['translation_rel_baseline'] is None else e['translation_rel_baseline']:6.2f}"

@@ -1,5 +1,10 @@
+import hashlib
+import os
+import shutil
+
 import pytest
 import torch
+from filelock import FileLock  # torch's own dependency
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
@@ -12,6 +17,30 @@ def device(request):
 @pytest.fixture
 def generator():
     return torch.Generator().manual_seed(1234)
+
+
+@pytest.fixture(scope="session")
+def render(tmp_path_factory):
+    """``render(config, workers=1) -> Path``: ``config`` (a synth config) rendered once for the whole test run, in a
+    folder pytest-xdist's workers share (the renderer gives the same bytes for the same config; a module fixture
+    alone renders once per worker). Read only: a test that changes the images works on a copy."""
+    base = tmp_path_factory.getbasetemp()
+    root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "renders"
+    root.mkdir(exist_ok=True)
+
+    def rendered(config, workers: int = 1):
+        from ocalib.synth import render_sequence
+
+        path = root / f"{config.name}-{hashlib.sha256(repr(config).encode()).hexdigest()[:16]}"
+        with FileLock(f"{path}.lock"):
+            if not path.exists():
+                partial = path.with_name(path.name + ".partial")  # a failed render leaves no folder at path
+                shutil.rmtree(partial, ignore_errors=True)
+                render_sequence(config, partial, progress=False, workers=workers)
+                partial.rename(path)
+        return path
+
+    return rendered
 
 
 # The slow tests (node ids under tests/, or their prefixes): a render, a training run, a whole command, a compile.

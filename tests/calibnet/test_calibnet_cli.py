@@ -16,12 +16,10 @@ torch.set_num_threads(1)  # tiny tensors: threads only add hand-over cost on a b
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
+def tiny(tmp_path_factory, render):
     """A 12-frame handheld rig at 32x96 and an untrained model at that size."""
     root = tmp_path_factory.mktemp("calibrate")
-    seq = render_sequence(
-        preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003), root / "seq", progress=False
-    )
+    seq = render(preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003))
     torch.manual_seed(0)
     model = save_model(EgoMotionModel("small", height=32, width=96), root / "model.pt")
     return root, seq, model

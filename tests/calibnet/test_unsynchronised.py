@@ -10,18 +10,18 @@ import torch
 
 from ocalib.calibnet.run import _apart, _pairing_warnings, open_calibration_sequence
 from ocalib.cli import main
-from ocalib.synth import preset, render_sequence
+from ocalib.synth import preset
 
 torch.set_num_threads(1)
 LATE = 0.05  # seconds: half a frame at 10 Hz
 
 
 @pytest.fixture(scope="module")
-def late(tmp_path_factory):
+def late(render):
     """A 100-frame hand-held rig at 48x160 whose camera 1 captures LATE seconds after camera 0."""
     cfg = preset("handheld").with_overrides(frames=100, height=48, width=160, seed=1003)
     cameras = [cfg.cameras[0], dataclasses.replace(cfg.cameras[1], time_offset=LATE)]
-    return render_sequence(cfg.with_overrides(cameras=cameras), tmp_path_factory.mktemp("late") / "seq", progress=False)
+    return render(cfg.with_overrides(cameras=cameras))
 
 
 def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):

@@ -19,7 +19,7 @@ import torch
 from ocalib.cli import main
 from ocalib.data.rig import CameraSpec, RigSpec, read_rig_yaml, write_rig_yaml
 from ocalib.models import EgoMotionModel, save_model
-from ocalib.synth import preset, render_sequence
+from ocalib.synth import preset
 
 ROOT = Path(__file__).resolve().parents[2]
 NO_CUDA = pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
@@ -46,13 +46,11 @@ def files(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def rig(tmp_path_factory):
+def rig(tmp_path_factory, render):
     """A rendered 12-frame rig at 32x96, an untrained model at that size, and the same images played forwards and
     backwards for 240 frames as a user's rig: rig.yaml with names and intrinsics only, no poses."""
     root = tmp_path_factory.mktemp("rig")
-    seq = render_sequence(
-        preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003), root / "seq", progress=False
-    )
+    seq = render(preset("handheld").with_overrides(frames=12, height=32, width=96, seed=1003))
     torch.manual_seed(0)
     model = save_model(EgoMotionModel("small", height=32, width=96), root / "model.pt")
     spec = read_rig_yaml(seq / "rig.yaml")

@@ -21,17 +21,15 @@ from ocalib.inference.predict import FramePrediction, PredictOptions, predict_fr
 from ocalib.io.poses import read_kitti
 from ocalib.models import EgoMotionModel, load_model, save_model
 from ocalib.synth.presets import preset
-from ocalib.synth.sequence import render_sequence
 
 FRAMES, H, W = 8, 64, 208  # the rendered sequence
 MH, MW = 96, 312  # the model's resolution: 1.5x the images' (K and depth go through the resize)
 
 
 @pytest.fixture(scope="module")
-def seq(tmp_path_factory):
+def seq(render):
     torch.set_num_threads(1)
-    cfg = preset("front-rear").with_overrides(frames=FRAMES, height=H, width=W, seed=11)
-    return render_sequence(cfg, tmp_path_factory.mktemp("eval") / "seq", progress=False)
+    return render(preset("front-rear").with_overrides(frames=FRAMES, height=H, width=W, seed=11))
 
 
 @pytest.fixture(scope="module")

@@ -15,14 +15,12 @@ from ocalib.frontend.base import FrontEnd
 from ocalib.frontend.opencv_vo import run_opencv_vo
 from ocalib.geometry.pose import chain_motions
 from ocalib.models import EgoMotionModel, save_model
-from ocalib.synth import preset, render_sequence
+from ocalib.synth import preset
 
 
 @pytest.fixture(scope="module")
-def sequence(tmp_path_factory):
-    root = tmp_path_factory.mktemp("frontends")
-    config = preset("handheld").with_overrides(frames=12, seed=7, height=96, width=312)
-    return open_sequence(render_sequence(config, root / "seq", progress=False))
+def sequence(render):
+    return open_sequence(render(preset("handheld").with_overrides(frames=12, seed=7, height=96, width=312)))
 
 
 def stream(front_end: FrontEnd, sequence, frames: int) -> np.ndarray:

@@ -21,21 +21,15 @@ from ocalib.rigba.evaluate import adjustment_errors
 from ocalib.rigba.metric_prior import adjust_with_metric_prior
 from ocalib.rigba.options import BundleOptions
 from ocalib.rigba.workspace import camera_and_frame
-from ocalib.synth import preset, render_sequence
+from ocalib.synth import preset
 
 FRAMES = 60
 
 
 @pytest.fixture(scope="module")
-def rig(tmp_path_factory):
+def rig(render):
     """A hand-held two-camera rig (6-DoF motion, 0.13 m lever arm), 60 frames at 128x416, and its truth."""
-    root = tmp_path_factory.mktemp("rigba")
-    path = render_sequence(
-        preset("handheld").with_overrides(frames=FRAMES, height=128, width=416, seed=1011),
-        root / "seq",
-        progress=False,
-        workers=2,
-    )
+    path = render(preset("handheld").with_overrides(frames=FRAMES, height=128, width=416, seed=1011), workers=2)
     seq = open_sequence(path)
     extrinsics = np.stack([c.T_cam0_cam for c in seq.cameras])
     truth = np.stack([c.poses for c in seq.cameras], 1)

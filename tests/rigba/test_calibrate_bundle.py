@@ -11,21 +11,17 @@ import torch
 from ocalib.cli import main
 from ocalib.data.layout import open_sequence
 from ocalib.io.poses import write_kitti
-from ocalib.synth import preset, render_sequence
+from ocalib.synth import preset
 
 torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="module")
-def stereo(tmp_path_factory):
+def stereo(tmp_path_factory, render):
     """The renderer's stereo preset (0.54 m baseline, overlapping views), 40 frames at 128x416, rewritten as a KITTI
     odometry tree: image_2 / image_3, calib.txt with P0..P3, times.txt and poses/00.txt (the left camera's)."""
     root = tmp_path_factory.mktemp("stereo")
-    rendered = open_sequence(
-        render_sequence(
-            preset("stereo").with_overrides(frames=40, height=128, width=416, seed=1013), root / "rig", progress=False
-        )
-    )
+    rendered = open_sequence(render(preset("stereo").with_overrides(frames=40, height=128, width=416, seed=1013)))
     folder = root / "dataset" / "sequences" / "00"
     for name, cam in zip(("image_2", "image_3"), rendered.cameras):
         (folder / name).mkdir(parents=True)

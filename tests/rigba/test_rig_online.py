@@ -17,7 +17,7 @@ from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.rigba.window import Keyframe, adjust_window, split_statistic
-from ocalib.synth import preset, render_sequence
+from ocalib.synth import preset
 from ocalib.synth.presets import knocked
 
 K = np.array([[240.0, 0, 207.5], [0, 245.0, 63.5], [0, 0, 1]])
@@ -215,10 +215,10 @@ def test_a_window_that_follows_a_step_is_caught_drifting_from_the_track(seed):
 
 
 @pytest.fixture(scope="module")
-def knocked_rig(tmp_path_factory):
+def knocked_rig(render):
     """A hand-held rig, 120 frames at 128x416, camera 1 turned by 2 deg about its y axis at frame 70."""
     cfg = knocked(preset("handheld").with_overrides(frames=120, height=128, width=416, seed=1017), 70)
-    return open_sequence(render_sequence(cfg, tmp_path_factory.mktemp("knocked") / "rig", progress=False))
+    return open_sequence(render(cfg, workers=2))
 
 
 def _run(sequence, frames, options=OnlineRigOptions()):
