@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from common import write_json
 
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.frontend.network import NetworkFrontEnd
 from ocalib.models import EgoMotionModel, load_model

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from common import add_sequence_arguments, write_json
 
-from ocalib.calib.pipeline import RigPoses, calibrate_rig
+from ocalib.calib.poses.pipeline import RigPoses, calibrate_rig
 from ocalib.calibnet.run import calibrate_images
 from ocalib.data.layout import open_sequence
 from ocalib.eval.calibration_metrics import extrinsic_errors

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from common import write_json
 
-from ocalib.calib.pipeline import calibrate_rig, load_rig
+from ocalib.calib.poses.pipeline import calibrate_rig, load_rig
 from ocalib.io.poses import write_kitti
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 

@@ -14,7 +14,7 @@ solves the same frame-0 motions
 
 beside the reference's joint refinement and the head; and the head's rotation with its translation and scale
 mixed with ``A X = Y B``'s by the weight of the head's longest gap (``w`` of
-:func:`~ocalib.calib.pairing.gap_weights`: 0 under drift, 0.3-1 under independent noise). Prints medians and
+:func:`~ocalib.calib.stages.pairing.gap_weights`: 0 under drift, 0.3-1 under independent noise). Prints medians and
 means over the rigs and writes ``bench/results/frame0_rows.json``.
 
     python bench/bench_frame0_rows.py [--rigs 50] [--trajectories lds handheld]
@@ -33,9 +33,9 @@ from common import write_json
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.pairing import gap_weights
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.stages.pairing import gap_weights
 
 OUT = Path(__file__).parent / "results" / "frame0_rows.json"
 FRAMES, RATE, BASELINE = 128, 10.0, 0.13  # bench_head_accuracy's defaults

@@ -4,7 +4,7 @@ For each setting -- trajectory x pose noise x scale of camera 1's units -- the s
 random rotation and a unit baseline, as in the paper's section 3.1) are calibrated
 
 * by the head, streamed frame by frame, all rigs as one batch of B rigs (the compiled kernel on this CPU), and
-* by :func:`~ocalib.calib.batch.batch_calibrate` on the whole sequence, once per rig, with frame-0 pairing
+* by :func:`~ocalib.calib.drivers.batch.batch_calibrate` on the whole sequence, once per rig, with frame-0 pairing
   (``motion="first"``: every frame against frame 0, the paper's) and with consecutive pairing (``"consecutive"``),
   each with the joint refinement (``refine=True``, which was better than the closed form everywhere, measured),
   with translation rows in both directions (``symmetric=True``) and in one (``False``, ``-oneway``), and with both
@@ -49,10 +49,10 @@ import numpy as np
 import torch
 from common import write_json
 
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.handeye import translation_rows
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.translation import symmetric_scale
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.stages.handeye import translation_rows
+from ocalib.calib.stages.translation import symmetric_scale
 from ocalib.geometry.pose import rereference
 from ocalib.geometry.quaternion import rotation_angle
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories

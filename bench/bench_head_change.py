@@ -19,8 +19,8 @@ import torch
 from common import write_json
 from scipy.spatial.transform import Rotation
 
-from ocalib.calib.pipeline import RigPoses, calibrate_rig
-from ocalib.calib.sequence import calibrate_sequence
+from ocalib.calib.drivers.sequence import calibrate_sequence
+from ocalib.calib.poses.pipeline import RigPoses, calibrate_rig
 from ocalib.sim.trajectory import add_noise, car_trajectory, knocked, lds_trajectory, random_rig, rig_trajectories
 
 FRAMES, AT = 1000, 500

@@ -25,14 +25,14 @@ from bench_online import rig_sequence
 from common import shown_path, write_json
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.online import OnlineCalibrator
 
 OUT = Path(__file__).parent / "results" / "head_ops.json"
 WARMUP, FRAMES = 20, 10  # frames before counting (the gaps' history fills), frames counted
 
 
 def caller_module() -> str:
-    """The innermost ocalib module on the stack (``calib/refine.py``), or ``other``."""
+    """The innermost ocalib module on the stack (``calib/stages/refine.py``), or ``other``."""
     frame = sys._getframe(2)
     while frame is not None:
         name = frame.f_code.co_filename

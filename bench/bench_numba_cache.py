@@ -33,9 +33,9 @@ START = """
 import json, time
 clocks = [(time.perf_counter(), time.process_time())]
 import torch
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.online import OnlineCalibrator
 clocks.append((time.perf_counter(), time.process_time()))
-from ocalib.calib import kernel
+from ocalib.calib.drivers import kernel
 clocks.append((time.perf_counter(), time.process_time()))
 for rigs in (1, 32):
     head = OnlineCalibrator(2, batch_size=rigs)

@@ -3,8 +3,8 @@
 Measures, in one run on this machine:
 * the head's per-frame update (``OnlineCalibrator.forward``, reading the estimate) for 1, 64 and 4096 rigs
   batched, with the joint refinement (the default) and without (``refine=False``, the closed form), in its two
-  backends side by side: the compiled CPU kernel (``backend="auto"``, :mod:`ocalib.calib.kernel`; on all of numba's
-  threads, and for 4096 rigs also on one) and PyTorch (``backend="torch"``, one intra-op thread: on this shared
+  backends side by side: the compiled CPU kernel (``backend="auto"``, :mod:`ocalib.calib.drivers.kernel`; on all of
+  numba's threads, and for 4096 rigs also on one) and PyTorch (``backend="torch"``, one intra-op thread: on this shared
   2-core machine two were 10x slower for 4096 rigs);
 * the whole-sequence path (``calibrate_sequence``: the same estimates for a recorded sequence), per frame;
 * re-solving the batch problem (``batch_calibrate``) on all N frames so far, which is what a non-recursive method
@@ -40,9 +40,9 @@ import numpy as np
 import torch
 from common import shown_path, write_json
 
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.sequence import calibrate_sequence
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.sequence import calibrate_sequence
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 
 OUT = Path(__file__).parent / "results" / "online.json"

@@ -26,9 +26,9 @@ import numpy as np
 import torch
 from common import write_json
 
-from ocalib.calib.absolute import AbsoluteCalibrator
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.absolute import AbsoluteCalibrator
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.sim.opencv_protocol import simulate_opencv
 from ocalib.sim.trajectory import add_noise, car_trajectory, random_rig, rig_trajectories
 

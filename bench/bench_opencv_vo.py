@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from common import write_json
 
-from ocalib.calib.pipeline import calibrate_files
+from ocalib.calib.poses.pipeline import calibrate_files
 from ocalib.data import RigStream, open_sequence
 from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
 from ocalib.frontend.opencv_vo import OpenCVOdometry

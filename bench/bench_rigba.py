@@ -96,8 +96,12 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
         "bundle": errors_row(result.bundle_errors[0]),
         "trusted": bool(b.trusted[1]),
         "cameras": {  # every camera k >= 1 (the rows above are camera 1's)
-            name: {"head": errors_row(h), "rig_estimator": None if r is None else errors_row(r),
-                   "bundle": errors_row(e), "trusted": bool(t)}
+            name: {
+                "head": errors_row(h),
+                "rig_estimator": None if r is None else errors_row(r),
+                "bundle": errors_row(e),
+                "trusted": bool(t),
+            }
             for name, h, r, e, t in zip(names, result.errors, rig_errors, result.bundle_errors, b.trusted[1:])
         },  # fmt: skip
         "warnings": b.warnings,
@@ -136,8 +140,9 @@ def main() -> None:
     for name in args.sequences:
         path = ensure(Path(args.root), name, args.frames)
         for frontend in args.frontends:
-            r = results.setdefault(path.name, {})[frontend] = run(path, frontend, args.frames, options, args.every,
-                                                               online_rig=args.online_rig)
+            r = results.setdefault(path.name, {})[frontend] = run(
+                path, frontend, args.frames, options, args.every, online_rig=args.online_rig
+            )
             cell = lambda e: (
                 f"{e['rotation_deg']:6.2f} {e['direction_deg']:6.1f} "  # noqa: E731
                 f"{np.nan if e['translation_rel_baseline'] is None else e['translation_rel_baseline']:6.2f}"

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from common import write_json
 
-from ocalib.calib.sequence import calibrate_sequence
+from ocalib.calib.drivers.sequence import calibrate_sequence
 from ocalib.eval.pose_metrics import rotation_matrix_to_axis_angle
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 

@@ -24,9 +24,9 @@ from importlib import import_module
 __version__ = "0.1.0"
 
 _PUBLIC = {
-    "OnlineCalibrator": "ocalib.calib.online",
-    "HeadOptions": "ocalib.calib.options",
-    "calibrate_files": "ocalib.calib.pipeline",
+    "OnlineCalibrator": "ocalib.calib.drivers.online",
+    "HeadOptions": "ocalib.calib.drivers.options",
+    "calibrate_files": "ocalib.calib.poses.pipeline",
     "calibrate_images": "ocalib.calibnet.run",
     "refine_calibration": "ocalib.calibnet.bundle",
     "OnlineRigEstimator": "ocalib.rigba.online",

@@ -62,3 +62,22 @@ def test_the_layers_name_every_package_once():
     assert len(names) == len(set(names))
     on_disk = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists() or p.suffix == ".py"}
     assert {n.removesuffix(".py") for n in on_disk} - {"__init__", "__main__"} | {"train"} == set(names)
+
+
+# calib's sub-packages, bottom first: the stages, the drivers that chain them, the calibrate-poses application.
+CALIB_LAYERS = ["stages", "drivers", "poses"]
+
+
+def test_calib_sub_packages_import_only_from_those_below():
+    upward = []
+    for i, sub in enumerate(CALIB_LAYERS):
+        for path in sorted((PACKAGE / "calib" / sub).glob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                name = (node.module or "") if isinstance(node, ast.ImportFrom) else ""
+                parts = name.split(".")
+                if name.startswith("ocalib.calib.") and parts[2] in CALIB_LAYERS[i + 1 :]:
+                    upward.append(f"{path.relative_to(PACKAGE)} imports {name}")
+    assert not upward, upward
+    on_disk = {p.name for p in (PACKAGE / "calib").iterdir() if (p / "__init__.py").exists()}
+    assert on_disk == set(CALIB_LAYERS)
+    assert [p.name for p in (PACKAGE / "calib").glob("*.py")] == ["__init__.py"]

@@ -2,9 +2,9 @@
 
 Each call takes one synchronised frame of every camera of B rigs; the front end (:mod:`ocalib.frontend`) turns it
 into every camera's motion, the motions are chained into each camera's trajectory, and the head
-(:class:`~ocalib.calib.online.OnlineCalibrator`) updates the rig's extrinsics. With the network front end everything
-stays on one device and nothing is read back to the host inside a frame. The head's rotation goes back to the front
-end with the next frame (the network's rig-held alignment uses it).
+(:class:`~ocalib.calib.drivers.online.OnlineCalibrator`) updates the rig's extrinsics. With the network front end
+everything stays on one device and nothing is read back to the host inside a frame. The head's rotation goes back to the
+front end with the next frame (the network's rig-held alignment uses it).
 
 Convention: a camera's trajectory is ``T_first_cur = T_first_prev T_prev_cur`` (camera-to-first-frame, in the
 front end's units). The head returns ``T_cam0_camk`` (``p_cam0 = R p_camk + t``) in camera 0's front-end units and
@@ -16,8 +16,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.result import Calibration
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.result import Calibration
 from ocalib.frontend.base import FrontEnd
 
 

@@ -3,7 +3,7 @@
 :func:`calibrate_images` opens a sequence of any supported layout, streams its synchronised frames
 through a front end (:mod:`ocalib.frontend`) and the calibration head on one graph
 (:class:`~ocalib.calibnet.net.OnlineCalibrationNet`), and returns a
-:class:`~ocalib.calib.pipeline.CalibrationRun` (the JSON of ``calibrate-poses``, the per-frame trace,
+:class:`~ocalib.calib.poses.pipeline.CalibrationRun` (the JSON of ``calibrate-poses``, the per-frame trace,
 warnings) with the front end's trajectories, plus errors against the ground truth when the sequence has it.
 
 Convention: the result is ``T_cam0_camk`` (``p_cam0 = R p_camk + t``) in camera 0's front-end units and
@@ -23,12 +23,12 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from ocalib.calib.clock import find_time_offset
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.options import MOTION_CHOICES, HeadOptions
-from ocalib.calib.pipeline import RigPoses, offset_specs
-from ocalib.calib.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
-from ocalib.calib.result import Calibration
+from ocalib.calib.drivers.clock import find_time_offset
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.options import MOTION_CHOICES, HeadOptions
+from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.poses.pipeline import RigPoses, offset_specs
+from ocalib.calib.poses.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
 from ocalib.calibnet.net import OnlineCalibrationNet
 from ocalib.data.layout import open_sequence
 from ocalib.data.sequence import Sequence
@@ -156,7 +156,7 @@ def _pairing_warnings(sequence: Sequence, placed: bool = False) -> list[str]:
 def _replaced_said(warnings: list[str], extrinsics: list[dict]) -> list[str]:
     """The head's warnings that its translation is not supported, said as the head's where a later stage's result
     replaced it."""
-    from ocalib.calib.report import SOURCES
+    from ocalib.calib.poses.report import SOURCES
 
     out = []
     for w in warnings:
@@ -209,7 +209,7 @@ def open_calibration_sequence(
 
 def _estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
     """Each camera k's clock offset from the front end's rotations over the first ``frames`` frames as they are
-    -> (offsets, OffsetQuality) per camera k >= 1 (see :func:`ocalib.calib.clock.find_time_offset`)."""
+    -> (offsets, OffsetQuality) per camera k >= 1 (see :func:`ocalib.calib.drivers.clock.find_time_offset`)."""
     front_end = build_frontend(sequence, frontend, device)
     net = OnlineCalibrationNet(front_end, OnlineCalibrator(len(sequence.cameras))).to(device)
     net.head.load_kernel()
@@ -240,8 +240,8 @@ def calibrate_images(
     and ``time_offset`` are then not used). frontend: which front end and its settings
     (:class:`~ocalib.frontend.FrontEndOptions`). head: the head's (``refine`` defaults to ``"unobservable"``: a
     monocular front end's translation directions must not move an observable rotation, see
-    :data:`~ocalib.calib.solve.REFINE_MODES`). max_frames: use only the first frames. intrinsics: a file for layouts
-    without them. time_offset: for cameras without a shared clock (see :func:`open_calibration_sequence`).
+    :data:`~ocalib.calib.stages.solve.REFINE_MODES`). max_frames: use only the first frames. intrinsics: a file for
+    layouts without them. time_offset: for cameras without a shared clock (see :func:`open_calibration_sequence`).
     on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the current
     estimate (None: on a terminal; elsewhere a line on stderr every ``TRACE_EVERY`` frames).
     """

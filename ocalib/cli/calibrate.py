@@ -111,7 +111,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ocalib.calib.report import print_warnings, summary
+    from ocalib.calib.poses.report import print_warnings, summary
     from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
 
     frontend, head = frontend_options(args), head_options(args)
@@ -216,7 +216,7 @@ def _metric_trajectory(args, sequence):
 
 def print_errors(result) -> None:
     """The ground-truth errors of each stage that ran, where the sequence has a truth."""
-    from ocalib.calib.report import errors_table
+    from ocalib.calib.poses.report import errors_table
 
     names = result.run.rig.files
     stages = [

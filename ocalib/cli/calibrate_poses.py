@@ -89,8 +89,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ocalib.calib.pipeline import calibrate_files
-    from ocalib.calib.report import print_warnings, summary
+    from ocalib.calib.poses.pipeline import calibrate_files
+    from ocalib.calib.poses.report import print_warnings, summary
     from ocalib.errors import InputError
 
     if args.solver == "batch" and args.plot:

@@ -48,7 +48,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
 def run(args) -> int:
     from pathlib import Path
 
-    from ocalib.calib.report import print_warnings, summary
+    from ocalib.calib.poses.report import print_warnings, summary
     from ocalib.calibnet.run import calibrate_images
     from ocalib.cli.calibrate import print_errors
     from ocalib.data.layout import open_sequence

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import argparse
 
-from ocalib.calib.options import REFINE_CHOICES, HeadOptions
+from ocalib.calib.drivers.options import REFINE_CHOICES, HeadOptions
 from ocalib.frontend import FRONTENDS, FrontEndOptions
 
-# the head's motion pairings (the keys of ocalib.calib.options.MOTION_CHOICES) -> what they are
+# the head's motion pairings (the keys of ocalib.calib.drivers.options.MOTION_CHOICES) -> what they are
 MOTIONS_HELP = {
     "multi": "gaps of 1, 2, 4, 8 and 16 frames weighted by their noise (default, for VO / SLAM trajectories)",
     "first": "every frame against frame 0",

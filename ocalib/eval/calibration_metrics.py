@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ocalib.calib.result import Calibration
+from ocalib.calib.drivers.result import Calibration
 from ocalib.eval.pose_metrics import frame_motions, rotation_gain
 
 

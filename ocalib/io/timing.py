@@ -1,5 +1,5 @@
 """Timestamps of cameras on one rig: association (nearest stamp, or interpolation) under a known clock offset
-(:mod:`ocalib.calib.clock` estimates it).
+(:mod:`ocalib.calib.drivers.clock` estimates it).
 
 Convention: a time offset is ADDED to camera 1's timestamps to put them on camera 0's clock,
 ``t0 = t1 + offset``.

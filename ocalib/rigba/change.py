@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_distribution
 
-from ocalib.calib.change import Change, step_size
+from ocalib.calib.drivers.change import Change, step_size
 from ocalib.data.distortion import project
 
 HISTORY = 30  # steady keyframes whose statistics give the overdispersion

@@ -36,7 +36,7 @@ import numpy as np
 import pycolmap
 from scipy.stats import chi2 as chi2_distribution
 
-from ocalib.calib.change import Change
+from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion, undistort_pixels
 from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, information, with_unobservable
 from ocalib.rigba.colmap import pinhole_params, to_matrix

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import torch
 
-from ocalib.calib.result import Calibration
+from ocalib.calib.drivers.result import Calibration
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
 from ocalib.eval.calibration_metrics import angle_deg
@@ -178,9 +178,9 @@ class RigStream:
 
     def errors(self, truth: np.ndarray) -> list[dict]:
         """Per camera k >= 1, the final estimate's errors against the true ``truth`` (C, 4, 4) ``T_cam0_camk``
-        (after any change), in the keys of :func:`ocalib.calib.report.errors_table`; the translation compared without
-        the axes the data do not pin (a 1-sigma over ``WEAK_SHARE`` of the lever arm, or none: a car's height), as
-        the bundle adjustment's are."""
+        (after any change), in the keys of :func:`ocalib.calib.poses.report.errors_table`; the translation compared
+        without the axes the data do not pin (a 1-sigma over ``WEAK_SHARE`` of the lever arm, or none: a car's height),
+        as the bundle adjustment's are."""
         out = []
         for k in range(1, len(truth)):
             E, T = self.final.extrinsics[k], truth[k]

@@ -16,9 +16,9 @@ from dataclasses import asdict, dataclass, is_dataclass
 import torch
 from torch import Tensor
 
-from ocalib.calib.gating import NO_GATES
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.sequence import calibrate_sequence
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.sequence import calibrate_sequence
+from ocalib.calib.stages.gating import NO_GATES
 from ocalib.errors import InputError
 from ocalib.geometry.quaternion import rotation_angle, rotation_matrix_to_quaternion
 from ocalib.sim.trajectory import (
@@ -41,7 +41,7 @@ METHODS: dict[str, dict] = {
     "consecutive": {"motion": "consecutive"},  # the default with consecutive pairing
 }
 # any other pairing: "gaps-1-2-4-8" is the default with motion=(1, 2, 4, 8) (gap 0: the pair with frame 0); the gaps
-# are weighted by their noise as in the default (ocalib.calib.pairing)
+# are weighted by their noise as in the default (ocalib.calib.stages.pairing)
 
 ERRORS = ("rotation_deg", "axis_deg", "translation_direction_deg", "translation_rel", "scale_rel")
 ERROR_LABELS = {
@@ -148,7 +148,7 @@ def calibration_errors(rotation: Tensor, translation: Tensor, scale: Tensor, rig
 def run_method(poses: Tensor, rigs: Tensor, progress=None, **kwargs) -> Tensor:
     """Calibrate every rig on-line with ``OnlineCalibrator(**kwargs)``; ``progress()`` is called every frame.
 
-    The exact solver runs through the whole-sequence path (:func:`~ocalib.calib.sequence.calibrate_sequence`,
+    The exact solver runs through the whole-sequence path (:func:`~ocalib.calib.drivers.sequence.calibrate_sequence`,
     the same per-frame estimates, faster); the RLS streams the frames. One intra-op thread (small tensors).
 
     Args: poses (B, T, 2, 4, 4), rigs (B, 4, 4). Returns per-frame errors (B, T, len(ERRORS)).
@@ -228,5 +228,6 @@ def _check(noise, seeds, frames, noise_model, trajectory) -> None:
 
 
 def _jsonable(kwargs: dict) -> dict:
-    """A method's keyword arguments as JSON values (gaps as lists, :class:`~ocalib.calib.gating.Gates` as a dict)."""
+    """A method's keyword arguments as JSON values (gaps as lists, :class:`~ocalib.calib.stages.gating.Gates` as a
+    dict)."""
     return {k: list(v) if isinstance(v, tuple) else (asdict(v) if is_dataclass(v) else v) for k, v in kwargs.items()}

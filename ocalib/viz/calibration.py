@@ -1,6 +1,6 @@
 """Per-frame calibration estimates as a figure: rotation, translation, scale and observability.
 
-Convention: as :meth:`ocalib.calib.pipeline.CalibrationRun.trace` -- arrays (F, K, n) over F frames and
+Convention: as :meth:`ocalib.calib.poses.pipeline.CalibrationRun.trace` -- arrays (F, K, n) over F frames and
 K cameras; rotations are shown as the rotation from the final estimate to each frame's (or, given the
 ground truth, from the true rotation to each frame's estimate: its error), about camera k's axes (the axes of
 ``rotation_std_deg``), in degrees.

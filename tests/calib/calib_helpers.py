@@ -2,10 +2,10 @@
 
 import torch
 
-from ocalib.calib.gating import NO_GATES
-from ocalib.calib.handeye import TranslationMoment, row_statistics, translation_quadratic
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.rotation import RotationSystem
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.stages.gating import NO_GATES
+from ocalib.calib.stages.handeye import TranslationMoment, row_statistics, translation_quadratic
+from ocalib.calib.stages.rotation import RotationSystem
 from ocalib.geometry import make_pose
 from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, so3_exp
 

@@ -7,8 +7,8 @@ import torch
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ocalib.calib.absolute import AbsoluteCalibrator, absolute_rows, local_derivatives, solve_absolute
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.absolute import AbsoluteCalibrator, absolute_rows, local_derivatives, solve_absolute
+from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.geometry import invert_pose, make_pose, rotation_angle
 from ocalib.sim.opencv_protocol import simulate_opencv
 from ocalib.sim.trajectory import (

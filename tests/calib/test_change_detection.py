@@ -5,9 +5,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from ocalib.calib.change import ChangeTest, _cumulative, _split_ratio, first_change, handeye_residuals, motions
-from ocalib.calib.pipeline import RigPoses, calibrate_rig
-from ocalib.calib.sequence import calibrate_sequence
+from ocalib.calib.drivers.change import ChangeTest, _cumulative, _split_ratio, first_change, handeye_residuals, motions
+from ocalib.calib.drivers.sequence import calibrate_sequence
+from ocalib.calib.poses.pipeline import RigPoses, calibrate_rig
 from ocalib.sim.trajectory import add_noise, car_trajectory, knocked, lds_trajectory, random_rig, rig_trajectories
 
 F64 = torch.float64

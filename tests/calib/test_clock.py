@@ -9,7 +9,13 @@ import pytest
 import torch
 from timed_rigs import make_rig
 
-from ocalib.calib.clock import _runner_up, angular_speed, estimate_time_offset, find_time_offset, refine_time_offset
+from ocalib.calib.drivers.clock import (
+    _runner_up,
+    angular_speed,
+    estimate_time_offset,
+    find_time_offset,
+    refine_time_offset,
+)
 from ocalib.errors import InputError
 from ocalib.io.poses import read_poses, write_tum
 from ocalib.io.timing import associate

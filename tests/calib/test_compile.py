@@ -5,7 +5,7 @@ import warnings
 import torch
 from calib_helpers import lds_rig
 
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.online import OnlineCalibrator
 
 
 def test_head_compiles_to_one_graph_with_the_eager_result(generator):

@@ -6,10 +6,10 @@ import numpy as np
 import torch
 from calib_helpers import random_orthonormal, random_poses, random_rotations
 
-from ocalib.calib import gating_kernel
-from ocalib.calib.gating import affine_scan, check_poses, rotation_weights, screw_gate, screw_gate_sequence
-from ocalib.calib.handeye import rotation_blocks
-from ocalib.calib.rotation import RotationSystem, rotation_solution
+from ocalib.calib.stages import gating_kernel
+from ocalib.calib.stages.gating import affine_scan, check_poses, rotation_weights, screw_gate, screw_gate_sequence
+from ocalib.calib.stages.handeye import rotation_blocks
+from ocalib.calib.stages.rotation import RotationSystem, rotation_solution
 from ocalib.geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from ocalib.sim.trajectory import so3_exp
 

@@ -3,8 +3,8 @@ import pytest
 import torch
 from calib_helpers import lds_rig, random_moment, random_poses, random_rotations
 
-from ocalib.calib import handeye_kernel
-from ocalib.calib.handeye import (
+from ocalib.calib.stages import handeye_kernel
+from ocalib.calib.stages.handeye import (
     TranslationMoment,
     normal_equations,
     rotation_block,

@@ -7,10 +7,10 @@ import pytest
 import torch
 from calib_helpers import car_rig, lds_rig
 
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.rotation import rotation_gram as gram
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.stages.rotation import rotation_gram as gram
 
-kernel = pytest.importorskip("ocalib.calib.kernel", reason="numba is not installed")
+kernel = pytest.importorskip("ocalib.calib.drivers.kernel", reason="numba is not installed")
 
 TOL = dict(atol=1e-8, rtol=1e-8)
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 from calib_helpers import random_orthonormal, random_rotations
 
-from ocalib.calib import linalg_kernel
+from ocalib.calib.stages import linalg_kernel
 from ocalib.geometry import left_product_matrix, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 

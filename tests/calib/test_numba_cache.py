@@ -19,8 +19,8 @@ ROOT = Path(__file__).resolve().parents[2]
 # A kernel in rotation_kernel.py that calls a twin of linalg_kernel.py and reads a constant of rotation.py: numba's
 # own check, the compiled function's file alone, would keep it after an edit of either of those files.
 PROBE = """
-from ocalib.calib.linalg_kernel import left_product_matrix
-from ocalib.calib.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
+from ocalib.calib.stages.linalg_kernel import left_product_matrix
+from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
 
 
 @jit
@@ -31,7 +31,7 @@ def probe(q, L):
 RUN = """
 import json
 import numpy as np
-from ocalib.calib import rotation_kernel
+from ocalib.calib.stages import rotation_kernel
 value = rotation_kernel.probe(np.array([1.0, 0.0, 0.0, 0.0]), np.empty((4, 4)))
 stats = rotation_kernel.probe.stats
 print(json.dumps({"value": value, "hits": sum(stats.cache_hits.values()), "file": rotation_kernel.__file__}))
@@ -62,7 +62,7 @@ def twice(tree: Path) -> tuple:
 
 def test_a_cached_kernel_is_loaded_and_never_stale_after_an_edit(tmp_path):
     shutil.copytree(ROOT / "ocalib", tmp_path / "ocalib", ignore=shutil.ignore_patterns("__pycache__", "*.pt"))
-    calib = tmp_path / "ocalib" / "calib"
+    calib = tmp_path / "ocalib" / "calib" / "stages"
     with (calib / "rotation_kernel.py").open("a") as f:
         f.write(PROBE)
     assert twice(tmp_path) == (21.0, 0, 21.0, 1)  # compiled, then loaded

@@ -4,8 +4,8 @@ import pytest
 import torch
 from calib_helpers import car_rig, lds_rig, no_gating
 
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.geometry import make_pose, rotation_angle
 from ocalib.sim.trajectory import add_noise, random_rig, rig_trajectories, so3_exp, straight_trajectory
 

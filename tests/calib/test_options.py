@@ -2,8 +2,8 @@
 
 import pytest
 
-from ocalib.calib.options import MOTION_CHOICES, HeadOptions
-from ocalib.calib.pairing import MOTIONS
+from ocalib.calib.drivers.options import MOTION_CHOICES, HeadOptions
+from ocalib.calib.stages.pairing import MOTIONS
 from ocalib.errors import InputError
 
 

@@ -3,12 +3,12 @@ import pytest
 import torch
 from calib_helpers import lds_rig, random_moment, random_orthonormal, random_poses
 
-from ocalib.calib import pairing_kernel
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.gating import NO_GATES
-from ocalib.calib.handeye import STATISTICS, TranslationMoment
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.pairing import (
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.stages import pairing_kernel
+from ocalib.calib.stages.gating import NO_GATES
+from ocalib.calib.stages.handeye import STATISTICS, TranslationMoment
+from ocalib.calib.stages.pairing import (
     GAP_PRIOR_DOF,
     GAP_WEIGHT_POWER,
     MotionPairs,
@@ -16,7 +16,7 @@ from ocalib.calib.pairing import (
     gap_weights,
     motions_since,
 )
-from ocalib.calib.rotation import RotationSystem, rotation_gram
+from ocalib.calib.stages.rotation import RotationSystem, rotation_gram
 
 
 def _system(residual: list[float], rows: list[float]) -> tuple[torch.Tensor, torch.Tensor]:

@@ -3,9 +3,9 @@
 import numpy as np
 from calib_helpers import random_moment, random_orthonormal
 
-from ocalib.calib import planar_kernel
-from ocalib.calib.handeye import translation_quadratic
-from ocalib.calib.planar import planar_rotation
+from ocalib.calib.stages import planar_kernel
+from ocalib.calib.stages.handeye import translation_quadratic
+from ocalib.calib.stages.planar import planar_rotation
 
 
 def test_planar_rotation_twin(generator):

@@ -5,10 +5,10 @@ import pytest
 import torch
 from calib_helpers import entry, head_statistics
 
-from ocalib.calib import refine_kernel, solve_kernel
-from ocalib.calib.refine import REFINE_MODES, REFINE_STEPS, refine_estimate
-from ocalib.calib.rotation import RotationSystem
-from ocalib.calib.solve import closed_form
+from ocalib.calib.stages import refine_kernel, solve_kernel
+from ocalib.calib.stages.refine import REFINE_MODES, REFINE_STEPS, refine_estimate
+from ocalib.calib.stages.rotation import RotationSystem
+from ocalib.calib.stages.solve import closed_form
 
 
 @pytest.mark.parametrize("mode", REFINE_MODES)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ocalib.calib.report import errors_table
+from ocalib.calib.poses.report import errors_table
 from ocalib.rigba.covariance import ExtrinsicUncertainty
 from ocalib.rigba.evaluate import adjustment_errors
 from ocalib.rigba.result import RigAdjustment
@@ -114,7 +114,7 @@ def _camera(source: str | None, used: int, rejected: int) -> dict:
 
 
 def test_the_summary_says_what_its_frame_counts_count():
-    from ocalib.calib.report import summary
+    from ocalib.calib.poses.report import summary
 
     settings = {"frames": 300, "solver": "exact", "motion": "multi"}
     doc = {"reference": "cam0", "settings": settings, "extrinsics": [_camera("bundle_adjustment", 148, 2)]}

@@ -6,7 +6,7 @@ import pytest
 import torch
 from calib_helpers import lds_rig, no_gating
 
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.geometry import rotation_angle
 from ocalib.geometry.pose import invert_pose
 

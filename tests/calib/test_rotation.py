@@ -3,10 +3,10 @@ import pytest
 import torch
 from calib_helpers import lds_rig, random_orthonormal, random_rotations
 
-from ocalib.calib import rotation_kernel
-from ocalib.calib.handeye import rotation_block, rotation_blocks
-from ocalib.calib.linalg import guarded_eigh
-from ocalib.calib.rotation import (
+from ocalib.calib.stages import rotation_kernel
+from ocalib.calib.stages.handeye import rotation_block, rotation_blocks
+from ocalib.calib.stages.linalg import guarded_eigh
+from ocalib.calib.stages.rotation import (
     RotationSystem,
     batch_rotation,
     incremental_svd_update,

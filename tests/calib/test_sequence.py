@@ -4,8 +4,8 @@ import pytest
 import torch
 from calib_helpers import lds_rig
 
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.sequence import calibrate_sequence
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.sequence import calibrate_sequence
 from ocalib.geometry import make_pose
 from ocalib.sim.trajectory import so3_exp
 

@@ -3,9 +3,9 @@
 import numpy as np
 from calib_helpers import entry, head_statistics
 
-from ocalib.calib import solve_kernel
-from ocalib.calib.rotation import RotationSystem
-from ocalib.calib.solve import closed_form
+from ocalib.calib.stages import solve_kernel
+from ocalib.calib.stages.rotation import RotationSystem
+from ocalib.calib.stages.solve import closed_form
 
 
 def test_closed_form_twin(generator):

@@ -3,9 +3,11 @@ import pytest
 import torch
 from calib_helpers import lds_rig, random_moment, random_rotations
 
-from ocalib.calib import translation_kernel
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.handeye import (
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.sequence import calibrate_sequence
+from ocalib.calib.stages import translation_kernel
+from ocalib.calib.stages.handeye import (
     STATISTICS,
     normal_equations,
     pair_features,
@@ -14,10 +16,8 @@ from ocalib.calib.handeye import (
     translation_quadratic,
     translation_rows,
 )
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.sequence import calibrate_sequence
-from ocalib.calib.solve_kernel import Estimate
-from ocalib.calib.translation import fit_scale, pinv_solve, rls_update, solve_translation, symmetric_scale
+from ocalib.calib.stages.solve_kernel import Estimate
+from ocalib.calib.stages.translation import fit_scale, pinv_solve, rls_update, solve_translation, symmetric_scale
 from ocalib.geometry import invert_pose
 from ocalib.geometry.pose import rereference
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories

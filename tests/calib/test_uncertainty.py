@@ -4,10 +4,10 @@ from dataclasses import fields
 import torch
 from calib_helpers import car_rig, lds_rig
 
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import rotation_std
-from ocalib.calib.sequence import calibrate_sequence
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.drivers.sequence import calibrate_sequence
+from ocalib.calib.stages.rotation import rotation_std
 from ocalib.geometry import rotation_angle
 
 

@@ -88,7 +88,7 @@ def test_calibrate_with_alignment(tiny, tmp_path):
 def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     """calibration_metrics.extrinsic_errors on the true extrinsics as the estimate and the true trajectories: zero errors,
     metric scale 1 (an independent check of the error conventions)."""
-    from ocalib.calib.online import OnlineCalibrator
+    from ocalib.calib.drivers.online import OnlineCalibrator
     from ocalib.data import open_sequence
     from ocalib.eval.calibration_metrics import extrinsic_errors
 
@@ -189,7 +189,7 @@ def test_planar_motion_with_the_network_advises_the_opencv_front_end(frontend):
     """A car's drive is flagged planar by the head; the network front end then gets the measured advice (OpenCV VO's
     rotation was lower on five of six held-out cars), the OpenCV front end and non-planar
     motion do not."""
-    from ocalib.calib.online import OnlineCalibrator
+    from ocalib.calib.drivers.online import OnlineCalibrator
     from ocalib.frontend.network import PLANAR_ADVICE, NetworkFrontEnd
     from ocalib.frontend.opencv import OpenCVFrontEnd
     from ocalib.sim.trajectory import car_trajectory, lds_trajectory, random_rig, rig_trajectories

@@ -12,7 +12,7 @@ import pytest
 import torch
 from torch import nn
 
-from ocalib.calib.online import OnlineCalibrator
+from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.frontend.align import StreamAligner
 from ocalib.frontend.network import NetworkFrontEnd

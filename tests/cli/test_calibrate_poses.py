@@ -426,7 +426,7 @@ def test_bad_options(tmp_path, capsys):
 @pytest.mark.parametrize("refine", ["always", "never"])
 def test_refine_option_reaches_the_head(tmp_path, capsys, refine):
     """--refine reaches the solver: with --solver batch, never gives the closed form, always the joint least squares."""
-    from ocalib.calib.batch import batch_calibrate
+    from ocalib.calib.drivers.batch import batch_calibrate
 
     poses, _ = simulate(noise=0.01)
     out = tmp_path / "r.json"

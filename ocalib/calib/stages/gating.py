@@ -1,7 +1,8 @@
 """Robustness of the hand-eye rows: the pose checks, the screw-congruence gate and the weights of the rotation rows.
 
-Pure functions of the state, shared by the streaming head (:mod:`ocalib.calib.online`) and the
-whole-sequence path (:mod:`ocalib.calib.sequence`); their compiled twins are in :mod:`ocalib.calib.gating_kernel`.
+Pure functions of the state, shared by the streaming head (:mod:`ocalib.calib.drivers.online`) and the
+whole-sequence path (:mod:`ocalib.calib.drivers.sequence`); their compiled twins are in
+:mod:`ocalib.calib.stages.gating_kernel`.
 
 * Pose checks: a frame's poses must have the rig's shape; a pose with a non-finite entry or a rotation further than
   a tolerance from orthonormal is skipped.
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ocalib.calib.rotation import RotationSystem, rotation_observable, rotation_solution, singular_values
+from ocalib.calib.stages.rotation import RotationSystem, rotation_observable, rotation_solution, singular_values
 from ocalib.geometry.pose import orthonormality_error
 
 MAD_TO_STD = 1.25  # mean absolute deviation -> standard deviation, for Gaussian noise
@@ -35,7 +36,7 @@ SCREW_MAX_SAMPLES = 1000.0
 
 @dataclass(frozen=True)
 class Gates:
-    """The head's thresholds of what it trusts (the defaults of :class:`~ocalib.calib.online.OnlineCalibrator`).
+    """The head's thresholds of what it trusts (the defaults of :class:`~ocalib.calib.drivers.online.OnlineCalibrator`).
 
     ``min_rotation_deg``: motions rotating less than this give no rotation rows. ``screw_gate_deg``,
     ``screw_gate_sigma``: a pair is rejected when its two rotation angles differ by more than
@@ -67,7 +68,7 @@ def rig_poses(poses: Tensor, batch_size: int, num_cameras: int) -> Tensor:
 def check_poses(poses: Tensor, tolerance: float) -> tuple[Tensor, Tensor]:
     """The poses (..., 4, 4) with the invalid ones (a non-finite entry, or a rotation further than ``tolerance`` from
     orthonormal) replaced by the identity, and which are valid (...). Kernel twin:
-    :func:`ocalib.calib.gating_kernel.check_poses`."""
+    :func:`ocalib.calib.stages.gating_kernel.check_poses`."""
     valid = poses.isfinite().flatten(-2).all(-1)
     eye = torch.eye(4, dtype=poses.dtype, device=poses.device)
     poses = torch.where(valid[..., None, None], poses, eye)  # keep NaN out of the state
@@ -91,7 +92,7 @@ def screw_gate(
         gate, sigma: the threshold ``max(gate, sigma * robust std)``.
 
     Returns ``ok`` (..., K, P), the pairs that pass, and the updated ``scale, count``. Kernel twin:
-    :func:`ocalib.calib.gating_kernel.screw_gate`.
+    :func:`ocalib.calib.stages.gating_kernel.screw_gate`.
     """
     screw = screw_differences(angle).detach()
     opened = (count >= SCREW_MIN_SAMPLES).unsqueeze(-1)
@@ -156,7 +157,7 @@ def rotation_weights(
     """Weights (..., K, P) of the rotation blocks ``A`` (..., K, P, 4, 4) of the pairs ``ok`` (..., K, P): none where
     the two motions (every camera's angles (..., C, P)) rotate less than ``min_rotation`` on average; ``robust / d``
     where the residual angle ``d`` under ``estimate`` (..., K) exceeds ``robust`` and rotation is observable, else 1.
-    Kernel twin: :func:`ocalib.calib.gating_kernel.rotation_weights`."""
+    Kernel twin: :func:`ocalib.calib.stages.gating_kernel.rotation_weights`."""
     moving = (angle[..., :1, :] + angle[..., 1:, :]) / 2 >= min_rotation
     q = rotation_solution(estimate.V).detach()
     r = (A.detach() @ q[..., None, :, None]).squeeze(-1).norm(dim=-1)  # |q0 * dq - dq * q1| = 2 sin(d / 4)

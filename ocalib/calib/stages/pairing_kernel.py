@@ -1,7 +1,7 @@
-"""Compiled twins (numba) of :mod:`ocalib.calib.pairing`: a frame's motion pairs and the combination of the gaps'
+"""Compiled twins (numba) of :mod:`ocalib.calib.stages.pairing`: a frame's motion pairs and the combination of the gaps'
 statistics, for one rig (no batch dimension; results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.pairing`; every camera's motions (C, P), the pairs of camera 0 against camera k
+Convention: as :mod:`ocalib.calib.stages.pairing`; every camera's motions (C, P), the pairs of camera 0 against camera k
 (K, P) or, for one camera k, (P,).
 """
 
@@ -12,15 +12,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ocalib.calib.linalg_kernel import eigh4, jit, rotation_matrix_to_quaternion
-from ocalib.calib.pairing import GAP_PRIOR_DOF, GAP_WEIGHT_POWER, NOISE_FLOOR
-from ocalib.calib.rotation_kernel import rotate_basis, rotation_gram
+from ocalib.calib.stages.linalg_kernel import eigh4, jit, rotation_matrix_to_quaternion
+from ocalib.calib.stages.pairing import GAP_PRIOR_DOF, GAP_WEIGHT_POWER, NOISE_FLOOR
+from ocalib.calib.stages.rotation_kernel import rotate_basis, rotation_gram
 
 
 @jit
 def motions_since(earlier, earlier_valid, poses, valid, pairs):
-    """:func:`~ocalib.calib.pairing.motions_since` of a rig: the ``earlier`` poses (C, P, 4, 4) (valid: (C, P)), the
-    poses (C, 4, 4) (valid: (C,)); ``pairs`` a :class:`~ocalib.calib.pairing.MotionPairs` of arrays, written."""
+    """:func:`~ocalib.calib.stages.pairing.motions_since` of a rig: the ``earlier`` poses (C, P, 4, 4) (valid: (C, P)),
+    the poses (C, 4, 4) (valid: (C,)); ``pairs`` a :class:`~ocalib.calib.stages.pairing.MotionPairs` of arrays,
+    written."""
     C, n_pairs = earlier_valid.shape
     for cam in range(C):
         for j in range(n_pairs):
@@ -42,7 +43,7 @@ def motions_since(earlier, earlier_valid, poses, valid, pairs):
 
 @jit
 def gap_weights(S2, rows, w):
-    """:func:`~ocalib.calib.pairing.gap_weights` of P gaps (``S2`` (P, 4), ``rows`` (P,)): ``w`` (P,) written."""
+    """:func:`~ocalib.calib.stages.pairing.gap_weights` of P gaps (``S2`` (P, 4), ``rows`` (P,)): ``w`` (P,) written."""
     n_gaps = rows.shape[0]
     dof_sum, res_sum, top = 0.0, 0.0, 0.0
     for j in range(n_gaps):
@@ -88,13 +89,13 @@ def workspace(n_pairs):
 
 @jit
 def combine_statistics(gaps, gap_moment, S2, V, Z, Z_reverse, work):
-    """:func:`~ocalib.calib.pairing.combine_statistics` for one rig and camera k: ``gaps`` a
-    :class:`~ocalib.calib.rotation.RotationSystem` and ``gap_moment`` a :class:`~ocalib.calib.handeye.TranslationMoment`
-    of each gap ((P, *)); writes the combined rotation system's ``S2`` (4,) and ``V`` (4, 4) and the moment ``Z``
-    (58,) and its reverse rows' share ``Z_reverse``, returns their row counts. Unlike the PyTorch stage it takes
-    each gap's ``(S2, V)`` for its Gram matrix; one gap is its own combination (PyTorch decomposes its Gram matrix
-    again: the same to rounding). ``V`` comes in as the last frame's, the basis the combined Gram matrix is decomposed
-    in (nearly diagonal there: fewer Jacobi sweeps). ``work``: :func:`workspace`."""
+    """:func:`~ocalib.calib.stages.pairing.combine_statistics` for one rig and camera k: ``gaps`` a
+    :class:`~ocalib.calib.stages.rotation.RotationSystem` and ``gap_moment`` a
+    :class:`~ocalib.calib.stages.handeye.TranslationMoment` of each gap ((P, *)); writes the combined rotation system's
+    ``S2`` (4,) and ``V`` (4, 4) and the moment ``Z`` (58,) and its reverse rows' share ``Z_reverse``, returns their row
+    counts. Unlike the PyTorch stage it takes each gap's ``(S2, V)`` for its Gram matrix; one gap is its own combination
+    (PyTorch decomposes its Gram matrix again: the same to rounding). ``V`` comes in as the last frame's, the basis the
+    combined Gram matrix is decomposed in (nearly diagonal there: fewer Jacobi sweeps). ``work``: :func:`workspace`."""
     gap_S2, gap_V, gap_rows = gaps
     gap_Z, gap_translation_rows, gap_Z_reverse = gap_moment
     if gap_rows.shape[0] == 1:

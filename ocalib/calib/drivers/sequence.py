@@ -1,19 +1,19 @@
 """The whole-sequence path: the streaming head's estimate at every frame of a recorded sequence, at once.
 
-:func:`calibrate_sequence` gives what :class:`~ocalib.calib.online.OnlineCalibrator` returns frame by frame,
+:func:`calibrate_sequence` gives what :class:`~ocalib.calib.drivers.online.OnlineCalibrator` returns frame by frame,
 with the head's stage functions vectorised over time: all frames' pose checks, motion pairs, hand-eye blocks and
 translation moments at once, the statistics accumulated as prefix sums (a scan with the forgetting factor) and
 combined, and every frame's estimate (closed form, refinement) solved in one batch. Frames go in chunks (bounded
 memory).
 
 The two recursive parts are solved by fixed-point passes over a chunk: the screw gate's running scale (see
-:func:`~ocalib.calib.gating.screw_gate_sequence`), and the down-weighting of large rotation residuals
-(:func:`~ocalib.calib.gating.rotation_weights`) needs the previous frame's estimate, which a chunk computes itself: each chunk starts from the estimate before it,
-then re-weights with its own estimates until the weights stop changing (one pass when no row is
-down-weighted, a few when some are). The result equals the stream's to rounding (tested to 1e-8, with and
-without outliers).
+:func:`~ocalib.calib.stages.gating.screw_gate_sequence`), and the down-weighting of large rotation residuals
+(:func:`~ocalib.calib.stages.gating.rotation_weights`) needs the previous frame's estimate, which a chunk computes
+itself: each chunk starts from the estimate before it, then re-weights with its own estimates until the weights stop
+changing (one pass when no row is down-weighted, a few when some are). The result equals the stream's to rounding
+(tested to 1e-8, with and without outliers).
 
-Convention: as :mod:`ocalib.calib.online` -- poses (T, [B,] C, 4, 4) camera-to-world, camera 0 the reference.
+Convention: as :mod:`ocalib.calib.drivers.online` -- poses (T, [B,] C, 4, 4) camera-to-world, camera 0 the reference.
 """
 
 from __future__ import annotations
@@ -23,16 +23,16 @@ from dataclasses import fields
 import torch
 from torch import Tensor
 
-from ocalib.calib.gating import affine_scan, check_poses, rotation_weights, screw_gate_sequence
-from ocalib.calib.handeye import TranslationMoment, rotation_blocks, translation_moment, translation_quadratic
-from ocalib.calib.linalg import guarded_eigh
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.pairing import MotionPairs, combine_statistics, motions_since
-from ocalib.calib.refine import refine_estimate
-from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import RotationSystem, rotation_gram
-from ocalib.calib.solve import closed_form
-from ocalib.calib.translation import fit_scale
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.stages.gating import affine_scan, check_poses, rotation_weights, screw_gate_sequence
+from ocalib.calib.stages.handeye import TranslationMoment, rotation_blocks, translation_moment, translation_quadratic
+from ocalib.calib.stages.linalg import guarded_eigh
+from ocalib.calib.stages.pairing import MotionPairs, combine_statistics, motions_since
+from ocalib.calib.stages.refine import refine_estimate
+from ocalib.calib.stages.rotation import RotationSystem, rotation_gram
+from ocalib.calib.stages.solve import closed_form
+from ocalib.calib.stages.translation import fit_scale
 
 PAIRS_PER_CHUNK = 16384  # motion pairs (frames x rigs x cameras x gaps) held at once
 WEIGHT_TOLERANCE = 1e-13  # robust weights this close to the previous pass's are final
@@ -45,10 +45,10 @@ def calibrate_sequence(poses: Tensor, chunk: int = 1024, progress=None, **option
         poses: (T, C, 4, 4) or (T, B, C, 4, 4) camera-to-world poses of T frames (of B rigs).
         chunk: frames per chunk (fewer with many rigs: at most ``PAIRS_PER_CHUNK`` motion pairs).
         progress: called with the number of frames done after each chunk, or None.
-        options: :class:`~ocalib.calib.online.OnlineCalibrator` keyword arguments (``solver="exact"``).
+        options: :class:`~ocalib.calib.drivers.online.OnlineCalibrator` keyword arguments (``solver="exact"``).
 
     Returns:
-        A :class:`~ocalib.calib.result.Calibration` whose fields lead with (T, K) or (T, B, K).
+        A :class:`~ocalib.calib.drivers.result.Calibration` whose fields lead with (T, K) or (T, B, K).
     """
     single = poses.dim() == 4
     poses = (poses.unsqueeze(1) if single else poses).to(torch.float64)

@@ -1,18 +1,19 @@
-"""Compiled twins (numba) of :mod:`ocalib.calib.handeye`: the hand-eye rows of motion pairs and the translation
+"""Compiled twins (numba) of :mod:`ocalib.calib.stages.handeye`: the hand-eye rows of motion pairs and the translation
 moment, for one rig and camera k (no batch dimension; results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.handeye`; ``P`` motion pairs, quaternions (w, x, y, z).
+Convention: as :mod:`ocalib.calib.stages.handeye`; ``P`` motion pairs, quaternions (w, x, y, z).
 """
 
 from __future__ import annotations
 
-from ocalib.calib.linalg_kernel import jit
+from ocalib.calib.stages.linalg_kernel import jit
 
 
 @jit
 def rotation_blocks(q0, qk, A):
-    """:func:`~ocalib.calib.handeye.rotation_blocks`: ``A = L(q0) - R(qk)`` (P, 4, 4) from the motion quaternions of
-    camera 0 and camera k (P, 4), both with w >= 0 (as :func:`~ocalib.calib.pairing_kernel.motions_since` gives)."""
+    """:func:`~ocalib.calib.stages.handeye.rotation_blocks`: ``A = L(q0) - R(qk)`` (P, 4, 4) from the motion quaternions
+    of camera 0 and camera k (P, 4), both with w >= 0 (as :func:`~ocalib.calib.stages.pairing_kernel.motions_since`
+    gives)."""
     for j in range(A.shape[0]):
         w0, x0, y0, z0 = q0[j, 0], q0[j, 1], q0[j, 2], q0[j, 3]
         w1, x1, y1, z1 = qk[j, 0], qk[j, 1], qk[j, 2], qk[j, 3]
@@ -25,8 +26,8 @@ def rotation_blocks(q0, qk, A):
 
 @jit
 def pair_features(m0, mk, symmetric, z):
-    """:func:`~ocalib.calib.handeye.pair_features` of one motion pair (camera 0's and camera k's motions, 4x4) into
-    ``z`` (2, 15); returns the number of rows written (2 if ``symmetric``: the pair and its reverse)."""
+    """:func:`~ocalib.calib.stages.handeye.pair_features` of one motion pair (camera 0's and camera k's motions, 4x4)
+    into ``z`` (2, 15); returns the number of rows written (2 if ``symmetric``: the pair and its reverse)."""
     for i in range(3):
         for l in range(3):
             z[0, 3 * i + l] = (1.0 if i == l else 0.0) - m0[i, l]
@@ -44,8 +45,8 @@ def pair_features(m0, mk, symmetric, z):
 
 @jit
 def update_translation_moment(moment, m0, mk, ok, forgetting, symmetric, z):
-    """:func:`~ocalib.calib.handeye.update_translation_moment` of one rig and camera k, in place: ``moment`` a
-    :class:`~ocalib.calib.handeye.TranslationMoment` of each gap (``Z`` (P, 58), ``translation_rows`` (P,),
+    """:func:`~ocalib.calib.stages.handeye.update_translation_moment` of one rig and camera k, in place: ``moment`` a
+    :class:`~ocalib.calib.stages.handeye.TranslationMoment` of each gap (``Z`` (P, 58), ``translation_rows`` (P,),
     ``Z_reverse`` (P, 58)), the motions of camera 0 and camera k ``m0``, ``mk`` (P, 4, 4), the pairs ``ok`` (P,);
     ``z`` (2, 15) scratch."""
     Z, rows, Z_reverse = moment
@@ -66,7 +67,7 @@ def update_translation_moment(moment, m0, mk, ok, forgetting, symmetric, z):
 
 @jit
 def add_row_statistics(z, out):
-    """``out += row_statistics(z)`` (:func:`~ocalib.calib.handeye.row_statistics`) for one row's features ``z``
+    """``out += row_statistics(z)`` (:func:`~ocalib.calib.stages.handeye.row_statistics`) for one row's features ``z``
     (15,) into ``out`` (58,)."""
     for i in range(3):
         for j in range(3):
@@ -81,8 +82,8 @@ def add_row_statistics(z, out):
 
 @jit
 def translation_quadratic(Z, P, p):
-    """:func:`~ocalib.calib.handeye.translation_quadratic` of ``Z`` (58,): ``P`` (12, 12) and ``p`` (12,) written,
-    ``c`` returned."""
+    """:func:`~ocalib.calib.stages.handeye.translation_quadratic` of ``Z`` (58,): ``P`` (12, 12) and ``p`` (12,)
+    written, ``c`` returned."""
     for i in range(12):
         for j in range(12):
             P[i, j] = 0.0
@@ -118,7 +119,7 @@ def apply_quadratic(P, y, out):
 
 @jit
 def normal_equations(quadratic, maps, m, H, g):
-    """:func:`~ocalib.calib.handeye.normal_equations` of ``quadratic`` ``(P, p, c)`` for the first ``m`` maps of
+    """:func:`~ocalib.calib.stages.handeye.normal_equations` of ``quadratic`` ``(P, p, c)`` for the first ``m`` maps of
     ``maps`` (3, 3, 3): ``H`` ((3 + m) x (3 + m) block) and ``g`` written."""
     P, p, _ = quadratic
     for a in range(3):

@@ -7,11 +7,11 @@ state carries ``S2 = S^2``: the square root at a zero singular value (the start,
 would cut the gradient, and ``S2`` is what the update needs.
 
 The small SVD is taken through its 4x4 Gram matrix ``lam diag(S^2) + (W V)^T (W V)`` with
-:func:`~ocalib.calib.linalg.guarded_eigh`: the same right singular vectors and singular values,
+:func:`~ocalib.calib.stages.linalg.guarded_eigh`: the same right singular vectors and singular values,
 3x faster on large batches of rigs, and with gradients that stay finite on planar motion. Singular
 values near zero are then accurate to about ``sqrt(machine eps) * S[0]`` in absolute terms.
 
-The compiled twins are in :mod:`ocalib.calib.rotation_kernel`.
+The compiled twins are in :mod:`ocalib.calib.stages.rotation_kernel`.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ocalib.calib.linalg import guarded_eigh
+from ocalib.calib.stages.linalg import guarded_eigh
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, quaternion_conjugate
 
 ROTATION_OBSERVABLE_MIN_SV = 0.1  # S[2] must exceed this (a ~6 degree motion, or many smaller ones) ...
@@ -42,7 +42,8 @@ class RotationSystem(NamedTuple):
 
 def update_rotation_system(system: RotationSystem, A: Tensor, weight: Tensor, forgetting: float) -> RotationSystem:
     """Add blocks ``A`` (..., 4, 4) with row weights ``weight`` (...) to ``system`` (...): one step of incremental
-    SVD, old rows weighing ``forgetting``. Kernel twin: :func:`ocalib.calib.rotation_kernel.update_rotation_system`."""
+    SVD, old rows weighing ``forgetting``. Kernel twin:
+    :func:`ocalib.calib.stages.rotation_kernel.update_rotation_system`."""
     S2, V = incremental_svd_update(system.S2, system.V, weight.sqrt()[..., None, None] * A, forgetting)
     return RotationSystem(S2, V, forgetting * system.rotation_rows + weight)
 

@@ -1,5 +1,5 @@
-"""Compiled twins (numba) of the small linear algebra of :mod:`ocalib.calib.linalg` and of the quaternion functions
-of :mod:`ocalib.geometry.quaternion`, for the head's compiled kernel (:mod:`ocalib.calib.kernel`).
+"""Compiled twins (numba) of the small linear algebra of :mod:`ocalib.calib.stages.linalg` and of the quaternion
+functions of :mod:`ocalib.geometry.quaternion`, for the head's compiled kernel (:mod:`ocalib.calib.drivers.kernel`).
 
 Small symmetric eigenproblems are solved by cyclic Jacobi (eigenvalues ascending, as ``torch.linalg.eigh``), small
 general systems by LU with partial pivoting. Where an eigenvalue is repeated the eigenvectors differ from LAPACK's by
@@ -30,15 +30,16 @@ JACOBI_TOLERANCE = 1e-16  # an off-diagonal entry below this times sqrt(a_pp a_q
 # rounding only).
 OPTIONS = dict(nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
 
-_CALIB = Path(__file__).resolve().parent
+_STAGES = Path(__file__).resolve().parent
+_FRAME_KERNEL = _STAGES.parent / "drivers" / "kernel.py"  # the head's compiled frame update
 
 
 def kernel_sources() -> list[Path]:
-    """The kernel modules (``*_kernel.py``, ``kernel.py``) and the PyTorch modules beside them (their twins, whose
-    constants they compile in)."""
-    kernels = sorted(_CALIB.glob("*_kernel.py"))
-    twins = [_CALIB / p.name.replace("_kernel.py", ".py") for p in kernels]
-    return [p for p in [*kernels, *twins, _CALIB / "kernel.py"] if p.exists()]
+    """The kernel modules (the stages' ``*_kernel.py``, the drivers' ``kernel.py``) and the PyTorch modules beside
+    them (their twins, whose constants they compile in)."""
+    kernels = sorted(_STAGES.glob("*_kernel.py"))
+    twins = [_STAGES / p.name.replace("_kernel.py", ".py") for p in kernels]
+    return [p for p in [*kernels, *twins, _FRAME_KERNEL] if p.exists()]
 
 
 @functools.cache
@@ -49,7 +50,7 @@ def cache_dir() -> str | None:
     the user's cache folder: the first that is writable; None where none is (nothing is cached)."""
     digest = hashlib.sha256(b"".join(p.name.encode() + p.read_bytes() for p in kernel_sources())).hexdigest()[:16]
     user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ocalib" / f"numba-{digest}"
-    in_tree = _CALIB / "__pycache__" / f"numba-{digest}"
+    in_tree = _STAGES / "__pycache__" / f"numba-{digest}"
     chosen = [Path(numba.config.CACHE_DIR) / f"ocalib-{digest}"] if numba.config.CACHE_DIR else []
     for folder in [*chosen, in_tree, user]:
         if _writable(folder):
@@ -94,8 +95,8 @@ jit_inline = compiled(inline="always")
 
 @jit
 def eigh(A, n, w, V, a):
-    """:func:`~ocalib.calib.linalg.guarded_eigh` of the symmetric n x n block of ``A``: ``w`` ascending, ``V`` its
-    eigenvectors as columns (both written), ``a`` scratch (n x n at least)."""
+    """:func:`~ocalib.calib.stages.linalg.guarded_eigh` of the symmetric n x n block of ``A``: ``w`` ascending, ``V``
+    its eigenvectors as columns (both written), ``a`` scratch (n x n at least)."""
     _start(A, n, V, a)
     for _ in range(JACOBI_SWEEPS):
         rotated = False

@@ -1,7 +1,7 @@
-"""Compiled twins (numba) of :mod:`ocalib.calib.translation`: the exact translation solve and the scale fit, for one
-entry (no batch dimension; results written into the arrays passed).
+"""Compiled twins (numba) of :mod:`ocalib.calib.stages.translation`: the exact translation solve and the scale fit, for
+one entry (no batch dimension; results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.translation`: ``x = (dT, s)``.
+Convention: as :mod:`ocalib.calib.stages.translation`: ``x = (dT, s)``.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ocalib.calib.handeye_kernel import normal_equations
-from ocalib.calib.linalg_kernel import eigh, jit
-from ocalib.calib.translation import RANK_TOLERANCE, SCALE_FITS, UNOBSERVABLE_RELATIVE
+from ocalib.calib.stages.handeye_kernel import normal_equations
+from ocalib.calib.stages.linalg_kernel import eigh, jit
+from ocalib.calib.stages.translation import RANK_TOLERANCE, SCALE_FITS, UNOBSERVABLE_RELATIVE
 
 SCALE_FIT_CODES = {name: code for code, name in enumerate(SCALE_FITS)}  # fit_scale's mode
 SYMMETRIC = SCALE_FIT_CODES["symmetric"]
@@ -40,7 +40,7 @@ def workspace():
 
 @jit
 def solve_translation(quadratic, dR, x, work):
-    """:func:`~ocalib.calib.translation.solve_translation`: ``x = (dT, s)`` (4,) written, from the moment's
+    """:func:`~ocalib.calib.stages.translation.solve_translation`: ``x = (dT, s)`` (4,) written, from the moment's
     ``quadratic`` ``(P, p, c)`` and the rotation ``dR`` (3, 3). ``work``: :func:`workspace`."""
     work.maps[0] = dR
     normal_equations(quadratic, work.maps, 1, work.H, work.g)
@@ -49,9 +49,9 @@ def solve_translation(quadratic, dR, x, work):
 
 @jit
 def fit_scale(est, quadratic, mode, work):
-    """:func:`~ocalib.calib.translation.fit_scale`: ``est`` (:class:`~ocalib.calib.solve_kernel.Estimate`) has its
-    translation and scale re-fitted in place where ``mode`` (a code of :data:`SCALE_FIT_CODES`) is the symmetric fit.
-    ``work``: :func:`workspace`."""
+    """:func:`~ocalib.calib.stages.translation.fit_scale`: ``est`` (:class:`~ocalib.calib.stages.solve_kernel.Estimate`)
+    has its translation and scale re-fitted in place where ``mode`` (a code of :data:`SCALE_FIT_CODES`) is the symmetric
+    fit. ``work``: :func:`workspace`."""
     if mode != SYMMETRIC:
         return
     x, axis = est.translation_scale, est.planar_axis
@@ -65,8 +65,9 @@ def fit_scale(est, quadratic, mode, work):
 
 @jit
 def symmetric_scale(H, g, c, x, work):
-    """:func:`~ocalib.calib.translation.symmetric_scale` of the normal equations ``H`` (4x4 block), ``g`` (4), ``c``:
-    ``x`` (4) updated where the scale is observable. ``work``: :func:`workspace` (``H`` and ``g`` may be its own)."""
+    """:func:`~ocalib.calib.stages.translation.symmetric_scale` of the normal equations ``H`` (4x4 block), ``g`` (4),
+    ``c``: ``x`` (4) updated where the scale is observable. ``work``: :func:`workspace` (``H`` and ``g`` may be its
+    own)."""
     u, v = work.u, work.v
     spd_solve(H, H[:, 3], 3, u, work)
     spd_solve(H, g, 3, v, work)
@@ -90,7 +91,7 @@ def symmetric_scale(H, g, c, x, work):
 
 @jit
 def pinv_solve(H, g, n, x, work):
-    """:func:`~ocalib.calib.translation.pinv_solve`: the minimum-norm ``x`` with ``H x = g`` (symmetric PSD n x n
+    """:func:`~ocalib.calib.stages.translation.pinv_solve`: the minimum-norm ``x`` with ``H x = g`` (symmetric PSD n x n
     block; n <= 6) written. ``work``: :func:`workspace` (its eigen-decomposition arrays)."""
     w, V = work.evals, work.evecs
     eigh(H, n, w, V, work.jacobi)

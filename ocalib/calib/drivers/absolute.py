@@ -1,6 +1,6 @@
 """Rig calibration from absolute poses (``AX = YB``), on-line with O(1) statistics.
 
-The motion pairs of :class:`~ocalib.calib.online.OnlineCalibrator` suit drifting trajectories (VO, SLAM). Where
+The motion pairs of :class:`~ocalib.calib.drivers.online.OnlineCalibrator` suit drifting trajectories (VO, SLAM). Where
 each pose carries its own independent error instead (a calibration target seen by each camera, motion capture,
 a robot arm: OpenCV's hand-eye protocol), a pose takes part in several pairs, their residuals are correlated,
 and the pairs waste information. Here each frame gives one equation in the unknown rig ``X`` and the unknown
@@ -40,9 +40,9 @@ import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from torch import Tensor, nn
 
-from ocalib.calib.gating import check_poses, rig_poses
-from ocalib.calib.options import POSE_ERRORS  # where the poses' translation error lives
-from ocalib.calib.planar import skew
+from ocalib.calib.drivers.options import POSE_ERRORS  # where the poses' translation error lives
+from ocalib.calib.stages.gating import check_poses, rig_poses
+from ocalib.calib.stages.planar import skew
 from ocalib.geometry.constants import constant_cache
 from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
@@ -232,7 +232,7 @@ def solve_absolute(
 class AbsoluteCalibration:
     """Extrinsics of cameras 1..K against camera 0 for B rigs from absolute poses. Shapes lead with (B, K).
 
-    It answers the attributes of :class:`~ocalib.calib.result.Calibration` that the command line reads (the
+    It answers the attributes of :class:`~ocalib.calib.drivers.result.Calibration` that the command line reads (the
     result JSON, the trace, the warnings). Absolute poses have no planar route: rotation about one axis leaves
     the rotation unobservable and every estimate NaN.
 
@@ -312,7 +312,7 @@ class AbsoluteCalibration:
         }
 
     def camera_json(self, b: int, k: int) -> dict:
-        """The JSON object of camera k+1 of rig b, in the schema of :class:`~ocalib.calib.result.Calibration`'s,
+        """The JSON object of camera k+1 of rig b, in the schema of :class:`~ocalib.calib.drivers.result.Calibration`'s,
         with the world pose ``T_world0_worldk`` added."""
         get = lambda name: getattr(self, name)[b, k].detach().cpu().double()  # noqa: E731
         unobservable, directions = get("translation_unobservable").bool(), get("translation_directions")

@@ -2,7 +2,7 @@
 
 :func:`load_rig` reads one pose file per camera (KITTI or TUM), puts the cameras on camera 0's clock
 and pairs their poses into synchronised frames; :func:`calibrate_rig` streams the frames through the
-on-line head (:class:`~ocalib.calib.online.OnlineCalibrator`), or solves them at once (``batch``), and
+on-line head (:class:`~ocalib.calib.drivers.online.OnlineCalibrator`), or solves them at once (``batch``), and
 returns a :class:`CalibrationRun` with the per-frame estimates, the result JSON and warnings.
 
 Convention: poses camera-to-world (each camera in its own world and units: only motions are used);
@@ -22,23 +22,23 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ocalib.calib.absolute import AbsoluteCalibrator
-from ocalib.calib.batch import batch_calibrate
-from ocalib.calib.change import first_change, step_size
-from ocalib.calib.clock import find_time_offset
-from ocalib.calib.gating import Gates
-from ocalib.calib.handeye import row_statistics
-from ocalib.calib.online import OnlineCalibrator
-from ocalib.calib.options import HeadOptions
-from ocalib.calib.planar import planar_axis
-from ocalib.calib.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
-from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import (
+from ocalib.calib.drivers.absolute import AbsoluteCalibrator
+from ocalib.calib.drivers.batch import batch_calibrate
+from ocalib.calib.drivers.change import first_change, step_size
+from ocalib.calib.drivers.clock import find_time_offset
+from ocalib.calib.drivers.online import OnlineCalibrator
+from ocalib.calib.drivers.options import HeadOptions
+from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.drivers.sequence import calibrate_sequence
+from ocalib.calib.poses.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
+from ocalib.calib.stages.gating import Gates
+from ocalib.calib.stages.handeye import row_statistics
+from ocalib.calib.stages.planar import planar_axis
+from ocalib.calib.stages.rotation import (
     batch_rotation,
     planar_motion,
     rotation_observable,
 )
-from ocalib.calib.sequence import calibrate_sequence
 from ocalib.errors import InputError
 from ocalib.geometry import quaternion_to_rotation_matrix
 from ocalib.io.poses import POSE_TOLERANCE, pose_validity, read_poses
@@ -207,10 +207,10 @@ def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bo
     """Calibrate cameras 1..K of ``rig`` against camera 0 with the head's options ``head``.
 
     motion: the head's motion pairing, or ``absolute``: every pose on its own, for poses with independent errors
-    (:class:`~ocalib.calib.absolute.AbsoluteCalibrator`; ``refine`` does not apply; ``pose_error``, only with it:
-    ``camera`` (default) or ``world``, where the poses' translation error lives).
+    (:class:`~ocalib.calib.drivers.absolute.AbsoluteCalibrator`; ``refine`` does not apply; ``pose_error``, only with
+    it: ``camera`` (default) or ``world``, where the poses' translation error lives).
     solver: ``exact`` or ``rls``: the on-line head's estimate at every frame (``exact`` through the
-    whole-sequence path of :mod:`ocalib.calib.sequence`, which equals streaming the frames; ``rls`` streams
+    whole-sequence path of :mod:`ocalib.calib.drivers.sequence`, which equals streaming the frames; ``rls`` streams
     them); ``batch`` solves all frames with every pose valid at once (one estimate). refine: the head's (see
     :class:`OnlineCalibrator`; the batch solver refines only with True, and only where rotation is
     observable). progress: a tqdm bar (None: only on a terminal).
@@ -261,8 +261,8 @@ def _online(poses: torch.Tensor, head: HeadOptions, progress: bool | None) -> tu
 def _follow_changes(
     rig: RigPoses, head: HeadOptions, final: Calibration, trace: dict[str, np.ndarray]
 ) -> tuple[Calibration, dict[str, np.ndarray], list[dict]]:
-    """Each camera's extrinsic tested for changes over the stream (:func:`~ocalib.calib.change.first_change`); where
-    one is found, camera k's head restarts at its first frame (on camera 0 and camera k alone) and its estimates
+    """Each camera's extrinsic tested for changes over the stream (:func:`~ocalib.calib.drivers.change.first_change`);
+    where one is found, camera k's head restarts at its first frame (on camera 0 and camera k alone) and its estimates
     replace the old from the frame it was detected. Returns the final estimate, the trace (camera k's columns
     spliced; ``change_frame`` (F, K): at the frame a change was detected, its first frame, else NaN) and the changes:
     camera file, first frame, frame detected, the step from the estimate before to the one that followed (degrees,
@@ -311,7 +311,7 @@ def _single_thread():
 
 
 def _sequence(poses: torch.Tensor, head: HeadOptions, progress: bool | None) -> tuple[Calibration, dict]:
-    """Every frame (T, C, 4, 4) at once (:func:`~ocalib.calib.sequence.calibrate_sequence`) -> (the last
+    """Every frame (T, C, 4, 4) at once (:func:`~ocalib.calib.drivers.sequence.calibrate_sequence`) -> (the last
     estimate, the trace of every frame); the uncertainty is computed ``TRACE_CHUNK`` frames at a time."""
     with (
         torch.inference_mode(),

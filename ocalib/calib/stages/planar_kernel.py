@@ -1,7 +1,7 @@
-"""Compiled twin (numba) of :func:`ocalib.calib.planar.planar_rotation`, for one entry (no batch dimension; results
-written into the arrays passed).
+"""Compiled twin (numba) of :func:`ocalib.calib.stages.planar.planar_rotation`, for one entry (no batch dimension;
+results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.planar`: the axis ``n`` in camera 0's frame; quaternions (w, x, y, z).
+Convention: as :mod:`ocalib.calib.stages.planar`: the axis ``n`` in camera 0's frame; quaternions (w, x, y, z).
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ocalib.calib import translation_kernel
-from ocalib.calib.handeye_kernel import normal_equations
-from ocalib.calib.linalg_kernel import jit, quaternion_to_rotation_matrix
-from ocalib.calib.translation_kernel import pinv_solve
+from ocalib.calib.stages import translation_kernel
+from ocalib.calib.stages.handeye_kernel import normal_equations
+from ocalib.calib.stages.linalg_kernel import jit, quaternion_to_rotation_matrix
+from ocalib.calib.stages.translation_kernel import pinv_solve
 
 
 class Workspace(NamedTuple):
@@ -32,8 +32,8 @@ def workspace():
 
 @jit
 def planar_rotation(quadratic, V, dR, axis, work):
-    """:func:`~ocalib.calib.planar.planar_rotation`: the rotation ``dR`` (3, 3) and the axis ``n`` (3,), written, from
-    the moment's ``quadratic`` ``(P, p, c)`` and the rotation system's right singular vectors ``V`` (4, 4).
+    """:func:`~ocalib.calib.stages.planar.planar_rotation`: the rotation ``dR`` (3, 3) and the axis ``n`` (3,), written,
+    from the moment's ``quadratic`` ``(P, p, c)`` and the rotation system's right singular vectors ``V`` (4, 4).
     ``work``: :func:`workspace`."""
     v3w, v3x, v3y, v3z = V[0, 2], -V[1, 2], -V[2, 2], -V[3, 2]  # conj(v3); n = v4 * conj(v3)
     v4w, v4x, v4y, v4z = V[0, 3], V[1, 3], V[2, 3], V[3, 3]

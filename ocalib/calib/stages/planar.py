@@ -10,7 +10,7 @@ where ``n`` (camera 0's frame) is the common rotation axis. The translation equa
 is linear in ``(dT, c0, c1, c2) = (dT, s, s cos(theta), s sin(theta))``. The component of ``dT``
 along ``n`` (camera height for a car) is unobservable; the minimum-norm solution sets it to zero.
 
-The compiled twin is in :mod:`ocalib.calib.planar_kernel`.
+The compiled twin is in :mod:`ocalib.calib.stages.planar_kernel`.
 
 Convention: ``n`` and ``dT`` in camera 0's frame; quaternions (w, x, y, z).
 """
@@ -20,9 +20,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import normal_equations
-from ocalib.calib.rotation import rotation_gram
-from ocalib.calib.translation import pinv_solve
+from ocalib.calib.stages.handeye import normal_equations
+from ocalib.calib.stages.rotation import rotation_gram
+from ocalib.calib.stages.translation import pinv_solve
 from ocalib.geometry.quaternion import (
     left_product_matrix,
     quaternion_conjugate,
@@ -53,7 +53,7 @@ def planar_rotation(quadratic: tuple[Tensor, Tensor, Tensor], V: Tensor) -> tupl
     """Rotation ``dR`` (..., 3, 3) for planar motion, and the axis ``n`` (..., 3).
 
     Args:
-        quadratic: the translation moment's ``(P, p, c)`` (:func:`~ocalib.calib.handeye.translation_quadratic`).
+        quadratic: the translation moment's ``(P, p, c)`` (:func:`~ocalib.calib.stages.handeye.translation_quadratic`).
         V: (..., 4, 4) right singular vectors of the rotation system.
     """
     n, maps = _planar_maps(V)

@@ -2,7 +2,7 @@
 
 Two on-line solvers:
 
-* :func:`solve_translation` -- exact: from the O(1) moment ``Z`` (see :mod:`ocalib.calib.handeye`,
+* :func:`solve_translation` -- exact: from the O(1) moment ``Z`` (see :mod:`ocalib.calib.stages.handeye`,
   passed as its quadratic form ``(P, p, c)``) it re-solves the normal equations with the current ``dR``
   every frame, so it equals batch least squares at every frame, and early wrong rotations leave no trace.
 * :func:`rls_update` -- the paper's recursive least squares with forgetting factor, with the typos of
@@ -13,7 +13,7 @@ the default): least squares regresses camera 0's motions on camera k's, so noise
 in the variables) pulls ``s`` toward 0 by camera k's noise-to-signal power, a bias that no number of frames removes
 where the motion pairs are short (the head's gaps).
 
-The compiled twins of the exact solve are in :mod:`ocalib.calib.translation_kernel`.
+The compiled twins of the exact solve are in :mod:`ocalib.calib.stages.translation_kernel`.
 
 Convention: ``dT`` is in camera 0's frame and units; ``s`` multiplies camera-k units into camera-0 units.
 """
@@ -23,9 +23,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import normal_equations, translation_quadratic
-from ocalib.calib.linalg import guarded_eigh
-from ocalib.calib.rotation import ROTATION_OBSERVABLE_MIN_SV
+from ocalib.calib.stages.handeye import normal_equations, translation_quadratic
+from ocalib.calib.stages.linalg import guarded_eigh
+from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_MIN_SV
 
 RANK_TOLERANCE = 1e-9  # eigenvalues below this times the largest are treated as zero
 # A translation direction is unobservable with less information than 1e-6 of the best direction's,
@@ -47,7 +47,7 @@ def pinv_solve(H: Tensor, g: Tensor) -> tuple[Tensor, Tensor]:
 
 def solve_translation(quadratic: tuple[Tensor, Tensor, Tensor], dR: Tensor) -> Tensor:
     """Exact least-squares ``x = (dT, s)`` (..., 4) with the current rotation ``dR`` (..., 3, 3), from the
-    moment's quadratic form (:func:`~ocalib.calib.handeye.translation_quadratic`)."""
+    moment's quadratic form (:func:`~ocalib.calib.stages.handeye.translation_quadratic`)."""
     H, g, _ = normal_equations(quadratic, dR.unsqueeze(-3))
     return pinv_solve(H, g)[0]
 
@@ -56,8 +56,8 @@ def symmetric_scale(H: Tensor, g: Tensor, c: Tensor, x: Tensor) -> Tensor:
     """The scale fitted with no preferred camera, and the translation at that scale: ``x = (dT, s)`` (..., 4).
 
     ``H`` (..., 4, 4), ``g`` (..., 4), ``c`` (...) are the normal equations of the translation rows at the current
-    rotation (:func:`~ocalib.calib.handeye.normal_equations`): the residual is ``E(dT, s) = c - 2 x.g + x^T H x``.
-    With ``dT`` profiled out (the lever arm ``(I - R0) dT`` fitted away), ``E(s) = A s^2 - 2 B s + C``. Least
+    rotation (:func:`~ocalib.calib.stages.handeye.normal_equations`): the residual is ``E(dT, s) = c - 2 x.g + x^T H
+    x``. With ``dT`` profiled out (the lever arm ``(I - R0) dT`` fitted away), ``E(s) = A s^2 - 2 B s + C``. Least
     squares gives ``s = B / A``, the regression of camera 0's translations on camera k's: noise on camera k's
     (power ``b1`` against its motion's ``m1``) biases it by ``-b1 / m1`` (errors in the variables), and the reverse
     regression by ``+b0 / m0``. This minimises ``E(s) / s`` instead: ``s = sign(B) sqrt(C / A)``, the geometric mean
@@ -66,7 +66,7 @@ def symmetric_scale(H: Tensor, g: Tensor, c: Tensor, x: Tensor) -> Tensor:
     any scale then, and camera 0 against camera k gets the reciprocal scale. Equal to least squares without noise
     (``C = B^2 / A``). ``dT`` is re-solved at that scale. Where the scale is unobservable (``A`` at most
     ``UNOBSERVABLE_RELATIVE`` of ``H_ss``) ``x`` is returned as it is. Kernel twin:
-    :func:`ocalib.calib.translation_kernel.symmetric_scale`.
+    :func:`ocalib.calib.stages.translation_kernel.symmetric_scale`.
     """
     H_TT, h_Ts, h_ss, g_T, g_s = H[..., :3, :3], H[..., :3, 3], H[..., 3, 3], g[..., :3], g[..., 3]
     _, H_TT_pinv = pinv_solve(H_TT, g_T)
@@ -82,11 +82,11 @@ def symmetric_scale(H: Tensor, g: Tensor, c: Tensor, x: Tensor) -> Tensor:
 
 
 def fit_scale(est: dict[str, Tensor], quadratic: tuple[Tensor, Tensor, Tensor], mode: str = "symmetric") -> dict:
-    """The estimate ``est`` (the fields of :func:`~ocalib.calib.solve.closed_form`) with its scale re-fitted at its
-    rotation as ``mode`` (one of :data:`SCALE_FITS`) says: ``"symmetric"`` by :func:`symmetric_scale`;
+    """The estimate ``est`` (the fields of :func:`~ocalib.calib.stages.solve.closed_form`) with its scale re-fitted at
+    its rotation as ``mode`` (one of :data:`SCALE_FITS`) says: ``"symmetric"`` by :func:`symmetric_scale`;
     ``"regression"`` keeps least squares' (the paper's). ``quadratic``: ``(P, p, c)`` of the translation moment. On
     planar motion the translation along the axis stays 0 (unobservable). Kernel twin:
-    :func:`ocalib.calib.translation_kernel.fit_scale`."""
+    :func:`ocalib.calib.stages.translation_kernel.fit_scale`."""
     if mode == "regression":
         return est
     x = torch.cat([est["translation"], est["scale"].unsqueeze(-1)], -1)
@@ -105,7 +105,7 @@ def translation_uncertainty(Z: Tensor, dR: Tensor, x: Tensor, rows: Tensor) -> d
     """Covariance and information of the translation estimate ``x = (dT, s)`` (..., 4).
 
     Args:
-        Z: (..., 58) the rows' statistics (:func:`~ocalib.calib.handeye.row_statistics`). dR: (..., 3, 3).
+        Z: (..., 58) the rows' statistics (:func:`~ocalib.calib.stages.handeye.row_statistics`). dR: (..., 3, 3).
         rows: (...) weighted number of motion pairs in ``Z``.
 
     Returns ``covariance`` (..., 4, 4) (``sigma^2 H^+``, sigma from the residual; infinite with ``3 n <= 4``

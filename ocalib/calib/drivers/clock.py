@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ocalib.calib.handeye import rotation_block
+from ocalib.calib.stages.handeye import rotation_block
 from ocalib.errors import InputError
 from ocalib.geometry import rotation_angle
 from ocalib.geometry.pose import invert_pose

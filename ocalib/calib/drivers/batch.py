@@ -4,9 +4,9 @@ Used by the tests as the reference of the on-line solvers and by ``--solver batc
 robust weights: every valid motion pair counts once. The closed form is the SVD of all stacked rotation
 blocks, then least squares on all stacked translation rows; the refinement minimises the weighted sum of
 both residuals over all rows at once with Levenberg-Marquardt (forward-mode autograd Jacobians), independently of the
-moment-based refinement of :mod:`ocalib.calib.refine` that the on-line solver runs.
+moment-based refinement of :mod:`ocalib.calib.stages.refine` that the on-line solver runs.
 
-Convention: as :mod:`ocalib.calib.online` -- poses (T, C, 4, 4) camera-to-world, camera 0 the reference.
+Convention: as :mod:`ocalib.calib.drivers.online` -- poses (T, C, 4, 4) camera-to-world, camera 0 the reference.
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import pair_features, rotation_block, translation_rows
-from ocalib.calib.pairing import MOTIONS, gap_weights
-from ocalib.calib.rotation import batch_rotation, planar_motion, rotation_observable
-from ocalib.calib.translation import SCALE_FITS, symmetric_scale
+from ocalib.calib.stages.handeye import pair_features, rotation_block, translation_rows
+from ocalib.calib.stages.pairing import MOTIONS, gap_weights
+from ocalib.calib.stages.rotation import batch_rotation, planar_motion, rotation_observable
+from ocalib.calib.stages.translation import SCALE_FITS, symmetric_scale
 from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import quaternion_multiply, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
@@ -53,12 +53,12 @@ def batch_calibrate(
 
     Args:
         poses: (T, C, 4, 4) camera-to-world poses, float64, all valid.
-        motion: the motion pairing (see :data:`ocalib.calib.online.MOTIONS`).
-        symmetric: translation rows of each pair in both directions (see :mod:`ocalib.calib.handeye`).
+        motion: the motion pairing (see :data:`ocalib.calib.drivers.online.MOTIONS`).
+        symmetric: translation rows of each pair in both directions (see :mod:`ocalib.calib.stages.handeye`).
         refine: refine rotation, translation and scale jointly (where rotation is observable and the motion
             not planar); else the closed form.
         scale_fit: ``"symmetric"``: the scale re-fitted at the final rotation with no preferred camera (as the
-            on-line head's, :func:`~ocalib.calib.translation.symmetric_scale`); ``"regression"``: least squares'.
+            on-line head's, :func:`~ocalib.calib.stages.translation.symmetric_scale`); ``"regression"``: least squares'.
 
     Returns:
         ``quaternion`` (K, 4), ``rotation`` (K, 3, 3), ``translation`` (K, 3), ``scale`` (K,),
@@ -113,7 +113,7 @@ def _weighted_rows(R0: Tensor, t0: Tensor, t1: Tensor, dR: Tensor, row_weight: T
 
 
 def _pair_weights(A: Tensor, gap: Tensor) -> Tensor:
-    """Each pair's weight (K, M): its gap's :func:`~ocalib.calib.pairing.gap_weights`, from the SVD of that
+    """Each pair's weight (K, M): its gap's :func:`~ocalib.calib.stages.pairing.gap_weights`, from the SVD of that
     gap's blocks alone (A: (K, M, 4, 4), gap: (M,) gap indices)."""
     present = gap.unique()
     S2 = torch.stack([torch.linalg.svdvals(A[:, gap == g].flatten(1, 2)).square() for g in present], 1)  # (K, G, 4)

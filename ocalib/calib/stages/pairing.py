@@ -20,7 +20,7 @@ was 1.16x under drift; fixed 1/g weights (inverse variance under drift, which ig
 frames) were 1.07-1.22x.
 
 Each frame gives every camera's motions over the gaps (:func:`motions_since`) and, once its statistics are updated,
-their combination (:func:`combine_statistics`); their compiled twins are in :mod:`ocalib.calib.pairing_kernel`.
+their combination (:func:`combine_statistics`); their compiled twins are in :mod:`ocalib.calib.stages.pairing_kernel`.
 
 Convention: gaps in frames; gap 0 stands for the pair with the first frame. A motion is a camera's pose at the end
 of the gap in its own frame at the start (``T_start^-1 T_end``).
@@ -33,9 +33,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import TranslationMoment
-from ocalib.calib.linalg import guarded_eigh
-from ocalib.calib.rotation import RotationSystem
+from ocalib.calib.stages.handeye import TranslationMoment
+from ocalib.calib.stages.linalg import guarded_eigh
+from ocalib.calib.stages.rotation import RotationSystem
 from ocalib.geometry.pose import invert_pose
 from ocalib.geometry.quaternion import quaternion_angle, rotation_matrix_to_quaternion
 
@@ -60,7 +60,7 @@ class MotionPairs(NamedTuple):
 
 def motions_since(earlier: Tensor, earlier_valid: Tensor, poses: Tensor, valid: Tensor) -> MotionPairs:
     """The motions from the ``earlier`` poses (..., C, P, 4, 4) (valid: (..., C, P)) to ``poses`` (..., C, 4, 4)
-    (valid: (..., C)), camera-to-world. Kernel twin: :func:`ocalib.calib.pairing_kernel.motions_since`."""
+    (valid: (..., C)), camera-to-world. Kernel twin: :func:`ocalib.calib.stages.pairing_kernel.motions_since`."""
     motion = invert_pose(earlier) @ poses.unsqueeze(-3)
     q = rotation_matrix_to_quaternion(motion[..., :3, :3])
     both = earlier_valid & valid.unsqueeze(-1)
@@ -101,7 +101,7 @@ def combine_statistics(
     their count; the translation moment.
 
     Returns the combined rotation system and translation moment (...), and the weights (..., P). Kernel twin:
-    :func:`ocalib.calib.pairing_kernel.combine_statistics`.
+    :func:`ocalib.calib.stages.pairing_kernel.combine_statistics`.
     """
     w = gap_weights(gap_S2, gap_rotation_rows)
     M, rotation_rows, *moment = combine_gaps(w, gap_M, gap_rotation_rows, *gap_moment)

@@ -1,7 +1,8 @@
-"""Compiled twins (numba) of :mod:`ocalib.calib.rotation`: the rotation system's incremental SVD and its tests, for
-one rig and camera k (no batch dimension; results written into the arrays passed).
+"""Compiled twins (numba) of :mod:`ocalib.calib.stages.rotation`: the rotation system's incremental SVD and its tests,
+for one rig and camera k (no batch dimension; results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.rotation`; squared singular values descending, right singular vectors as columns.
+Convention: as :mod:`ocalib.calib.stages.rotation`; squared singular values descending, right singular vectors as
+columns.
 """
 
 from __future__ import annotations
@@ -11,8 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ocalib.calib.linalg_kernel import eigh4, jit
-from ocalib.calib.rotation import ROTATION_OBSERVABLE_MIN_SV
+from ocalib.calib.stages.linalg_kernel import eigh4, jit
+from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_MIN_SV
 
 
 class Workspace(NamedTuple):
@@ -32,8 +33,8 @@ def workspace():
 
 @jit
 def update_rotation_system(system, A, weight, forgetting, work):
-    """:func:`~ocalib.calib.rotation.update_rotation_system` of each gap, in place: ``system`` a
-    :class:`~ocalib.calib.rotation.RotationSystem` of each gap (``S2`` (P, 4), ``V`` (P, 4, 4), ``rotation_rows``
+    """:func:`~ocalib.calib.stages.rotation.update_rotation_system` of each gap, in place: ``system`` a
+    :class:`~ocalib.calib.stages.rotation.RotationSystem` of each gap (``S2`` (P, 4), ``V`` (P, 4, 4), ``rotation_rows``
     (P,)), the blocks ``A`` (P, 4, 4) and their ``weight`` (P,). ``work``: :func:`workspace`."""
     S2, V, rows = system
     WV, gram, evals, evecs = work.WV, work.gram, work.evals, work.evecs
@@ -72,7 +73,7 @@ def rotate_basis(V, evecs, scratch):
 
 @jit
 def rotation_gram(S2, V, M):
-    """:func:`~ocalib.calib.rotation.rotation_gram`: ``M = V diag(S2) V^T`` (4, 4) written."""
+    """:func:`~ocalib.calib.stages.rotation.rotation_gram`: ``M = V diag(S2) V^T`` (4, 4) written."""
     for i in range(4):
         for m in range(4):
             M[i, m] = (
@@ -85,7 +86,7 @@ def rotation_gram(S2, V, M):
 
 @jit
 def singular_values(S2):
-    """:func:`~ocalib.calib.rotation.singular_values`, as a 4-tuple."""
+    """:func:`~ocalib.calib.stages.rotation.singular_values`, as a 4-tuple."""
     return (
         math.sqrt(max(S2[0], 0.0)),
         math.sqrt(max(S2[1], 0.0)),
@@ -96,14 +97,15 @@ def singular_values(S2):
 
 @jit
 def rotation_solution(V):
-    """:func:`~ocalib.calib.rotation.rotation_solution`: ``dq`` (w >= 0) from the last column of ``V``, as a 4-tuple."""
+    """:func:`~ocalib.calib.stages.rotation.rotation_solution`: ``dq`` (w >= 0) from the last column of ``V``, as a
+    4-tuple."""
     sign = 1.0 if V[0, 3] >= 0 else -1.0
     return sign * V[0, 3], sign * V[1, 3], sign * V[2, 3], sign * V[3, 3]
 
 
 @jit
 def excited(S, rows, i, significance):
-    """:func:`~ocalib.calib.rotation.excited` of singular values ``S`` (4,) and ``rows`` motion pairs."""
+    """:func:`~ocalib.calib.stages.rotation.excited` of singular values ``S`` (4,) and ``rows`` motion pairs."""
     floor = S[3] * S[3]
     excess = (S[i] * S[i] - floor) * math.sqrt(max(2.0 * rows - 3.0, 1.0))
     return S[i] > ROTATION_OBSERVABLE_MIN_SV and excess > significance * floor

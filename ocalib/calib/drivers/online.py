@@ -14,8 +14,9 @@ import math
 import torch
 from torch import Tensor, nn
 
-from ocalib.calib.gating import Gates, check_poses, rig_poses, rotation_weights, screw_gate
-from ocalib.calib.handeye import (
+from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.stages.gating import Gates, check_poses, rig_poses, rotation_weights, screw_gate
+from ocalib.calib.stages.handeye import (
     STATISTICS,
     TranslationMoment,
     rotation_blocks,
@@ -23,12 +24,11 @@ from ocalib.calib.handeye import (
     translation_rows,
     update_translation_moment,
 )
-from ocalib.calib.pairing import MOTIONS, combine_statistics, motions_since
-from ocalib.calib.refine import REFINE_MODES, refine_estimate
-from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import RotationSystem, rotation_gram, update_rotation_system
-from ocalib.calib.solve import closed_form
-from ocalib.calib.translation import SCALE_FITS, fit_scale, rls_update
+from ocalib.calib.stages.pairing import MOTIONS, combine_statistics, motions_since
+from ocalib.calib.stages.refine import REFINE_MODES, refine_estimate
+from ocalib.calib.stages.rotation import RotationSystem, rotation_gram, update_rotation_system
+from ocalib.calib.stages.solve import closed_form
+from ocalib.calib.stages.translation import SCALE_FITS, fit_scale, rls_update
 from ocalib.errors import deferred_interrupts
 
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None  # the compiled CPU kernel's compiler
@@ -38,16 +38,17 @@ class OnlineCalibrator(nn.Module):
     """On-line hand-eye calibration of B rigs of C cameras (camera 0 against cameras 1..C-1).
 
     A frame runs the head's stages, each a pure function of its module: the pose checks
-    (:func:`~ocalib.calib.gating.check_poses`); the motions of every camera over a set of frame gaps (``motion``,
-    :func:`~ocalib.calib.pairing.motions_since`); the screw-congruence gate and the rotation rows' weights
-    (:mod:`ocalib.calib.gating`); each gap's rotation system by incremental SVD
-    (:func:`~ocalib.calib.rotation.update_rotation_system`) and its translation moment by a sum
-    (:func:`~ocalib.calib.handeye.update_translation_moment`); the gaps combined with weights from their noise
-    (:func:`~ocalib.calib.pairing.combine_statistics`); the closed form (:func:`~ocalib.calib.solve.closed_form`:
-    translation and scale by the exact moment solver) or the paper's RLS (:mod:`ocalib.calib.translation`); and the
-    joint refinement of rotation, translation and scale (:func:`~ocalib.calib.refine.refine_estimate`); last the scale
-    fit (:func:`~ocalib.calib.translation.fit_scale`). All state is
-    kept in buffers, so ``state_dict`` saves and restores a stream mid-way; gradients flow to the poses.
+    (:func:`~ocalib.calib.stages.gating.check_poses`); the motions of every camera over a set of frame gaps (``motion``,
+    :func:`~ocalib.calib.stages.pairing.motions_since`); the screw-congruence gate and the rotation rows' weights
+    (:mod:`ocalib.calib.stages.gating`); each gap's rotation system by incremental SVD
+    (:func:`~ocalib.calib.stages.rotation.update_rotation_system`) and its translation moment by a sum
+    (:func:`~ocalib.calib.stages.handeye.update_translation_moment`); the gaps combined with weights from their noise
+    (:func:`~ocalib.calib.stages.pairing.combine_statistics`); the closed form
+    (:func:`~ocalib.calib.stages.solve.closed_form`: translation and scale by the exact moment solver) or the paper's
+    RLS (:mod:`ocalib.calib.stages.translation`); and the joint refinement of rotation, translation and scale
+    (:func:`~ocalib.calib.stages.refine.refine_estimate`); last the scale fit
+    (:func:`~ocalib.calib.stages.translation.fit_scale`). All state is kept in buffers, so ``state_dict`` saves and
+    restores a stream mid-way; gradients flow to the poses.
 
     Args:
         num_cameras: C, cameras per rig, camera 0 the reference.
@@ -56,21 +57,23 @@ class OnlineCalibrator(nn.Module):
             (0 stands for the pair with frame 0).
         solver: ``exact`` (moment solver, equals batch least squares) or ``rls`` (the paper's).
         refine: with the exact solver, refine the closed form jointly every frame (equals the batch joint
-            least squares of :func:`~ocalib.calib.batch.batch_calibrate`); False: the closed form (rotation
+            least squares of :func:`~ocalib.calib.drivers.batch.batch_calibrate`); False: the closed form (rotation
             first, then translation and scale), which equals the batch closed form; ``"unobservable"``: refine
             only where the rotation rows alone leave the rotation unobservable (monocular front ends, whose
-            translation directions are biased: see :data:`~ocalib.calib.refine.REFINE_MODES`).
+            translation directions are biased: see :data:`~ocalib.calib.stages.refine.REFINE_MODES`).
         scale_fit: how the exact solver fits the scale (the RLS keeps its own): ``"symmetric"`` with no preferred
             camera, the geometric mean of regressing each camera's translations on the other's
-            (:func:`~ocalib.calib.translation.symmetric_scale`); ``"regression"``: least squares' regression of
+            (:func:`~ocalib.calib.stages.translation.symmetric_scale`); ``"regression"``: least squares' regression of
             camera 0's translations on camera k's, biased toward 0 by camera k's translation noise however many
             frames come.
-        symmetric: translation rows of every motion pair in both directions (see :mod:`ocalib.calib.handeye`).
+        symmetric: translation rows of every motion pair in both directions (see :mod:`ocalib.calib.stages.handeye`).
         forgetting: ``lam`` in (0, 1]; old rows weigh ``lam`` per frame.
         rls_c0, rls_delay: the RLS's initial covariance ``C0 = c0 I`` and the frame it starts at.
         gates: the thresholds of the pose checks, the screw gate and the robust weights
-            (:class:`~ocalib.calib.gating.Gates`; :data:`~ocalib.calib.gating.NO_GATES` keeps only the pose checks).
-        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.kernel`: the stages' compiled
+            (:class:`~ocalib.calib.stages.gating.Gates`; :data:`~ocalib.calib.stages.gating.NO_GATES` keeps only the
+            pose checks).
+        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.drivers.kernel`: the stages'
+        compiled
             twins, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64,
             ``solver="exact"``, no gradients -- and in PyTorch elsewhere; ``"torch"`` always in PyTorch.
     """
@@ -160,7 +163,7 @@ class OnlineCalibrator(nn.Module):
         st = self._buffers  # the state, read and replaced directly (nn.Module attribute access is slow)
         differentiable = torch.is_grad_enabled() and (poses.requires_grad or st["gap_Z"].requires_grad)
         if self._kernel_applies(poses, differentiable):
-            from ocalib.calib import kernel  # numba loads on first use (~0.3 s): not for every import of ocalib
+            from ocalib.calib.drivers import kernel  # numba loads on first use (~0.3 s): not for every import of ocalib
 
             return Calibration(**kernel.step(self, poses))
         poses, valid = check_poses(poses.to(st["S2"].dtype), self.pose_tolerance)

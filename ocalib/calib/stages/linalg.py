@@ -4,7 +4,7 @@
 infinite for repeated eigenvalues -- exactly what planar motion produces (two zero singular values).
 :func:`guarded_eigh` replaces that factor by ``d / (d^2 + eps^2)`` (Lorentzian broadening), equal to
 ``1 / d`` up to a relative ``(eps / d)^2`` for well-separated eigenvalues and bounded by
-``1 / (2 eps)`` otherwise. The compiled twin (cyclic Jacobi) is in :mod:`ocalib.calib.linalg_kernel`.
+``1 / (2 eps)`` otherwise. The compiled twin (cyclic Jacobi) is in :mod:`ocalib.calib.stages.linalg_kernel`.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The calibration head's settings, as the command line and the library pass them around.
 
-Convention: as :mod:`ocalib.calib.online` (``T_cam0_camk``; camera 0 the reference).
+Convention: as :mod:`ocalib.calib.drivers.online` (``T_cam0_camk``; camera 0 the reference).
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 from ocalib.errors import InputError
 
-MOTION_CHOICES = ("first", "consecutive", "multi")  # the keys of ocalib.calib.pairing.MOTIONS (a light copy)
+MOTION_CHOICES = ("first", "consecutive", "multi")  # the keys of ocalib.calib.stages.pairing.MOTIONS (a light copy)
 SOLVERS = ("exact", "rls", "batch")
 POSE_ERRORS = ("camera", "world")
 REFINE_CHOICES = {"unobservable": "unobservable", "always": True, "never": False}  # words -> ``refine``
@@ -19,7 +19,7 @@ REFINE_CHOICES = {"unobservable": "unobservable", "always": True, "never": False
 class HeadOptions:
     """How the head solves: ``motion`` (:data:`MOTION_CHOICES` or ``absolute``, every pose on its own), ``solver``
     (:data:`SOLVERS`; ``batch``: one solve of all frames, pose files only), ``forgetting`` in (0, 1], ``refine``
-    (True, False or ``"unobservable"``, see :data:`~ocalib.calib.solve.REFINE_MODES`), and with ``absolute``
+    (True, False or ``"unobservable"``, see :data:`~ocalib.calib.stages.solve.REFINE_MODES`), and with ``absolute``
     ``pose_error`` (:data:`POSE_ERRORS`: where the poses' translation error lives)."""
 
     motion: str = "multi"
@@ -47,7 +47,7 @@ class HeadOptions:
         return self
 
     def head_kwargs(self) -> dict:
-        """The keyword arguments of :class:`~ocalib.calib.online.OnlineCalibrator`."""
+        """The keyword arguments of :class:`~ocalib.calib.drivers.online.OnlineCalibrator`."""
         return dict(motion=self.motion, solver=self.solver, forgetting=self.forgetting, refine=self.refine)
 
     def settings(self) -> dict:

@@ -7,28 +7,28 @@ motion's length as lever arm). :func:`joint_refine` minimises both at once,
     ``C(dR, dT, s) = q^T M q / sr^2 + E_t(dT, s dR) / st^2``,
 
 where ``M`` is the rotation system's Gram matrix (``V diag(S^2) V^T``), ``E_t`` the translation residual of
-the moment ``Z`` (a quadratic in ``y = (dT, vec(s dR))``, see :func:`~ocalib.calib.handeye.translation_quadratic`),
-and the weights are residual variances: ``sr^2 = q^T M q / (2 n - 3)`` and ``st^2 = E_t / (3 n - 4)`` (as in the
-uncertainty of :mod:`ocalib.calib.rotation` and :mod:`ocalib.calib.translation`). With rows in both directions
-(:mod:`ocalib.calib.handeye`) each direction's rows are a group with a variance of its own, ``E_t`` becoming
-``E_forward / st_f^2 + E_reverse / st_r^2``: which direction is the cleaner depends on where a front end's noise
-sits (in the frame a step starts from or the one it ends in), and the data say which. The variances are first
-those of the closed form, whose translation residual the rotation-first solve inflates; after ``steps`` steps they
-are re-estimated at the refined estimate and ``REWEIGHT_STEPS`` more steps follow (measured in batch on a walking
-rig under drift, median rotation error 0.0281 -> 0.0254 deg, and 0.0262 -> 0.0218 with the noise at each step's
-start: ``docs/simulation.md``). Every term comes from O(1) statistics, so the
-refinement is O(1) per frame and equals the batch solve of all rows with the same two rounds of weights
-(:func:`~ocalib.calib.batch.batch_calibrate`).
+the moment ``Z`` (a quadratic in ``y = (dT, vec(s dR))``, see
+:func:`~ocalib.calib.stages.handeye.translation_quadratic`), and the weights are residual variances: ``sr^2 = q^T M q /
+(2 n - 3)`` and ``st^2 = E_t / (3 n - 4)`` (as in the uncertainty of :mod:`ocalib.calib.stages.rotation` and
+:mod:`ocalib.calib.stages.translation`). With rows in both directions (:mod:`ocalib.calib.stages.handeye`) each
+direction's rows are a group with a variance of its own, ``E_t`` becoming ``E_forward / st_f^2 + E_reverse / st_r^2``:
+which direction is the cleaner depends on where a front end's noise sits (in the frame a step starts from or the one it
+ends in), and the data say which. The variances are first those of the closed form, whose translation residual the
+rotation-first solve inflates; after ``steps`` steps they are re-estimated at the refined estimate and
+``REWEIGHT_STEPS`` more steps follow (measured in batch on a walking rig under drift, median rotation error 0.0281 ->
+0.0254 deg, and 0.0262 -> 0.0218 with the noise at each step's start: ``docs/simulation.md``). Every term comes from
+O(1) statistics, so the refinement is O(1) per frame and equals the batch solve of all rows with the same two rounds of
+weights (:func:`~ocalib.calib.drivers.batch.batch_calibrate`).
 
 Steps start from the closed form: one Gauss-Newton step, then Newton steps (the exact Hessian in the local
 rotation coordinates ``dq = q * (1, d/2) / |.|``, which converges quadratically near the minimum). The result is
 kept only where its cost, under the final weights, is below the closed form's (and finite); elsewhere, and where
 ``active`` is False, the closed form is returned.
 
-:func:`refine_estimate` applies it to the closed form of :mod:`ocalib.calib.solve` where two rotation directions are
-excited and the motion is not planar (``mode=True``), or only where the rotation rows alone leave the rotation
+:func:`refine_estimate` applies it to the closed form of :mod:`ocalib.calib.stages.solve` where two rotation directions
+are excited and the motion is not planar (``mode=True``), or only where the rotation rows alone leave the rotation
 unobservable (``mode="unobservable"``: for monocular front ends, see :data:`REFINE_MODES`). The compiled twins are in
-:mod:`ocalib.calib.refine_kernel`.
+:mod:`ocalib.calib.stages.refine_kernel`.
 
 Convention: ``dR`` (from the quaternion ``q``, w, x, y, z) and ``dT`` give ``T_cam0_camk``; ``s`` multiplies
 camera-k units into camera-0 units.
@@ -39,7 +39,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ocalib.calib.rotation import RotationSystem, excited, rotation_gram
+from ocalib.calib.stages.rotation import RotationSystem, excited, rotation_gram
 from ocalib.geometry.constants import constant_cache
 from ocalib.geometry.quaternion import canonical_quaternion, left_product_matrix, quaternion_to_rotation_matrix
 
@@ -64,14 +64,14 @@ def refine_estimate(
     steps: int = REFINE_STEPS,
     reverse: tuple[Tensor, Tensor, Tensor] | None = None,
 ) -> dict[str, Tensor]:
-    """The closed form ``est`` (:func:`~ocalib.calib.solve.closed_form`) refined jointly where ``mode`` (one of
+    """The closed form ``est`` (:func:`~ocalib.calib.stages.solve.closed_form`) refined jointly where ``mode`` (one of
     :data:`REFINE_MODES`) asks and at least two rotation directions are excited, the motion is not planar and there
     are 3 translation rows at least; ``refined`` says where the refinement was accepted.
 
     Args: ``rotation`` and ``quadratic`` ``(P, p, c)`` of the statistics the closed form came from, the weighted
     number of translation rows (...), the refinement's ``steps``, and the reverse rows' share of ``quadratic``
     (``reverse``, None with rows in one direction). Kernel twin:
-    :func:`ocalib.calib.refine_kernel.refine_estimate`.
+    :func:`ocalib.calib.stages.refine_kernel.refine_estimate`.
     """
     if not mode or steps == 0:
         return est

@@ -1,10 +1,11 @@
-"""The closed-form estimate from the kept statistics, shared by the streaming head (:mod:`ocalib.calib.online`) and
-the whole-sequence path (:mod:`ocalib.calib.sequence`).
+"""The closed-form estimate from the kept statistics, shared by the streaming head (:mod:`ocalib.calib.drivers.online`)
+and the whole-sequence path (:mod:`ocalib.calib.drivers.sequence`).
 
 From the rotation system (``S2, V``: squared singular values and right singular vectors) and the translation
 moment's quadratic form: the closed-form rotation (the null vector; on planar motion the translation route of
-:mod:`ocalib.calib.planar`), then the exact least-squares translation and scale with that rotation. The joint
-refinement of :mod:`ocalib.calib.refine` starts from it. The compiled twin is in :mod:`ocalib.calib.solve_kernel`.
+:mod:`ocalib.calib.stages.planar`), then the exact least-squares translation and scale with that rotation. The joint
+refinement of :mod:`ocalib.calib.stages.refine` starts from it. The compiled twin is in
+:mod:`ocalib.calib.stages.solve_kernel`.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = dR p_camk + dT``), ``s`` multiplies camera-k units into camera-0
 units, quaternions (w, x, y, z) with w >= 0. Any leading batch shape (rigs, cameras, frames).
@@ -15,9 +16,15 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ocalib.calib.planar import planar_rotation
-from ocalib.calib.rotation import RotationSystem, planar_motion, rotation_observable, rotation_solution, singular_values
-from ocalib.calib.translation import minimum_norm, solve_translation
+from ocalib.calib.stages.planar import planar_rotation
+from ocalib.calib.stages.rotation import (
+    RotationSystem,
+    planar_motion,
+    rotation_observable,
+    rotation_solution,
+    singular_values,
+)
+from ocalib.calib.stages.translation import minimum_norm, solve_translation
 from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 
@@ -26,13 +33,13 @@ def closed_form(rotation: RotationSystem, quadratic: tuple[Tensor, Tensor, Tenso
 
     Args:
         rotation: the weighted rotation rows (...). quadratic: ``(P, p, c)`` of the weighted translation moment
-            (:func:`~ocalib.calib.handeye.translation_quadratic`).
+            (:func:`~ocalib.calib.stages.handeye.translation_quadratic`).
 
-    Returns the :class:`~ocalib.calib.result.Calibration` fields of the estimate: ``quaternion`` (..., 4),
+    Returns the :class:`~ocalib.calib.drivers.result.Calibration` fields of the estimate: ``quaternion`` (..., 4),
     ``rotation`` (..., 3, 3), ``translation`` (..., 3), ``scale`` (...), ``rotation_singular_values`` (..., 4),
     ``rotation_observable``, ``planar_motion`` (...) bool, ``planar_axis`` (..., 3) (zero unless planar: the
     translation along it is unobservable and reported as 0, the minimum-norm value) and ``refined`` (...) False.
-    Kernel twin: :func:`ocalib.calib.solve_kernel.closed_form`.
+    Kernel twin: :func:`ocalib.calib.stages.solve_kernel.closed_form`.
     """
     S = singular_values(rotation.S2)
     quat = rotation_solution(rotation.V)

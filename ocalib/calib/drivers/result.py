@@ -9,11 +9,11 @@ from functools import cached_property
 import torch
 from torch import Tensor
 
-from ocalib.calib.handeye import TranslationMoment, translation_quadratic
-from ocalib.calib.planar import planar_rotation_std
-from ocalib.calib.refine import costs, joint_covariance
-from ocalib.calib.rotation import RotationSystem, rotation_gram, rotation_std
-from ocalib.calib.translation import translation_uncertainty, unobservable_directions
+from ocalib.calib.stages.handeye import TranslationMoment, translation_quadratic
+from ocalib.calib.stages.planar import planar_rotation_std
+from ocalib.calib.stages.refine import costs, joint_covariance
+from ocalib.calib.stages.rotation import RotationSystem, rotation_gram, rotation_std
+from ocalib.calib.stages.translation import translation_uncertainty, unobservable_directions
 from ocalib.io.jsonable import finite_or_null
 
 
@@ -27,9 +27,9 @@ class Calibration:
 
     The uncertainty (``*_std``, ``translation_*``) is computed from the solver's state when first read,
     so a stream that does not look at it does not pay for it. Where the estimate was refined jointly
-    (``refined``), the standard deviations are those of the joint solve (:func:`~ocalib.calib.refine.joint_covariance`:
-    rotation, translation and scale together); elsewhere those of the closed forms (rotation system, then
-    translation with the rotation fixed; planar motion: the planar route).
+    (``refined``), the standard deviations are those of the joint solve
+    (:func:`~ocalib.calib.stages.refine.joint_covariance`: rotation, translation and scale together); elsewhere those of
+    the closed forms (rotation system, then translation with the rotation fixed; planar motion: the planar route).
     """
 
     rotation: Tensor  # (B, K, 3, 3)
@@ -44,7 +44,7 @@ class Calibration:
     frames_rejected: Tensor  # (B, K) long
     rotation_basis: Tensor  # (B, K, 4, 4) right singular vectors of the rotation system
     rotation_rows: Tensor  # (B, K) weighted motion pairs in the rotation system
-    translation_moment: Tensor  # (B, K, 58) the translation rows' statistics, see ocalib.calib.handeye
+    translation_moment: Tensor  # (B, K, 58) the translation rows' statistics, see ocalib.calib.stages.handeye
     translation_rows: Tensor  # (B, K) weighted motion pairs in the translation system
     refined: Tensor | None = None  # (B, K) bool: the joint refinement was applied (None: nowhere)
     translation_moment_reverse: Tensor | None = None  # (B, K, 58) the reverse rows' share (None: not kept)
@@ -53,7 +53,8 @@ class Calibration:
     def from_statistics(
         cls, est: dict[str, Tensor], rotation: RotationSystem, moment: TranslationMoment, frames_used, frames_rejected
     ) -> Calibration:
-        """The estimate ``est`` (:func:`~ocalib.calib.solve.closed_form`, refined) with the statistics it came from."""
+        """The estimate ``est`` (:func:`~ocalib.calib.stages.solve.closed_form`, refined) with the statistics it came
+        from."""
         return cls(**est, rotation_basis=rotation.V, rotation_rows=rotation.rotation_rows, translation_moment=moment.Z,
                    translation_rows=moment.translation_rows, translation_moment_reverse=moment.Z_reverse,
                    frames_used=frames_used, frames_rejected=frames_rejected)  # fmt: skip
@@ -77,7 +78,7 @@ class Calibration:
     @cached_property
     def rotation_std(self) -> Tensor:
         """(B, K, 3) 1-sigma rotation error in radians about camera k's axes (planar motion: from the planar
-        route, see :func:`~ocalib.calib.planar.planar_rotation_std`); inf where the residual says nothing."""
+        route, see :func:`~ocalib.calib.stages.planar.planar_rotation_std`); inf where the residual says nothing."""
         std = rotation_std(self.rotation_singular_values, self.rotation_basis, self.rotation_rows)
         planar = self.planar_motion
         if bool(planar.any()):  # the rotation system is degenerate there: the planar route's own uncertainty

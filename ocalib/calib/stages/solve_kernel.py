@@ -1,8 +1,8 @@
-"""Compiled twin (numba) of :func:`ocalib.calib.solve.closed_form`, for one rig and camera k (no batch dimension;
+"""Compiled twin (numba) of :func:`ocalib.calib.stages.solve.closed_form`, for one rig and camera k (no batch dimension;
 results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.solve`: ``T_cam0_camk`` (``p_cam0 = dR p_camk + dT``), ``s`` multiplies camera-k
-units into camera-0 units, quaternions (w, x, y, z) with w >= 0.
+Convention: as :mod:`ocalib.calib.stages.solve`: ``T_cam0_camk`` (``p_cam0 = dR p_camk + dT``), ``s`` multiplies
+camera-k units into camera-0 units, quaternions (w, x, y, z) with w >= 0.
 """
 
 from __future__ import annotations
@@ -11,17 +11,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ocalib.calib import planar_kernel
-from ocalib.calib.linalg_kernel import jit, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
-from ocalib.calib.planar_kernel import planar_rotation
-from ocalib.calib.rotation import PLANAR_SIGNIFICANCE, ROTATION_OBSERVABLE_SIGNIFICANCE
-from ocalib.calib.rotation_kernel import excited, rotation_solution, singular_values
-from ocalib.calib.translation_kernel import solve_translation
+from ocalib.calib.stages import planar_kernel
+from ocalib.calib.stages.linalg_kernel import jit, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
+from ocalib.calib.stages.planar_kernel import planar_rotation
+from ocalib.calib.stages.rotation import PLANAR_SIGNIFICANCE, ROTATION_OBSERVABLE_SIGNIFICANCE
+from ocalib.calib.stages.rotation_kernel import excited, rotation_solution, singular_values
+from ocalib.calib.stages.translation_kernel import solve_translation
 
 
 class Estimate(NamedTuple):
-    """One rig's and camera's estimate: the arrays of the :class:`~ocalib.calib.result.Calibration` fields (its flags
-    are the twins' return values)."""
+    """One rig's and camera's estimate: the arrays of the :class:`~ocalib.calib.drivers.result.Calibration` fields (its
+    flags are the twins' return values)."""
 
     quaternion: np.ndarray  # (4,)
     rotation: np.ndarray  # (3, 3)
@@ -36,8 +36,8 @@ workspace = planar_kernel.workspace
 
 @jit
 def closed_form(rotation, quadratic, est, work):
-    """:func:`~ocalib.calib.solve.closed_form` of one rig and camera k: ``rotation`` a
-    :class:`~ocalib.calib.rotation.RotationSystem` (``S2`` (4,), ``V`` (4, 4), ``rotation_rows``), ``quadratic``
+    """:func:`~ocalib.calib.stages.solve.closed_form` of one rig and camera k: ``rotation`` a
+    :class:`~ocalib.calib.stages.rotation.RotationSystem` (``S2`` (4,), ``V`` (4, 4), ``rotation_rows``), ``quadratic``
     ``(P, p, c)`` of the translation moment; writes ``est`` (:class:`Estimate`), returns ``(observable, planar)``.
     ``work``: :func:`workspace`."""
     S2, V, rows = rotation

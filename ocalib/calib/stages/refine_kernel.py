@@ -1,7 +1,7 @@
-"""Compiled twins (numba) of :mod:`ocalib.calib.refine`: the joint refinement of rotation, translation and scale, for
-one entry (no batch dimension; results written into the arrays passed).
+"""Compiled twins (numba) of :mod:`ocalib.calib.stages.refine`: the joint refinement of rotation, translation and scale,
+for one entry (no batch dimension; results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.refine`: unknowns ordered ``(d, s, dT)`` with ``d`` the local rotation
+Convention: as :mod:`ocalib.calib.stages.refine`: unknowns ordered ``(d, s, dT)`` with ``d`` the local rotation
 (``q <- q * (1, d/2) / |.|``), ``x = (dT, s)``, quaternions (w, x, y, z).
 """
 
@@ -12,11 +12,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ocalib.calib.handeye_kernel import apply_quadratic
-from ocalib.calib.linalg_kernel import jit, jit_inline, left_product_matrix, lu_solve, quaternion_to_rotation_matrix
-from ocalib.calib.refine import REWEIGHT_STEPS
-from ocalib.calib.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
-from ocalib.calib.rotation_kernel import excited, rotation_gram
+from ocalib.calib.stages.handeye_kernel import apply_quadratic
+from ocalib.calib.stages.linalg_kernel import (
+    jit,
+    jit_inline,
+    left_product_matrix,
+    lu_solve,
+    quaternion_to_rotation_matrix,
+)
+from ocalib.calib.stages.refine import REWEIGHT_STEPS
+from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
+from ocalib.calib.stages.rotation_kernel import excited, rotation_gram
 
 REFINE_CODES = {False: 0, True: 1, "unobservable": 2}  # refine_estimate's mode, for each of refine.REFINE_MODES
 _EPS2 = float(np.finfo(np.float64).eps) ** 2
@@ -57,10 +63,10 @@ def workspace():
 
 @jit
 def refine_estimate(est, rotation, quadratic, reverse, translation_rows, mode, steps, flags, work):
-    """:func:`~ocalib.calib.refine.refine_estimate` of one entry: ``est`` the closed form
-    (:class:`~ocalib.calib.solve_kernel.Estimate`, refined in place where accepted), ``rotation`` the
-    :class:`~ocalib.calib.rotation.RotationSystem` and ``quadratic`` ``(P, p, c)`` it came from, ``reverse`` the reverse
-    rows' share of it, ``mode`` a code of :data:`REFINE_CODES`, ``flags`` the closed
+    """:func:`~ocalib.calib.stages.refine.refine_estimate` of one entry: ``est`` the closed form
+    (:class:`~ocalib.calib.stages.solve_kernel.Estimate`, refined in place where accepted), ``rotation`` the
+    :class:`~ocalib.calib.stages.rotation.RotationSystem` and ``quadratic`` ``(P, p, c)`` it came from, ``reverse`` the
+    reverse rows' share of it, ``mode`` a code of :data:`REFINE_CODES`, ``flags`` the closed
     form's ``(observable, planar)``. Returns whether it was refined. ``work``: :func:`workspace`."""
     observable, planar = flags
     rows = rotation.rotation_rows
@@ -80,8 +86,8 @@ def refine_estimate(est, rotation, quadratic, reverse, translation_rows, mode, s
 
 @jit
 def joint_refine(M, quadratic, reverse, quat, x, rotation_rows, translation_rows, steps, work):
-    """:func:`~ocalib.calib.refine.joint_refine` of one active entry: ``quat`` (4,) and ``x`` (4,) the closed form, the
-    refined estimate where it is accepted (returned: whether)."""
+    """:func:`~ocalib.calib.stages.refine.joint_refine` of one active entry: ``quat`` (4,) and ``x`` (4,) the closed
+    form, the refined estimate where it is accepted (returned: whether)."""
     q, xr, H, g, d, Jq, wt, Et = work.q, work.x, work.H, work.g, work.d, work.Jq, work.wt, work.Et
     wr, Er0 = _weights(M, quadratic, reverse, quat, x, rotation_rows, translation_rows, work)
     Et0_forward, Et0_reverse = Et[0], Et[1]  # the closed form's residuals
@@ -131,8 +137,8 @@ def _canonical(q):
 
 @jit_inline
 def _group_costs(M, quadratic, reverse, q, x, work):
-    """:func:`~ocalib.calib.refine.group_costs` at ``(q, x)``: returns the rotation residual ``q^T M q``; the forward
-    and the reverse rows' translation residuals in ``work.Et``."""
+    """:func:`~ocalib.calib.stages.refine.group_costs` at ``(q, x)``: returns the rotation residual ``q^T M q``; the
+    forward and the reverse rows' translation residuals in ``work.Et``."""
     (P, p, c), (Pr, pr, cr), R, y, Py = quadratic, reverse, work.R, work.y, work.Py
     quaternion_to_rotation_matrix(q, R)
     for i in range(3):
@@ -157,9 +163,9 @@ def _group_costs(M, quadratic, reverse, q, x, work):
 
 @jit_inline
 def _weights(M, quadratic, reverse, q, x, rotation_rows, translation_rows, work):
-    """:func:`~ocalib.calib.refine._group_weights` at ``(q, x)``: returns ``1 / sr^2`` and the rotation residual; writes each group's ``1 / st^2``
-    (0 for an empty group) into ``work.wt`` and the translation quadratic weighted by them into ``work.Pw``,
-    ``work.pw``."""
+    """:func:`~ocalib.calib.stages.refine._group_weights` at ``(q, x)``: returns ``1 / sr^2`` and the rotation residual;
+    writes each group's ``1 / st^2`` (0 for an empty group) into ``work.wt`` and the translation quadratic weighted by
+    them into ``work.Pw``, ``work.pw``."""
     (P, p, c), (Pr, pr, cr), wt, Pw, pw = quadratic, reverse, work.wt, work.Pw, work.pw
     Er = _group_costs(M, quadratic, reverse, q, x, work)
     trace = M[0, 0] + M[1, 1] + M[2, 2] + M[3, 3]
@@ -177,7 +183,7 @@ def _weights(M, quadratic, reverse, q, x, rotation_rows, translation_rows, work)
 
 @jit_inline
 def _system(M, P, p, q, x, wr, work):
-    """The Gauss-Newton system of :func:`~ocalib.calib.refine.joint_refine` at ``(q, x)``: ``work.H`` (7, 7) and
+    """The Gauss-Newton system of :func:`~ocalib.calib.stages.refine.joint_refine` at ``(q, x)``: ``work.H`` (7, 7) and
     ``work.g`` (7,), and the pieces the Newton terms and the update reuse: ``R = dR``, ``Jq``, ``r``, ``Mq``, ``D``.
 
     From the blocks of ``P`` rather than the chain rule through ``vec(s dR)`` (the PyTorch stage's ``J_y^T P J_y``):

@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ocalib.calib.absolute import ROTATION_GAP_MIN
-from ocalib.calib.result import Calibration
-from ocalib.calib.rotation import ROTATION_OBSERVABLE_MIN_SV, ROTATION_OBSERVABLE_SIGNIFICANCE
+from ocalib.calib.drivers.absolute import ROTATION_GAP_MIN
+from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_MIN_SV, ROTATION_OBSERVABLE_SIGNIFICANCE
 from ocalib.geometry.angles import rotation_vector, rpy_deg
 from ocalib.io.poses import POSE_TOLERANCE, describe_invalid, pose_validity
 
 if TYPE_CHECKING:
-    from ocalib.calib.pipeline import RigPoses
+    from ocalib.calib.poses.pipeline import RigPoses
 
 # A translation residual above this share of camera 0's motion (RMS) is reported. Measured on the held-out rigs
 # (docs/calibnet.md): true poses with VO-like drift 0.002-0.005 leave 1-12 %, OpenCV VO 11-60 %, the aligned pose
@@ -186,7 +186,7 @@ def run_warnings(run: CalibrationRun) -> list[str]:
             out.append(
                 f"{f}: rotation not observable: rotation singular values {_fmt(S)}, the third must exceed "
                 f"{ROTATION_OBSERVABLE_MIN_SV} and stand out of the fourth (the noise floor; significance "
-                f"{ROTATION_OBSERVABLE_SIGNIFICANCE:g}, see ocalib.calib.rotation). The motion rotates too "
+                f"{ROTATION_OBSERVABLE_SIGNIFICANCE:g}, see ocalib.calib.stages.rotation). The motion rotates too "
                 "little or about too few axes (pure translation?); rotation, translation and scale are unreliable"
             )
         if bool(e.planar_motion[0, k]):

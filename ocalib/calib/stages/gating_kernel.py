@@ -1,7 +1,7 @@
-"""Compiled twins (numba) of :mod:`ocalib.calib.gating`: the pose checks, the screw-congruence gate and the weights of
-the rotation rows, for one rig (no batch dimension; results written into the arrays passed).
+"""Compiled twins (numba) of :mod:`ocalib.calib.stages.gating`: the pose checks, the screw-congruence gate and the
+weights of the rotation rows, for one rig (no batch dimension; results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.gating`; every camera's motions (C, P), the pairs of camera 0 against camera k
+Convention: as :mod:`ocalib.calib.stages.gating`; every camera's motions (C, P), the pairs of camera 0 against camera k
 (K, P) or, for one camera k, (P,).
 """
 
@@ -11,15 +11,15 @@ import math
 
 import numpy as np
 
-from ocalib.calib.gating import MAD_TO_STD, SCREW_MAX_SAMPLES, SCREW_MIN_SAMPLES
-from ocalib.calib.linalg_kernel import jit
-from ocalib.calib.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
-from ocalib.calib.rotation_kernel import excited, rotation_solution, singular_values
+from ocalib.calib.stages.gating import MAD_TO_STD, SCREW_MAX_SAMPLES, SCREW_MIN_SAMPLES
+from ocalib.calib.stages.linalg_kernel import jit
+from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_SIGNIFICANCE
+from ocalib.calib.stages.rotation_kernel import excited, rotation_solution, singular_values
 
 
 @jit
 def check_poses(poses, tolerance, out, valid):
-    """:func:`~ocalib.calib.gating.check_poses` of a rig's poses (C, 4, 4): ``out`` (C, 4, 4) and ``valid`` (C,)
+    """:func:`~ocalib.calib.stages.gating.check_poses` of a rig's poses (C, 4, 4): ``out`` (C, 4, 4) and ``valid`` (C,)
     written."""
     for cam in range(poses.shape[0]):
         pose, ok = out[cam], True
@@ -46,7 +46,7 @@ def check_poses(poses, tolerance, out, valid):
 
 @jit
 def screw_gate(angle, valid, scale, count, gate, sigma, ok):
-    """:func:`~ocalib.calib.gating.screw_gate` of a rig: every camera's motion angles ``angle`` (C, P), the pairs
+    """:func:`~ocalib.calib.stages.gating.screw_gate` of a rig: every camera's motion angles ``angle`` (C, P), the pairs
     ``valid`` (K, P); ``ok`` (K, P) written, the running ``scale`` and ``count`` (K,) updated in place."""
     for k in range(valid.shape[0]):
         opened = count[k] >= SCREW_MIN_SAMPLES
@@ -65,10 +65,10 @@ def screw_gate(angle, valid, scale, count, gate, sigma, ok):
 
 @jit
 def rotation_weights(ok, angle0, anglek, A, estimate, min_rotation, robust, weight):
-    """:func:`~ocalib.calib.gating.rotation_weights` for one rig and camera k: the pairs ``ok`` (P,), the motion angles
-    of camera 0 and camera k (P,), the blocks ``A`` (P, 4, 4), ``estimate`` a
-    :class:`~ocalib.calib.rotation.RotationSystem` (``S2`` (4,), ``V`` (4, 4), ``rotation_rows``); ``weight`` (P,)
-    written."""
+    """:func:`~ocalib.calib.stages.gating.rotation_weights` for one rig and camera k: the pairs ``ok`` (P,), the motion
+    angles of camera 0 and camera k (P,), the blocks ``A`` (P, 4, 4), ``estimate`` a
+    :class:`~ocalib.calib.stages.rotation.RotationSystem` (``S2`` (4,), ``V`` (4, 4), ``rotation_rows``); ``weight``
+    (P,) written."""
     S2, V, rows = estimate
     q = rotation_solution(V)
     established = excited(singular_values(S2), rows, 2, ROTATION_OBSERVABLE_SIGNIFICANCE)

@@ -1,38 +1,38 @@
 """The streaming head's frame update as a compiled CPU kernel (numba): the same stages, without PyTorch's
 per-operation dispatch.
 
-:class:`~ocalib.calib.online.OnlineCalibrator` spends its CPU time dispatching about 900 small tensor operations
+:class:`~ocalib.calib.drivers.online.OnlineCalibrator` spends its CPU time dispatching about 900 small tensor operations
 a frame (about 2 us each), not computing. This driver runs one frame of the head for every rig by chaining the
 compiled twins of its stages, each in the ``*_kernel`` module beside its PyTorch stage and tested against it:
 
-========================  =====================================================  ====================================
-stage                     PyTorch                                                compiled twin
-========================  =====================================================  ====================================
-pose checks               :func:`ocalib.calib.gating.check_poses`                 ``gating_kernel.check_poses``
-motion pairs              :func:`ocalib.calib.pairing.motions_since`              ``pairing_kernel.motions_since``
-screw gate                :func:`ocalib.calib.gating.screw_gate`                  ``gating_kernel.screw_gate``
-rotation rows' weights    :func:`ocalib.calib.gating.rotation_weights`            ``gating_kernel.rotation_weights``
-per-gap rotation system   :func:`ocalib.calib.rotation.update_rotation_system`    ``rotation_kernel.update_rotation_system``
-per-gap moment            :func:`ocalib.calib.handeye.update_translation_moment`  ``handeye_kernel.update_translation_moment``
-gap combination           :func:`ocalib.calib.pairing.combine_statistics`         ``pairing_kernel.combine_statistics``
-closed form               :func:`ocalib.calib.solve.closed_form`                  ``solve_kernel.closed_form``
-refinement                :func:`ocalib.calib.refine.refine_estimate`             ``refine_kernel.refine_estimate``
-scale fit                 :func:`ocalib.calib.translation.fit_scale`              ``translation_kernel.fit_scale``
-========================  =====================================================  ====================================
+=======================  =====================================  ============================================
+stage                    PyTorch, in ocalib.calib.stages        compiled twin
+=======================  =====================================  ============================================
+pose checks              ``gating.check_poses``                 ``gating_kernel.check_poses``
+motion pairs             ``pairing.motions_since``              ``pairing_kernel.motions_since``
+screw gate               ``gating.screw_gate``                  ``gating_kernel.screw_gate``
+rotation rows' weights   ``gating.rotation_weights``            ``gating_kernel.rotation_weights``
+per-gap rotation system  ``rotation.update_rotation_system``    ``rotation_kernel.update_rotation_system``
+per-gap moment           ``handeye.update_translation_moment``  ``handeye_kernel.update_translation_moment``
+gap combination          ``pairing.combine_statistics``         ``pairing_kernel.combine_statistics``
+closed form              ``solve.closed_form``                  ``solve_kernel.closed_form``
+refinement               ``refine.refine_estimate``             ``refine_kernel.refine_estimate``
+scale fit                ``translation.fit_scale``              ``translation_kernel.fit_scale``
+=======================  =====================================  ============================================
 
 The twins work on one rig (and camera k) in float64, updating the head's buffers in place (``state_dict`` is
 unchanged); the statistics travel in the same named tuples as in PyTorch
-(:class:`~ocalib.calib.rotation.RotationSystem`, :class:`~ocalib.calib.handeye.TranslationMoment`,
-:class:`~ocalib.calib.pairing.MotionPairs`). From ``PARALLEL_MIN_RIGS`` rigs up, rigs run in parallel over numba's
-threads. The tests hold the kernel equal to the PyTorch head frame by frame. Eigenvectors may differ from
-LAPACK's (see :mod:`ocalib.calib.linalg_kernel`): everything the head reports is invariant to that except the null
-vector of an unobservable rotation and the sign of the planar axis. Where a system is rank-deficient (the planar
+(:class:`~ocalib.calib.stages.rotation.RotationSystem`, :class:`~ocalib.calib.stages.handeye.TranslationMoment`,
+:class:`~ocalib.calib.stages.pairing.MotionPairs`). From ``PARALLEL_MIN_RIGS`` rigs up, rigs run in parallel over
+numba's threads. The tests hold the kernel equal to the PyTorch head frame by frame. Eigenvectors may differ from
+LAPACK's (see :mod:`ocalib.calib.stages.linalg_kernel`): everything the head reports is invariant to that except the
+null vector of an unobservable rotation and the sign of the planar axis. Where a system is rank-deficient (the planar
 route on fewer than 3 motion pairs), rounding can decide which eigenvalues the pseudo-inverse cuts, and the two
 minimum-norm solutions differ.
 
 Scope: CPU, float64, ``solver="exact"``, no gradients. Everything else runs the PyTorch head.
 
-Convention: as :mod:`ocalib.calib.online`: poses camera-to-world, ``T_cam0_camk``, quaternions (w, x, y, z).
+Convention: as :mod:`ocalib.calib.drivers.online`: poses camera-to-world, ``T_cam0_camk``, quaternions (w, x, y, z).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ import torch
 from numba import prange
 from torch import Tensor
 
-from ocalib.calib import (
+from ocalib.calib.stages import (
     gating_kernel,
     handeye_kernel,
     pairing_kernel,
@@ -55,11 +55,11 @@ from ocalib.calib import (
     solve_kernel,
     translation_kernel,
 )
-from ocalib.calib.handeye import STATISTICS, TranslationMoment
-from ocalib.calib.linalg_kernel import compiled, jit, jit_inline
-from ocalib.calib.pairing import MotionPairs
-from ocalib.calib.refine import REFINE_STEPS
-from ocalib.calib.rotation import RotationSystem
+from ocalib.calib.stages.handeye import STATISTICS, TranslationMoment
+from ocalib.calib.stages.linalg_kernel import compiled, jit, jit_inline
+from ocalib.calib.stages.pairing import MotionPairs
+from ocalib.calib.stages.refine import REFINE_STEPS
+from ocalib.calib.stages.rotation import RotationSystem
 
 PARALLEL_MIN_RIGS = 16  # fewer rigs run on the calling thread (starting the thread pool costs more)
 
@@ -104,7 +104,7 @@ class Settings(NamedTuple):
     scale_fit: int  # translation_kernel.SCALE_FIT_CODES
 
 
-# The estimate's arrays (B, K, *shape): the fields of :class:`~ocalib.calib.result.Calibration`.
+# The estimate's arrays (B, K, *shape): the fields of :class:`~ocalib.calib.drivers.result.Calibration`.
 OUTPUTS = {"rotation": ((3, 3), np.float64), "quaternion": ((4,), np.float64), "translation": ((3,), np.float64),
            "scale": ((), np.float64), "rotation_singular_values": ((4,), np.float64),
            "rotation_observable": ((), np.bool_), "planar_motion": ((), np.bool_), "planar_axis": ((3,), np.float64),
@@ -251,10 +251,10 @@ def _parallel(poses, state, settings, out, chunks):
 
 
 def step(head, poses: Tensor) -> dict[str, Tensor]:
-    """Run one frame of ``head`` (an :class:`~ocalib.calib.online.OnlineCalibrator` with ``solver="exact"``, float64
-    buffers on the CPU) on ``poses`` (B, C, 4, 4), updating its buffers in place. Returns the fields of
-    :class:`~ocalib.calib.result.Calibration`, in new arrays every frame (as fast as reusing the last frame's: the
-    allocator hands their memory back once the caller drops them; 0.5 us an array)."""
+    """Run one frame of ``head`` (an :class:`~ocalib.calib.drivers.online.OnlineCalibrator` with ``solver="exact"``,
+    float64 buffers on the CPU) on ``poses`` (B, C, 4, 4), updating its buffers in place. Returns the fields of
+    :class:`~ocalib.calib.drivers.result.Calibration`, in new arrays every frame (as fast as reusing the last frame's:
+    the allocator hands their memory back once the caller drops them; 0.5 us an array)."""
     B, K = head.batch_size, head.num_cameras - 1
     buffers, state = _numpy_buffers(head)
     settings = (buffers["gap_tensor"], 0 in head.gaps, int(buffers["frame"]), head.symmetric, float(head.forgetting),

@@ -22,7 +22,7 @@ from frame a to b and its reverse, whose residual lives in frame b. Their rotati
 (``|A' q| = |A q|``), their translation rows are not: the forward rows carry the rotation noise of
 frame a's pose times the motion's length, the reverse rows frame b's.
 
-The compiled twins are in :mod:`ocalib.calib.handeye_kernel`.
+The compiled twins are in :mod:`ocalib.calib.stages.handeye_kernel`.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def rotation_block(q0: Tensor, q1: Tensor) -> Tensor:
 
 def rotation_blocks(quaternion: Tensor) -> Tensor:
     """:func:`rotation_block` (..., K, P, 4, 4) of camera 0's motions against camera k's, from every camera's motion
-    quaternions (..., C, P, 4). Kernel twin: :func:`ocalib.calib.handeye_kernel.rotation_blocks`."""
+    quaternions (..., C, P, 4). Kernel twin: :func:`ocalib.calib.stages.handeye_kernel.rotation_blocks`."""
     return rotation_block(quaternion[..., :1, :, :].expand_as(quaternion[..., 1:, :, :]), quaternion[..., 1:, :, :])
 
 
@@ -75,7 +75,7 @@ def row_statistics(z: Tensor) -> Tensor:
     """The statistics (..., 58) of translation rows with features ``z`` (..., 15), one set per row (sum them over
     rows): with ``E = I - R0``, ``sum_r E_r E_r^T`` (9), ``E[r, i] t1[j]`` at ``(i, 3 r + j)`` (27), ``t1 t1^T``
     (9), ``E^T t0`` (3), ``t0[r] t1[j]`` at ``3 r + j`` (9) and ``|t0|^2`` (1): the blocks of the quadratic
-    (:func:`translation_quadratic`). Kernel twin: :func:`ocalib.calib.handeye_kernel.add_row_statistics`."""
+    (:func:`translation_quadratic`). Kernel twin: :func:`ocalib.calib.stages.handeye_kernel.add_row_statistics`."""
     E, t1, t0 = z[..., :9].unflatten(-1, (3, 3)), z[..., 9:12], z[..., 12:15]
     cross = E.mT.unsqueeze(-1) * t1[..., None, None, :]  # E[r, i] t1[j] at (i, r, j)
     parts = [(E.mT @ E).flatten(-2), cross.flatten(-3), (t1.unsqueeze(-1) * t1.unsqueeze(-2)).flatten(-2),
@@ -89,7 +89,7 @@ def update_translation_moment(
 ) -> TranslationMoment:
     """Add the translation rows of the pairs ``ok`` (..., K, P) of every camera's motions (..., C, P, 4, 4) to
     ``moment`` (..., K, P), old rows weighing ``forgetting``. Kernel twin:
-    :func:`ocalib.calib.handeye_kernel.update_translation_moment`."""
+    :func:`ocalib.calib.stages.handeye_kernel.update_translation_moment`."""
     Z, Z_reverse = translation_moment(motion, ok, symmetric)
     if forgetting != 1:
         Z, Z_reverse = forgetting * moment.Z + Z, forgetting * moment.Z_reverse + Z_reverse
@@ -145,7 +145,7 @@ def normal_equations(quadratic: tuple[Tensor, Tensor, Tensor], maps: Tensor) -> 
     Args:
         quadratic: ``(P, p, c)`` of :func:`translation_quadratic`.
         maps: (..., m, 3, 3) the linear maps ``L_k`` applied to ``t1``. The general model has one map, ``dR`` (unknowns
-            ``dT, s``); the planar model has three (see :mod:`ocalib.calib.planar`).
+            ``dT, s``); the planar model has three (see :mod:`ocalib.calib.stages.planar`).
 
     Returns:
         H (..., 3+m, 3+m), g (..., 3+m), and ``sum w |t0|^2`` (...), so that the weighted residual is
