@@ -10,6 +10,9 @@ length (a car's camera height on planar motion: shifting camera k and its points
 changes no image, so only the trajectory's small departures from the plane inform it; measured on the rendered
 cars: 1-sigma 0.22 m on a 1.35 m lever arm, 0.02-0.04 m in the plane).
 
+Not pycolmap's ``estimate_ba_covariance``: in pycolmap 4.2 it stops on a rig's non-reference images (its check
+``image.IsRefInFrame()``), and ``sensor_from_rig`` is no parameter block it can be asked about.
+
 Convention: camera k's extrinsic ``E = T_cam0_camk = inverse(sensor_from_rig)``; its perturbation is
 ``E exp(dxi)`` mapped to camera 0's frame: rotation (rad) and translation (reconstruction units) in camera 0's axes.
 Projection is PINHOLE in COLMAP's pixels; sigma^2 is the mean squared reprojection residual.
