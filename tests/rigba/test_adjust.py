@@ -58,7 +58,7 @@ def test_small_rig_recovered_in_metres(rig, tmp_path):
         seq,
         _head_like(extrinsics),
         metric=_metric(truth),
-        options=BundleOptions(keyframe_step=1),
+        options=BundleOptions(),
         workdir=tmp_path / "ws",
     )
     assert out.units == "metres" and out.trusted.all() and out.registered.all(), out.warnings

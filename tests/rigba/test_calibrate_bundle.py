@@ -52,7 +52,7 @@ def test_stereo_kitti_tree_recovers_its_baseline(stereo, tmp_path):
         "opencv",
         "--cross-camera",
         "--keyframe-step",
-        "1",
+        "2",
         "--metric-trajectory",
         str(poses),
         "--out",
