@@ -12,9 +12,10 @@ given (as CamOdoCal holds the odometry); what the images must give is each camer
 3. tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
 4. continues the tracks the matches extend and triangulates new points, each camera where the window puts it, or
    where its own resection does while it disagrees with the window; a candidate change (``persistence``
-   keyframes in a row disagreeing) is confirmed by the window itself, adjusted with a second extrinsic for the
-   camera from the candidate's frame on (:func:`ocalib.rigba.window.split_statistic`): a few resections misled
-   by their points are not a move;
+   keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN`` keyframes from the
+   candidate's frame on (the camera held meanwhile; dismissed where its keyframes agree again before then), adjusted
+   with a second extrinsic for the camera from the candidate's frame on
+   (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
    (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track; a camera whose
    observations span fewer than ``MIN_SPAN`` keyframes (at the start, after a change) is held where it is: so short
@@ -30,7 +31,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pycolmap
@@ -47,6 +48,7 @@ MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
 CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
 MIN_SPAN = 10  # keyframes a camera's observations must span before the window moves its extrinsic
 MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
+CONFIRM_SPAN = 4  # keyframes from a candidate change's frame on before the window's split test judges it
 
 
 @dataclass(frozen=True)
@@ -114,6 +116,7 @@ class OnlineRigEstimator:
         self.frames_seen = 0
         self.keyframes_unregistered = 0
         self.dismissed: list[tuple[int, int, float]] = []  # candidates the window did not confirm: camera, frame, ratio
+        self.pending: dict[int, Change] = {}  # per camera, a candidate change awaiting CONFIRM_SPAN keyframes
 
     def update(self, frame: int, images: list[np.ndarray], pose: np.ndarray) -> RigState | None:
         """Consume frame ``frame``: ``images`` one per camera, ``pose`` camera 0's metric camera-to-world pose (4, 4),
@@ -140,10 +143,11 @@ class OnlineRigEstimator:
             candidates = []
         self.keyframes.append(kf)
         self._evict()
-        changes = [(k, change) for k, change in candidates if self._confirmed(k, change)]
+        self.pending.update((k, self.pending.get(k, change)) for k, change in candidates)
+        changes = self._judged(frame)
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
-            held = self._held()
+            held = self._held() | frozenset(self.pending)  # a camera under suspicion: the window does not follow it
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held)
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None and k not in held:
@@ -282,6 +286,23 @@ class OnlineRigEstimator:
             if change is not None:
                 candidates.append((k, change))
         return candidates
+
+    def _judged(self, frame: int) -> list[tuple[int, Change]]:
+        """The pending candidates judged at keyframe ``frame``: dismissed where the camera's keyframes agree with the
+        window again (a few keyframes misled by their matches, as on a repeated texture), else once ``CONFIRM_SPAN``
+        keyframes from the candidate's frame on are in the window, by its split test -> the changes confirmed (noticed
+        at ``frame``)."""
+        changes = []
+        for k, change in list(self.pending.items()):
+            if not self.tracks[k].disagrees:
+                del self.pending[k]
+                self.tracks[k].dismiss()
+                self.dismissed.append((k, change.detected, float("nan")))
+            elif sum(kf.frame >= change.frame for kf in self.keyframes) >= CONFIRM_SPAN:
+                del self.pending[k]
+                if self._confirmed(k, change):
+                    changes.append((k, replace(change, detected=frame)))
+        return changes
 
     def _confirmed(self, k: int, change: Change) -> bool:
         """Whether the window confirms camera k's candidate ``change``; confirmed, the camera loses its observations
