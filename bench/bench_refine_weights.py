@@ -3,15 +3,14 @@ one.
 
 The refinement (:mod:`ocalib.calib.stages.refine`, :func:`~ocalib.calib.drivers.batch.batch_calibrate`) weighs the
 rotation rows and the translation rows by their residual variances. This solves the batch problem on consecutive pairs
-of the hand-held trajectory (:func:`bench_head_accuracy.make_setting`; its best reference under drift) with the
-variances
+of the hand-held trajectory (:func:`bench_head_accuracy.make_setting`; its best reference under drift) with the variances
 
 * ``closed form``: of the closed form (rotation first), once;
 * ``re-estimated``: of the closed form, then re-estimated at the first solution and solved again;
 * ``per direction`` (the default): re-estimated, with a variance for each direction of the translation rows
   (:mod:`ocalib.calib.stages.handeye`: which direction is the cleaner depends on where a front end's noise sits,
-  ``drift``: in the frame a step ends in; ``drift-start``, :func:`bench_head_accuracy.drift_at_start`: the one it starts
-  from);
+  ``drift``: in the frame a step ends in; ``drift-start``, :func:`bench_head_accuracy.drift_at_start`: the one it
+  starts from);
 * ``one way``: re-estimated, translation rows in one direction only.
 
 Prints the median final errors (rotation deg / translation over the baseline / relative scale, least squares' scale)

@@ -24,8 +24,8 @@ class Pairing:
 
     offsets (C,) seconds, 0 for camera 0; frames (M, C) int: each camera's own frame index of every paired frame;
     residuals (M, C) seconds, ``t0 - (tk + offset)``; counts (C,): each camera's frames before pairing;
-    estimates: per camera, how an estimated offset scored (:class:`ocalib.calib.drivers.clock.OffsetQuality`), else
-    None.
+    estimates: per camera, how an estimated offset scored (:class:`ocalib.calib.drivers.clock.OffsetQuality`),
+    else None.
     """
 
     offsets: np.ndarray

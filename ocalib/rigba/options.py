@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-# global: COLMAP's GLOMAP (rotation averaging, global positioning, bundle adjustment); the default, measured 4x faster
-# than incremental at equal accuracy (docs/results-rigba.md). incremental: frame by frame, bundle adjustment after each few.
+# global: COLMAP's GLOMAP (rotation averaging, global positioning, bundle adjustment), the default: faster than
+# incremental at equal accuracy (docs/results-rigba.md). incremental: frame by frame, bundle adjustment after each few.
 MAPPERS = ("global", "incremental")
 
 

@@ -72,10 +72,10 @@ class OnlineCalibrator(nn.Module):
         gates: the thresholds of the pose checks, the screw gate and the robust weights
             (:class:`~ocalib.calib.stages.gating.Gates`; :data:`~ocalib.calib.stages.gating.NO_GATES` keeps only the
             pose checks).
-        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.drivers.kernel`: the stages'
-        compiled
-            twins, 37x faster for one rig and 8x for 4096 on this 2-core CPU) where it applies -- CPU, float64,
-            ``solver="exact"``, no gradients -- and in PyTorch elsewhere; ``"torch"`` always in PyTorch.
+        backend: ``"auto"`` runs a frame in the compiled CPU kernel (:mod:`ocalib.calib.drivers.kernel`, the stages'
+            compiled twins: PyTorch's dispatch of small operations is what a frame costs there) where it applies --
+            CPU, float64, ``solver="exact"``, no gradients -- and in PyTorch elsewhere; ``"torch"`` always in
+            PyTorch.
     """
 
     def __init__(

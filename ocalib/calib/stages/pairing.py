@@ -13,11 +13,8 @@ of the current statistics alone, so a frame's estimate equals the batch solve wi
 shrunk with ``GAP_PRIOR_DOF`` degrees of freedom toward the noisiest gap's (each first shrunk toward the pooled
 value): a gap with a few rows does not decide the weights, and a gap that has just started (under drift, a long
 and noisy one) weighs no more than the noisiest gap already measured. Shrinking toward the pooled value instead
-let each new gap weigh about 1 for its first frames, a spike in the error at frames 16 and 32 under drift.
-Measured (``docs/simulation.md``, 50 rigs): with power 6 the default is 0.27-0.30x of frame-0 pairing under
-independent noise and 0.99-1.02x of consecutive pairing under drift (rotation); power 3
-was 1.16x under drift; fixed 1/g weights (inverse variance under drift, which ignores that the gaps share
-frames) were 1.07-1.22x.
+let each new gap weigh about 1 for its first frames. The power and the alternatives tried are compared in
+``docs/simulation.md``.
 
 Each frame gives every camera's motions over the gaps (:func:`motions_since`) and, once its statistics are updated,
 their combination (:func:`combine_statistics`); their compiled twins are in :mod:`ocalib.calib.stages.pairing_kernel`.

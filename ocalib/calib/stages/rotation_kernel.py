@@ -1,8 +1,8 @@
 """Compiled twins (numba) of :mod:`ocalib.calib.stages.rotation`: the rotation system's incremental SVD and its tests,
 for one rig and camera k (no batch dimension; results written into the arrays passed).
 
-Convention: as :mod:`ocalib.calib.stages.rotation`; squared singular values descending, right singular vectors as
-columns.
+Convention: as :mod:`ocalib.calib.stages.rotation`; squared singular values descending, right singular vectors
+as columns.
 """
 
 from __future__ import annotations
