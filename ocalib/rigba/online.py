@@ -13,7 +13,7 @@ given (as CamOdoCal holds the odometry); what the images must give is each camer
 4. continues the tracks the matches extend and triangulates new points, each camera where the window puts it, or
    where its own resection does while it disagrees with the window; a candidate change (``persistence``
    keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN`` keyframes from the
-   candidate's frame on (the camera held meanwhile; dismissed where its keyframes agree again before then), adjusted
+   candidate's frame on (the camera held meanwhile, its new points where its own resections put it), adjusted
    with a second extrinsic for the camera from the candidate's frame on
    (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
@@ -207,12 +207,16 @@ class OnlineRigEstimator:
 
     def _poses(self, kf: Keyframe, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
         """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or where its own
-        resection does while it disagrees with the window (so that a knocked camera's new points are where it now
+        resection does while it disagrees with the window or a change of it is pending (so that a knocked camera's new points are where it now
         looks, and the next keyframes measure the new mounting instead of the old one their points would give)."""
         return [
-            np.linalg.inv(kf.poses[k] @ (measured[k][0] if k in measured and self.tracks[k].disagrees else E))
+            np.linalg.inv(kf.poses[k] @ (measured[k][0] if k in measured and self._suspect(k) else E))
             for k, E in enumerate(self.extrinsics)
         ]
+
+    def _suspect(self, k: int) -> bool:
+        """Whether camera k's keyframes disagree with the window, or a candidate change of it awaits judgement."""
+        return self.tracks[k].disagrees or k in self.pending
 
     def _triangulate(self, kf: Keyframe, recent: list[Keyframe], matches, poses: list[np.ndarray]) -> None:
         """Extend the tracks the new keyframe's matches with the ``recent`` keyframes continue (where the point
@@ -288,17 +292,12 @@ class OnlineRigEstimator:
         return candidates
 
     def _judged(self, frame: int) -> list[tuple[int, Change]]:
-        """The pending candidates judged at keyframe ``frame``: dismissed where the camera's keyframes agree with the
-        window again (a few keyframes misled by their matches, as on a repeated texture), else once ``CONFIRM_SPAN``
-        keyframes from the candidate's frame on are in the window, by its split test -> the changes confirmed (noticed
-        at ``frame``)."""
+        """The pending candidates judged at keyframe ``frame`` by the window's split test, once ``CONFIRM_SPAN``
+        keyframes from the candidate's frame on are in the window (two keyframes misled by their matches, as on a
+        repeated texture, decide less among four) -> the changes confirmed (noticed at ``frame``)."""
         changes = []
         for k, change in list(self.pending.items()):
-            if not self.tracks[k].disagrees:
-                del self.pending[k]
-                self.tracks[k].dismiss()
-                self.dismissed.append((k, change.detected, float("nan")))
-            elif sum(kf.frame >= change.frame for kf in self.keyframes) >= CONFIRM_SPAN:
+            if sum(kf.frame >= change.frame for kf in self.keyframes) >= CONFIRM_SPAN:
                 del self.pending[k]
                 if self._confirmed(k, change):
                     changes.append((k, replace(change, detected=frame)))

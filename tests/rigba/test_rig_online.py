@@ -259,19 +259,21 @@ def test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed(knocked_rig):
     assert len(estimator.points) < 40 * 1024  # the window's points only
 
 
-def test_a_candidate_whose_camera_agrees_again_is_dismissed_untested():
-    """A candidate change waits for ``CONFIRM_SPAN`` keyframes from its frame on before the window's split test judges
-    it; where the camera's keyframes agree with the window again before then (a few misled by their matches, as on a
-    repeated texture), it is dismissed without a change."""
+def test_a_candidate_waits_for_four_keyframes_and_its_camera_is_held_meanwhile():
+    """A candidate change waits for ``CONFIRM_SPAN`` keyframes from its frame on before the window's split test
+    judges it, whatever the keyframes between say; meanwhile the window holds the camera and its new points are
+    triangulated where its own resections put it."""
     estimator = OnlineRigEstimator(np.stack([K, K]), [(128, 416)] * 2, np.stack([np.eye(4), np.eye(4)]))
-    track = estimator.tracks[1]
     estimator.pending[1] = Change(10, 12, 8.0, 1.0)
-    track._pending = [(10, np.eye(4)), (12, np.eye(4))]  # the two keyframes that disagreed
-    assert estimator._judged(14) == [] and 1 in estimator.pending  # no keyframe of the window yet: it waits
-    track._pending.clear()  # the next keyframe agreed with the window
-    assert estimator._judged(16) == [] and not estimator.pending
-    [(camera, frame, statistic)] = estimator.dismissed
-    assert (camera, frame) == (1, 12) and np.isnan(statistic)  # dismissed untested
+    estimator.keyframes.extend(Keyframe(f, np.tile(np.eye(4), (2, 1, 1)), [], []) for f in (8, 10, 12, 14))
+    assert estimator._judged(14) == [] and 1 in estimator.pending  # 3 keyframes from frame 10 on: it waits
+    assert estimator._suspect(1) and not estimator.tracks[1].disagrees  # held, whatever the keyframes say
+    calls = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(estimator, "_confirmed", lambda k, change: calls.append((k, change.frame)) or False)
+        estimator.keyframes.append(Keyframe(16, np.tile(np.eye(4), (2, 1, 1)), [], []))
+        assert estimator._judged(16) == []  # judged: the split test did not confirm it
+    assert calls == [(1, 10)] and not estimator.pending and not estimator._suspect(1)
 
 
 def test_a_textureless_stretch_is_counted_not_fatal(knocked_rig):
