@@ -82,5 +82,11 @@ def checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: 
             out.trusted[k] = False
     for k in np.flatnonzero(~out.trusted[1:]) + 1:
         warnings.append(f"bundle adjustment: {names[k]}: the on-line estimate is kept")
+    for k in np.flatnonzero(out.trusted[1:] & np.isnan(initial[1:, 0, 0])) + 1:  # the head's rotation not known
+        warnings.append(
+            f"bundle adjustment: {names[k]}: the motion does not determine its rotation for the on-line head (too "
+            "little turning); the adjustment's rests on the images alone, unchecked, and its 1-sigma may understate "
+            "its error"
+        )
     out.trusted[0] = True
     return warnings

@@ -132,6 +132,24 @@ def test_an_undetermined_extrinsic_is_not_trusted(rig):
         assert not out.trusted[1] and any("does not determine its extrinsic" in w for w in warnings)
 
 
+def test_a_rotation_the_head_could_not_check_is_flagged(rig):
+    """Where the motion leaves the head's rotation unknown (a straight drive: ``initial`` NaN), a trusted adjustment's
+    result is said to rest on the images alone; with the head's rotation known, nothing is said."""
+    from ocalib.rigba.covariance import ExtrinsicUncertainty
+    from ocalib.rigba.result import RigAdjustment
+    from ocalib.rigba.trust import checks as _checks
+
+    seq, extrinsics, _ = rig
+    for initial, flagged in (
+        (np.where(np.arange(2)[:, None, None] == 1, np.nan, extrinsics), True),
+        (extrinsics, False),
+    ):
+        out = RigAdjustment(extrinsics.copy(), np.ones(2, bool), [None, ExtrinsicUncertainty(np.eye(6) * 1e-8, np.zeros((0, 3)))],
+                            np.ones(2), np.arange(10), np.tile(np.eye(4), (10, 1, 1)), np.ones((10, 2), bool), "metres")  # fmt: skip
+        said = [w for w in _checks(out, seq, initial, [None], keypoints=500.0) if "rests on the images alone" in w]
+        assert out.trusted[1] and len(said) == flagged, said
+
+
 def test_a_distorted_rig_is_adjusted_through_its_lens(rig, tmp_path):
     """The rendered rig seen through a pincushion lens (its images warped by the lens, rig.yaml naming it): the
     adjustment reads them through COLMAP's OPENCV model, held as given. The rotation is found as on the pinhole rig
