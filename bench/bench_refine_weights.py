@@ -3,7 +3,8 @@ one.
 
 The refinement (:mod:`ocalib.calib.stages.refine`, :func:`~ocalib.calib.drivers.batch.batch_calibrate`) weighs the
 rotation rows and the translation rows by their residual variances. This solves the batch problem on consecutive pairs
-of the hand-held trajectory (:func:`bench_head_accuracy.make_setting`; its best reference under drift) with the variances
+of the hand-held trajectory (:func:`bench_head_accuracy.make_setting`; its best reference under drift) with the
+variances
 
 * ``closed form``: of the closed form (rotation first), once;
 * ``re-estimated``: of the closed form, then re-estimated at the first solution and solved again;

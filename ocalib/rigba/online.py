@@ -116,7 +116,9 @@ class OnlineRigEstimator:
         self.frames_seen = 0
         self.keyframes_unregistered = 0
         self.dismissed: list[tuple[int, int, float]] = []  # candidates the window did not confirm: camera, frame, ratio
-        self.pending: dict[int, Change] = {}  # per camera, a candidate change awaiting CONFIRM_SPAN keyframes
+        # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
+        # is never judged: the camera keeps the window's estimate)
+        self.pending: dict[int, Change] = {}
 
     def update(self, frame: int, images: list[np.ndarray], pose: np.ndarray) -> RigState | None:
         """Consume frame ``frame``: ``images`` one per camera, ``pose`` camera 0's metric camera-to-world pose (4, 4),
@@ -207,8 +209,9 @@ class OnlineRigEstimator:
 
     def _poses(self, kf: Keyframe, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
         """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or where its own
-        resection does while it disagrees with the window or a change of it is pending (so that a knocked camera's new points are where it now
-        looks, and the next keyframes measure the new mounting instead of the old one their points would give)."""
+        resection does while it disagrees with the window or a change of it is pending (so that a knocked camera's
+        new points are where it now looks, and the next keyframes measure the new mounting instead of the old one
+        their points would give)."""
         return [
             np.linalg.inv(kf.poses[k] @ (measured[k][0] if k in measured and self._suspect(k) else E))
             for k, E in enumerate(self.extrinsics)
