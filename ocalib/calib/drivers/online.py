@@ -200,9 +200,10 @@ class OnlineCalibrator(nn.Module):
         return kind(*(self._buffers[prefix + name] for name in kind._fields))
 
     def _set(self, prefix: str, *groups) -> None:
-        """Replace the buffers ``prefix + field`` by the fields of the named tuples ``groups``."""
+        """Replace the buffers ``prefix + field`` by the fields of the named tuples ``groups``, contiguous (a
+        solver's output may be laid out otherwise, e.g. ``eigh``'s eigenvectors: a compiled head would recompile)."""
         for group in groups:
-            self._buffers.update(zip((prefix + name for name in group._fields), group))
+            self._buffers.update(zip((prefix + name for name in group._fields), (v.contiguous() for v in group)))
 
     def _earlier(self, poses: Tensor, valid: Tensor, differentiable: bool) -> tuple[Tensor, Tensor]:
         """The start poses (B, C, P, 4, 4) of this frame's motion pairs (gap g: frame t - g; gap 0: the first frame
