@@ -90,7 +90,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         type=float,
         metavar="METRES",
         help="the metric trajectory's noise per axis: its positions are then priors in the bundle adjustment, so "
-        "weighed (default: the reconstruction is only scaled to it)",
+        "weighed; 0: its poses held fixed there (refused, with a warning, where the images disagree with them) "
+        "(default: the reconstruction is only scaled to it)",
     )
     ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
     ba.add_argument(
@@ -188,9 +189,9 @@ def _check_numbers(args) -> None:
         raise InputError(f"--bundle-adjust-every must be at least 1 frame, got {args.bundle_adjust_every}")
     if args.keyframe_step < 1:
         raise InputError(f"--keyframe-step must be at least 1, got {args.keyframe_step}")
-    if args.metric_noise is not None and not (0 < args.metric_noise < math.inf and args.metric_trajectory):
+    if args.metric_noise is not None and not (0 <= args.metric_noise < math.inf and args.metric_trajectory):
         raise InputError(
-            f"--metric-noise must be a positive number of metres with --metric-trajectory, got {args.metric_noise}"
+            f"--metric-noise must be a number of metres (0: held fixed) with --metric-trajectory, got {args.metric_noise}"
         )
 
 

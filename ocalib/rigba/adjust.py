@@ -32,11 +32,13 @@ from ocalib.rigba.colmap import camera_to_world, pinhole_equivalent, to_matrix
 from ocalib.rigba.covariance import extrinsic_uncertainty
 from ocalib.rigba.lens_check import radial_residuals
 from ocalib.rigba.mapping import map_rig
-from ocalib.rigba.metric_prior import adjust_with_metric_prior
+from ocalib.rigba.metric_prior import adjust_with_metric_held, adjust_with_metric_prior
 from ocalib.rigba.options import BundleOptions, MapperOptions
 from ocalib.rigba.result import RigAdjustment
 from ocalib.rigba.trust import checks
 from ocalib.rigba.workspace import Workspace, camera_and_frame, create_workspace
+
+MAX_HELD_ERROR_RATIO = 1.5  # the reprojection error with the metric trajectory held, at most this times the free one
 
 
 def adjust_rig(
@@ -103,12 +105,7 @@ def _solve(
     ws.add_frames(index.tolist())
     start = time.perf_counter()
     models = map_rig(ws, options)
-    prior = False
-    if models and metric is not None and options.metric_noise is not None:
-        frame_of = {i: camera_and_frame(image.name)[1] for i, image in models[0].images.items()}
-        prior = adjust_with_metric_prior(
-            models[0], ws.camera_ids[0], frame_of, metric, options.metric_noise, options.threads
-        )
+    metric_stats, metric_warnings = _metric_inside(models, ws, metric, options) if models else ({}, [])
     mapping = time.perf_counter() - start
     keypoints = _median_keypoints(ws.database)
     if not models:
@@ -125,16 +122,47 @@ def _solve(
         out = _read(models[0], ws, index, front_end, metric)
         check = np.ones(len(initial), bool) if check_rotation is None else np.asarray(check_rotation, bool)
         out.warnings = (
-            checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models, keypoints) + out.warnings
+            checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models, keypoints)
+            + metric_warnings
+            + out.warnings
         )
     out.stats.update(
         models=len(models),
         keypoints_median=keypoints,
         mapping_seconds=mapping,
-        metric_prior_noise_m=options.metric_noise if prior else None,
+        **metric_stats,
         registered_frames_other_models=[m.num_reg_frames() for m in models[1:]],
     )
     return out
+
+
+def _metric_inside(
+    models: list[pycolmap.Reconstruction], ws: Workspace, metric: np.ndarray | None, options: MapperOptions
+) -> tuple[dict, list[str]]:
+    """The metric trajectory inside the adjustment of ``models[0]`` (replaced in place): held (``metric_noise`` 0)
+    where the images agree with it (the reprojection error held at most ``MAX_HELD_ERROR_RATIO`` times the free
+    one; else the free reconstruction is kept, with a warning), or its positions as priors -> stats, warnings."""
+    if metric is None or options.metric_noise is None:
+        return {"metric_inside": None}, []
+    frame_of = {i: camera_and_frame(image.name)[1] for i, image in models[0].images.items()}
+    if options.metric_noise > 0:
+        done = adjust_with_metric_prior(models[0], ws.camera_ids[0], frame_of, metric, options.metric_noise,
+                                        options.threads)  # fmt: skip
+        return {"metric_inside": "priors" if done else None, "metric_prior_noise_m": options.metric_noise}, []
+    held = adjust_with_metric_held(models[0], frame_of, metric, options.threads)
+    if held is None:
+        return {"metric_inside": None}, []
+    models[0].update_point_3d_errors()
+    free, fixed = models[0].compute_mean_reprojection_error(), held.compute_mean_reprojection_error()
+    stats = {"reprojection_free_px": free, "reprojection_held_px": fixed}
+    if not fixed <= MAX_HELD_ERROR_RATIO * free:
+        return stats | {"metric_inside": None}, [
+            f"bundle adjustment: the images disagree with the metric trajectory held fixed (reprojection error "
+            f"{fixed:.2f} px against {free:.2f} px free): its poses are off (time stamps, camera 0's frame, noise?); "
+            "the reconstruction is scaled to it instead"
+        ]
+    models[0] = held
+    return stats | {"metric_inside": "held"}, []
 
 
 def _read(

@@ -1,13 +1,15 @@
-"""Camera 0's metric trajectory inside the rig bundle adjustment: its positions as weighted priors (COLMAP's
-pose-prior bundle adjuster), so that the rig's path, its points and every camera's extrinsic are solved in metres
-together, instead of a reconstruction scaled to metres after the fact.
+"""Camera 0's metric trajectory inside the rig bundle adjustment, so that the rig's path, its points and every
+camera's extrinsic are solved in metres together, instead of a reconstruction scaled to metres after the fact; two
+ways:
 
-COLMAP aligns the reconstruction to the priors (a Sim(3) by RANSAC) and adjusts the points, the rig's poses and every
-``sensor_from_rig`` with each prior's squared Mahalanobis distance beside the reprojection errors, weighed by the
-trajectory's noise (metres, per axis) as its user states it.
+- :func:`adjust_with_metric_prior`: its positions as weighted priors (COLMAP's pose-prior bundle adjuster, which aligns
+  the reconstruction to them by a Sim(3) RANSAC and adjusts points, rig poses and every ``sensor_from_rig`` with each
+  prior's squared Mahalanobis distance beside the reprojection errors, weighed by the noise its user states);
+- :func:`adjust_with_metric_held`: its poses held fixed, only the points and the extrinsics adjusted (the way of
+  odometry-based rig calibration, e.g. CamOdoCal): the lever arm is then measured against the trajectory directly.
 
 Convention: ``metric`` (T, 4, 4) camera 0's camera-to-world poses in metres, indexed by frame; the reconstruction's
-images named as :mod:`ocalib.rigba.workspace` names them.
+images named as :mod:`ocalib.rigba.workspace` names them; the rig's frame is camera 0's.
 """
 
 from __future__ import annotations
@@ -15,7 +17,13 @@ from __future__ import annotations
 import numpy as np
 import pycolmap
 
+from ocalib.eval.alignment import umeyama
+from ocalib.rigba.colmap import camera_to_world, to_rigid
+from ocalib.rigba.workspace import camera_and_frame
+
 MIN_PRIORS = 3  # registered camera-0 frames needed
+MAX_ERROR_PX = 4.0  # an observation reprojected farther than this with the trajectory held is dropped
+MIN_ANGLE_DEG = 1.5  # and a point triangulated over less than this (COLMAP's mapper's default)
 
 
 def adjust_with_metric_prior(
@@ -56,3 +64,40 @@ def adjust_with_metric_prior(
     prior_options.alignment_ransac.max_error = 3 * noise  # metres: a camera-0 position this far off is an outlier
     pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
     return True
+
+
+def adjust_with_metric_held(
+    rec: pycolmap.Reconstruction, frame_of: dict[int, int], metric: np.ndarray, threads: int = -1
+) -> pycolmap.Reconstruction | None:
+    """A copy of ``rec`` adjusted with every rig frame held at camera 0's pose from ``metric`` (T, 4, 4; the rig's
+    frame is camera 0's): moved onto ``metric`` by a Sim(3) fit of camera 0's positions, then only the points and
+    the extrinsics adjusted (CamOdoCal's way with odometry), robustly, the observations then farther than
+    ``MAX_ERROR_PX`` dropped, and adjusted again. ``frame_of``: image id -> frame. None where too few camera-0
+    frames registered."""
+    zero = [i for i, image in rec.images.items() if image.has_pose and camera_and_frame(image.name)[0] == 0]
+    if len(zero) < MIN_PRIORS:
+        return None
+    rec = pycolmap.Reconstruction(rec)
+    centres = np.stack([camera_to_world(rec.images[i])[:3, 3] for i in zero])
+    s, R, t = umeyama(centres, metric[[frame_of[i] for i in zero], :3, 3])
+    rec.transform(pycolmap.Sim3d(s, pycolmap.Rotation3d(R), t))
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.reg_image_ids():
+        config.add_image(image_id)
+    for cid in rec.cameras:
+        config.set_constant_cam_intrinsics(cid)
+    for frame_id, frame in rec.frames.items():
+        if frame.has_pose:
+            frame.rig_from_world = to_rigid(np.linalg.inv(metric[frame_of[next(iter(frame.image_ids)).id]]))
+            config.set_constant_rig_from_world_pose(frame_id)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
+    options.refine_sensor_from_rig = True
+    options.print_summary = False
+    options.ceres.solver_options.num_threads = threads
+    for loss in (pycolmap.LossFunctionType.CAUCHY, pycolmap.LossFunctionType.TRIVIAL):
+        options.ceres.loss_function_type = loss
+        pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+        pycolmap.ObservationManager(rec).filter_all_points3D(MAX_ERROR_PX, MIN_ANGLE_DEG)
+    rec.update_point_3d_errors()
+    return rec

@@ -32,7 +32,7 @@ class MapperOptions:
     threads: int = 1  # 1: the same input gives the same result bit for bit (on more, it moves from run to run)
     seed: int = 0  # COLMAP's RANSAC and initial choices
     metric_noise: float | None = None  # metres per axis: a metric trajectory's positions as priors so weighed in a
-    # last adjustment (None: a Sim(3) fit to it only)
+    # last adjustment; 0: its poses held fixed there (None: a Sim(3) fit to it only)
 
 
 @dataclass(frozen=True)

@@ -81,6 +81,12 @@ class RigStream:
         frames = len(result.run.trace["frame"])
         result.run.trace.update(self.trace(frames))
         result.rig = self
+        for k, change in sorted(self.unjudged().items()):
+            self.warnings.append(
+                f"on-line rig estimator: {self.sequence.names[k]}: its extrinsic may have changed at frame "
+                f"{change.frame} ({change.rotation_change_deg:.2f} deg, {change.translation_change:.3f} m), too close "
+                "to the stream's end to be judged; the estimate is the camera's before it: record more frames to tell"
+            )
         if self.final is None:
             self.warnings.append(
                 "on-line rig estimator: never started (the on-line head's rotation of every camera was not observed "
@@ -123,6 +129,11 @@ class RigStream:
                 out["rig_change_frame"][state.frame, k - 1] = change.frame
         return out
 
+    def unjudged(self) -> dict:
+        """Camera k -> the candidate change (:class:`~ocalib.calib.drivers.change.Change`) raised too close to the stream's
+        end for the window to judge it."""
+        return {} if self.estimator is None else dict(self.estimator.pending)
+
     def changes_json(self) -> list[dict]:
         """The changes found: camera name, first disagreeing frame, frame noticed, size of the step."""
         names = self.sequence.names
@@ -140,8 +151,8 @@ class RigStream:
 
     def result_json(self) -> dict:
         """The estimator's final state and cost: per camera k >= 1 its extrinsic (metres) with 1-sigma, the
-        keyframes, the seconds per keyframe (median) and per frame, and the candidate changes the window dismissed
-        (the frame they were raised at and the split test's likelihood ratio)."""
+        keyframes, the seconds per keyframe (median) and per frame, the candidate changes the window dismissed
+        (the frame they were raised at and the split test's likelihood ratio) and those raised too late to judge."""
         final, seconds = self.final, [s.seconds for s in self.states]
         doc = {
             "units": "metres",
@@ -152,6 +163,15 @@ class RigStream:
             "seconds_per_frame": float(np.sum(seconds) / max(1, self.estimator.frames_seen)) if seconds else None,
             "window_keyframes": self.options.window,
             "keyframe_step": self.options.keyframe_step,
+            "unjudged_changes": [
+                {
+                    "camera": self.sequence.names[k],
+                    "frame": c.frame,
+                    "rotation_change_deg": c.rotation_change_deg,
+                    "translation_change": c.translation_change,
+                }
+                for k, c in sorted(self.unjudged().items())
+            ],  # fmt: skip
             "dismissed_changes": [
                 {"camera": self.sequence.names[k], "frame": frame, "split_statistic": _finite(statistic)}
                 for k, frame, statistic in ([] if self.estimator is None else self.estimator.dismissed)

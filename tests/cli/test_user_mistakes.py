@@ -123,8 +123,8 @@ def test_an_output_file_that_is_a_folder_is_refused_before_any_work(files, comma
     (["--checkpoint", "folder"], "folder: a folder, not a checkpoint file"),
     (["--forgetting", "2"], "forgetting must be in (0, 1], got 2.0"),
     (["--cameras", "cam0", "nocam"], "no camera 'nocam'"),
-    (["--metric-noise", "-0.1"], "--metric-noise must be a positive number of metres with --metric-trajectory"),
-    (["--metric-noise", "inf"], "--metric-noise must be a positive number of metres with --metric-trajectory"),
+    (["--metric-noise", "-0.1"], "--metric-noise must be a number of metres (0: held fixed) with --metric-trajectory"),
+    (["--metric-noise", "inf"], "--metric-noise must be a number of metres (0: held fixed) with --metric-trajectory"),
 ])  # fmt: skip
 def test_a_bad_option_of_calibrate_is_one_line(rig, files, option, message, capsys, monkeypatch):
     seq, model, _ = rig

@@ -15,11 +15,11 @@ from ocalib.data.distortion import Distortion, undistort_pixels
 from ocalib.data.layout import open_sequence
 from ocalib.data.rig import read_rig_yaml, write_rig_yaml
 from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.adjust import adjust_rig
+from ocalib.rigba.adjust import MAX_HELD_ERROR_RATIO, adjust_rig
 from ocalib.rigba.colmap import colmap_camera, pinhole_params
 from ocalib.rigba.evaluate import adjustment_errors
 from ocalib.rigba.metric_prior import adjust_with_metric_prior
-from ocalib.rigba.options import BundleOptions
+from ocalib.rigba.options import BundleOptions, MapperOptions
 from ocalib.rigba.workspace import camera_and_frame
 from ocalib.synth import preset
 
@@ -216,6 +216,23 @@ def test_a_metric_trajectory_is_held_as_a_prior(rig, tmp_path):
     after = rec.rigs[rig_id].sensor_from_rig(sensor).matrix()
     np.testing.assert_allclose(np.linalg.norm(after[:, 3]), scale * np.linalg.norm(before[:, 3]), rtol=0.02)
     assert rotation_angle_deg(after[:, :3].T @ before[:, :3]) < 0.05
+
+
+def test_a_metric_trajectory_held_fixed_is_used_where_the_images_agree_and_refused_where_not(rig):
+    """``metric_noise`` 0: every rig frame held at camera 0's true pose; the extrinsic in metres, within the rig's
+    targets. The same trajectory three frames late: the images disagree with it, the reconstruction is only scaled
+    to it, and a warning says so."""
+    seq, extrinsics, truth = rig
+    options = BundleOptions(mapper=MapperOptions(metric_noise=0.0))
+    held = adjust_rig(seq, _head_like(extrinsics), frames=FRAMES, metric=_metric(truth), options=options)
+    assert held.stats["metric_inside"] == "held" and held.trusted.all(), held.warnings
+    [e] = adjustment_errors(held, extrinsics, truth)
+    assert e["rotation_error_deg"] < 0.5 and e["translation_error_rel_baseline"] < 0.35
+    assert held.stats["reprojection_held_px"] < MAX_HELD_ERROR_RATIO * held.stats["reprojection_free_px"]
+    late = np.concatenate([_metric(truth)[3:], np.repeat(_metric(truth)[-1:], 3, 0)])
+    out = adjust_rig(seq, _head_like(extrinsics), frames=FRAMES, metric=late, options=options)
+    assert out.stats["metric_inside"] is None
+    assert any("disagree with the metric trajectory held fixed" in w for w in out.warnings), out.warnings
 
 
 def test_the_default_gives_the_same_extrinsic_bit_for_bit(rig):

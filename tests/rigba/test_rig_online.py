@@ -2,6 +2,8 @@
 test separates a step from noise, and on a rendered rig the estimator follows the extrinsic, notices a knocked
 camera at the right frame, keeps its state bounded, and says so where a camera registers nothing."""
 
+from types import SimpleNamespace
+
 import cv2
 import numpy as np
 import pycolmap
@@ -17,6 +19,7 @@ from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturb
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
+from ocalib.rigba.stream import RigStream
 from ocalib.rigba.window import Keyframe, adjust_window, split_statistic
 from ocalib.synth import preset
 from ocalib.synth.presets import knocked
@@ -274,6 +277,19 @@ def test_a_candidate_waits_for_four_keyframes_and_its_camera_is_held_meanwhile()
         estimator.keyframes.append(Keyframe(16, np.tile(np.eye(4), (2, 1, 1)), [], []))
         assert estimator._judged(16) == []  # judged: the split test did not confirm it
     assert calls == [(1, 10)] and not estimator.pending and not estimator._suspect(1)
+
+
+def test_a_candidate_raised_at_the_streams_end_is_reported_unjudged(knocked_rig):
+    estimator, states, truth = _run(knocked_rig, range(75))  # the knock at 70: fewer than 4 keyframes after it
+    assert not any(s.changes for s in states) and list(estimator.pending) == [1]
+    cams = knocked_rig.cameras
+    sequence = SimpleNamespace(cameras=cams, names=["cam0", "cam1"], times=None, pairing=None)
+    stream = RigStream(sequence, np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses[:75])
+    stream.estimator = estimator
+    [entry] = stream.result_json()["unjudged_changes"]
+    assert entry["camera"] == "cam1" and 70 <= entry["frame"] <= 74 and entry["rotation_change_deg"] > 1.0
+    final = states[-1].extrinsics[1]  # held where the window had it: the mounting before the knock
+    assert float(rotation_angle_deg(final[:3, :3].T @ truth[1, :3, :3])) < 0.5
 
 
 def test_a_textureless_stretch_is_counted_not_fatal(knocked_rig):
