@@ -126,11 +126,13 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=-1, help="COLMAP's threads (-1: all)")
     p.add_argument("--every", type=int, help="the streaming variant: a run after every N frames")
     p.add_argument("--online-rig", action="store_true", help="run the on-line rig estimator in the on-line pass too")
+    p.add_argument("--metric-noise", type=float, help="calibrate's: the metric trajectory inside the adjustment")
     p.add_argument("--out", default="bench/results/rigba.json")
     args = p.parse_args()
     torch.set_num_threads(2)
     features = FeatureOptions(peak_threshold=args.peak_threshold, overlap=args.overlap, threads=args.threads)
-    options = BundleOptions(features, MapperOptions(threads=args.threads), keyframe_step=args.keyframe_step)
+    mapper = MapperOptions(threads=args.threads, metric_noise=args.metric_noise)
+    options = BundleOptions(features, mapper, keyframe_step=args.keyframe_step)
     results = {}
     header = (
         f"{'sequence':16} {'front end':9} {'head rot/dir/t':>22} {'+ BA rot/dir/t':>22} {'BA s':>6} "
@@ -156,7 +158,8 @@ def main() -> None:
             for x in r["stats"].get("stream", []):
                 print(f"    run at frame {x['frame']:4d}: {x['seconds']:6.1f} s")
             doc = {"frames": args.frames, "keyframe_step": args.keyframe_step, "every": args.every,
-                   "peak_threshold": args.peak_threshold, "overlap": args.overlap, "results": results}  # fmt: skip
+                   "peak_threshold": args.peak_threshold, "overlap": args.overlap, "metric_noise": args.metric_noise,
+                   "results": results}  # fmt: skip
             write_json(args.out, doc)  # after every row: an interrupted run keeps what it measured
 
 

@@ -50,16 +50,8 @@ def adjust_with_metric_prior(
         )
         for i, p in zip(images, positions)
     ]
-    config = pycolmap.BundleAdjustmentConfig()
-    for image_id in rec.reg_image_ids():
-        config.add_image(image_id)
-    for cid in rec.cameras:
-        config.set_constant_cam_intrinsics(cid)
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
-    options.refine_sensor_from_rig = True
-    options.print_summary = False
-    options.ceres.solver_options.num_threads = threads
+    config = _config(rec)
+    options = _options(threads)
     prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
     prior_options.alignment_ransac.max_error = 3 * noise  # metres: a camera-0 position this far off is an outlier
     pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
@@ -81,23 +73,35 @@ def adjust_with_metric_held(
     centres = np.stack([camera_to_world(rec.images[i])[:3, 3] for i in zero])
     s, R, t = umeyama(centres, metric[[frame_of[i] for i in zero], :3, 3])
     rec.transform(pycolmap.Sim3d(s, pycolmap.Rotation3d(R), t))
-    config = pycolmap.BundleAdjustmentConfig()
-    for image_id in rec.reg_image_ids():
-        config.add_image(image_id)
-    for cid in rec.cameras:
-        config.set_constant_cam_intrinsics(cid)
+    config = _config(rec)
     for frame_id, frame in rec.frames.items():
         if frame.has_pose:
             frame.rig_from_world = to_rigid(np.linalg.inv(metric[frame_of[next(iter(frame.image_ids)).id]]))
             config.set_constant_rig_from_world_pose(frame_id)
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
-    options.refine_sensor_from_rig = True
-    options.print_summary = False
-    options.ceres.solver_options.num_threads = threads
+    options = _options(threads)
     for loss in (pycolmap.LossFunctionType.CAUCHY, pycolmap.LossFunctionType.TRIVIAL):
         options.ceres.loss_function_type = loss
         pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
         pycolmap.ObservationManager(rec).filter_all_points3D(MAX_ERROR_PX, MIN_ANGLE_DEG)
     rec.update_point_3d_errors()
     return rec
+
+
+def _config(rec: pycolmap.Reconstruction) -> pycolmap.BundleAdjustmentConfig:
+    """Every registered image of ``rec``, the intrinsics held."""
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.reg_image_ids():
+        config.add_image(image_id)
+    for cid in rec.cameras:
+        config.set_constant_cam_intrinsics(cid)
+    return config
+
+
+def _options(threads: int) -> pycolmap.BundleAdjustmentOptions:
+    """The intrinsics held, every ``sensor_from_rig`` refined, quiet, on ``threads`` threads."""
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = options.refine_principal_point = options.refine_extra_params = False
+    options.refine_sensor_from_rig = True
+    options.print_summary = False
+    options.ceres.solver_options.num_threads = threads
+    return options
