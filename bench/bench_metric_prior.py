@@ -9,7 +9,9 @@ stated noise (``--metric-noise``, metres; the renderer's poses are exact); ``hel
 cars) and translation error over the baseline, whether the adjustment was trusted, and its seconds.
 
     python bench/bench_metric_prior.py [--sequences handheld-1001 front-left-1008 ...] [--frontends network opencv]
-        [--variants sim3 prior held]
+        [--variants sim3 prior held] [--trajectory-noise METRES DEG]
+
+``--trajectory-noise``: the estimator and the adjustments get the trajectory with that noise on every pose.
 """
 
 from __future__ import annotations
@@ -18,9 +20,11 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
 from bench_calibnet_accuracy import ensure
 from bench_rigba import errors_row
 from common import add_sequence_arguments, write_json
+from scipy.spatial.transform import Rotation
 
 from ocalib.calibnet.bundle import refine_calibration
 from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
@@ -38,6 +42,8 @@ def main() -> None:
     p.add_argument("--frontends", nargs="+", choices=FRONTENDS, default=["network"])
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--metric-noise", type=float, default=0.001, help="the priors' noise, metres per axis")
+    p.add_argument("--trajectory-noise", nargs=2, type=float, metavar=("METRES", "DEG"), default=(0.0, 0.0),
+                   help="Gaussian noise added to each pose of the trajectory the adjustments get (a seeded draw)")  # fmt: skip
     p.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
     p.add_argument("--out", default="bench/results/metric_prior.json")
     args = p.parse_args()
@@ -52,13 +58,24 @@ def main() -> None:
             print(
                 f"{Path(path).name:18} {frontend:9} {cells[0]:>22}" + "".join(f"{c:>18}" for c in cells[1:]), flush=True
             )
-            write_json(args.out, {"frames": args.frames, "metric_noise": args.metric_noise, "results": results})
+            write_json(args.out, {"frames": args.frames, "metric_noise": args.metric_noise,
+                                  "trajectory_noise": args.trajectory_noise, "results": results})  # fmt: skip
+
+
+def noisy(poses: np.ndarray, metres: float, degrees: float, seed: int = 0) -> np.ndarray:
+    """``poses`` (T, 4, 4) with independent Gaussian noise on each position (``metres`` per axis) and rotation
+    (``degrees`` about each axis, applied on the left)."""
+    rng, out = np.random.default_rng(seed), poses.copy()
+    out[:, :3, 3] += rng.normal(0.0, metres, (len(poses), 3))
+    turn = Rotation.from_rotvec(rng.normal(0.0, np.radians(degrees), (len(poses), 3))).as_matrix()
+    out[:, :3, :3] = turn @ out[:, :3, :3]
+    return out
 
 
 def run(path: Path, frontend: str, args) -> dict:
-    """One on-line pass with the rig estimator, then the adjustment with the Sim(3) fit and with the priors."""
+    """One on-line pass with the rig estimator, then the adjustment once per variant."""
     sequence = open_calibration_sequence(path, max_frames=args.frames, frontend=FrontEndOptions(frontend))
-    metric = sequence.cameras[0].poses[: args.frames]
+    metric = noisy(sequence.cameras[0].poses[: args.frames], *args.trajectory_noise)
     rig = RigStream(sequence, metric)
     result = calibrate_images(sequence, frontend=FrontEndOptions(frontend), max_frames=args.frames, progress=False,
                               on_frame=rig)  # fmt: skip
