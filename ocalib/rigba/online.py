@@ -117,7 +117,7 @@ class OnlineRigEstimator:
         self.keyframes_unregistered = 0
         self.dismissed: list[tuple[int, int, float]] = []  # candidates the window did not confirm: camera, frame, ratio
         # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
-        # is never judged: the camera keeps the window's estimate)
+        # is never judged: the camera keeps the window's estimate, and RigStream reports it)
         self.pending: dict[int, Change] = {}
 
     def update(self, frame: int, images: list[np.ndarray], pose: np.ndarray) -> RigState | None:

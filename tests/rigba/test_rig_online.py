@@ -285,9 +285,12 @@ def test_a_candidate_raised_at_the_streams_end_is_reported_unjudged(knocked_rig)
     cams = knocked_rig.cameras
     sequence = SimpleNamespace(cameras=cams, names=["cam0", "cam1"], times=None, pairing=None)
     stream = RigStream(sequence, np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses[:75])
-    stream.estimator = estimator
+    stream.estimator, stream.states = estimator, states
     [entry] = stream.result_json()["unjudged_changes"]
     assert entry["camera"] == "cam1" and 70 <= entry["frame"] <= 74 and entry["rotation_change_deg"] > 1.0
+    stream.attach(SimpleNamespace(run=SimpleNamespace(trace={"frame": np.arange(75)})))
+    [said] = [w for w in stream.warnings if "too close to the stream's end" in w]
+    assert said.startswith("on-line rig estimator: cam1: ") and f"frame {entry['frame']} " in said
     final = states[-1].extrinsics[1]  # held where the window had it: the mounting before the knock
     assert float(rotation_angle_deg(final[:3, :3].T @ truth[1, :3, :3])) < 0.5
 
