@@ -1,10 +1,6 @@
 import hashlib
 import os
 import shutil
-import subprocess
-import sys
-import threading
-from pathlib import Path
 
 import pytest
 import torch
@@ -88,72 +84,8 @@ SLOW = (
 )
 
 
-# Long tests that never run the head's numba kernel: run first, while the kernel compiles (see below).
-FIRST = (
-    "calib/test_compile.py",
-    "synth/",
-    "test_packaging.py",
-    "train/",
-)
-
-
 def pytest_collection_modifyitems(items):
-    """Mark the tests of :data:`SLOW` slow; put those of :data:`FIRST` first."""
+    """Mark the tests of :data:`SLOW` slow."""
     for item in items:
         if item.nodeid.removeprefix("tests/").startswith(SLOW):
             item.add_marker(pytest.mark.slow)
-    items.sort(key=lambda item: not item.nodeid.removeprefix("tests/").startswith(FIRST))  # stable: order kept within
-
-
-# The head's numba kernel, compiled once for a run of several workers: the controller compiles it (or loads it from
-# numba's cache) in a process of its own, holding a lock, while the workers start on :data:`FIRST`; a worker's first
-# frame of the kernel waits for the lock and loads it from the cache, instead of compiling it again (a minute each).
-WARM_KERNEL = """
-from ocalib.calib.drivers.kernel import PARALLEL_MIN_RIGS
-from ocalib.calib.drivers.online import OnlineCalibrator
-for rigs in (1, PARALLEL_MIN_RIGS):  # the kernel on the calling thread and on numba's threads
-    OnlineCalibrator(2, batch_size=rigs).load_kernel()
-"""
-
-
-def _kernel_lock() -> FileLock | None:
-    """The lock the kernel's compiler holds, beside numba's cache of it; None where numba or the cache is not there."""
-    from ocalib.calib.drivers.online import HAVE_NUMBA
-
-    if not HAVE_NUMBA:
-        return None
-    from ocalib.calib.stages.linalg_kernel import cache_dir
-
-    return FileLock(Path(cache_dir()) / "compiling.lock", thread_local=False) if cache_dir() else None
-
-
-def pytest_sessionstart(session):
-    worker = os.environ.get("PYTEST_XDIST_WORKER")
-    lock = _kernel_lock() if worker or session.config.getoption("numprocesses", None) else None
-    if lock is None:
-        return
-    if worker:  # the kernel's first frame waits for the controller's compiler
-        from ocalib.calib.drivers import kernel
-
-        step = kernel.step
-
-        def first_step(*args):
-            with lock:
-                kernel.step = step
-            return step(*args)
-
-        kernel.step = first_step
-        return
-    lock.acquire()
-    compiler = subprocess.Popen([sys.executable, "-c", WARM_KERNEL], stdout=subprocess.DEVNULL)
-    session.config.stash[KERNEL_COMPILER] = compiler
-    threading.Thread(target=lambda: (compiler.wait(), lock.release()), daemon=True).start()
-
-
-KERNEL_COMPILER = pytest.StashKey[subprocess.Popen]()
-
-
-def pytest_sessionfinish(session):
-    compiler = session.config.stash.get(KERNEL_COMPILER, None)
-    if compiler is not None and compiler.poll() is None:  # a short run: not left compiling after it
-        compiler.kill()
