@@ -15,7 +15,7 @@ def test_head_compiles_to_one_graph_with_the_eager_result(generator):
         # made in inference mode, as the buffers each step writes: one graph serves every frame (no recompile)
         eager, compiled = OnlineCalibrator(2, backend="torch"), OnlineCalibrator(2)  # the compiled graph is PyTorch
         step = torch.compile(compiled, fullgraph=True, dynamic=False)  # raises on any graph break
-        # raises on a second graph; the C++ kernels unvectorised (a third less to compile, the same graph)
+        # raises on a second graph; the C++ kernels unvectorised (a quarter less to compile; the same graph)
         with torch._dynamo.config.patch(error_on_recompile=True), torch._inductor.config.patch({"cpp.simdlen": 0}):
             for t in range(len(poses)):
                 a, b = eager(poses[t]), step(poses[t])
