@@ -12,7 +12,9 @@ exactly TORCH_LINE and is left out of what ``install`` prints.
 
 A quoted demo line is matched against the printed lines figure by figure: ``0.077±0.05`` is a figure within 0.05 of
 0.077, ``0.112±5%`` one within 5 % of 0.112, ``≤20`` one at most 20, ``*`` any figure (not checked: it is
-ill-conditioned); every other character must be as printed. A figure is digits, so a printed ``nan`` never matches.
+ill-conditioned); every other character must be as printed, but for a parenthesised note the printed line carries
+and the quote leaves out. A figure is digits, so a printed ``nan`` never matches. The quoted lines are found in the
+printed ones in their order.
 
 A figure the README quotes from a benchmark is declared in a comment after the paragraph or table that quotes it,
 one figure a line (tests/test_readme_figures.py runs the check)::
@@ -50,14 +52,22 @@ def block(name: str) -> list[str]:
 
 
 NUMBER = r"([-+]?\d+(?:\.\d+)?)"
+NOTE = r"(?: \([^()]*\))?"
 FIGURE = re.compile(r"([-+]?\d+(?:\.\d+)?)±(\d+(?:\.\d+)?)(%?)|≤(\d+(?:\.\d+)?)|\*")
+
+
+def _literal(text: str) -> str:
+    """``text`` as a pattern, a parenthesised note of the printed line allowed before each space, comma or
+    semicolon (a note the data decide, such as a direction compared "(in the plane)", that the README need not
+    quote)."""
+    return re.sub(r"(\\ |,|;)", lambda m: NOTE + m.group(1), re.escape(text))
 
 
 def line_check(quoted: str):
     """A quoted line -> (the regular expression a printed line must match, one check per figure: value -> bool)."""
     pattern, checks, end = "", [], 0
     for m in FIGURE.finditer(quoted):
-        pattern += re.escape(quoted[end : m.start()]) + NUMBER
+        pattern += _literal(quoted[end : m.start()]) + NUMBER
         end = m.end()
         if m.group(1) is not None:
             centre, tolerance = float(m.group(1)), float(m.group(2))
@@ -67,24 +77,25 @@ def line_check(quoted: str):
             checks.append((m.group(0), lambda v, b=float(m.group(4)): v <= b))
         else:
             checks.append(("*", lambda v: True))
-    return re.compile(pattern + re.escape(quoted[end:])), checks
+    return re.compile(pattern + _literal(quoted[end:]) + NOTE), checks
 
 
 def demo_problems(quoted: list[str], printed: list[str]) -> list[str]:
-    """What of the ``quoted`` lines the ``printed`` ones do not hold (whitespace runs compared as one space)."""
+    """What of the ``quoted`` lines the ``printed`` ones do not hold (whitespace runs compared as one space): each
+    quoted line is matched by the first printed line after the previous one's match that has its shape."""
     printed = [" ".join(line.split()) for line in printed]
-    problems = []
+    problems, start = [], 0
     for line in quoted:
         line = " ".join(line.split())
         pattern, checks = line_check(line)
-        matches = [m for m in map(pattern.fullmatch, printed) if m]
-        if not matches:
+        found = next(((i, m) for i in range(start, len(printed)) if (m := pattern.fullmatch(printed[i]))), None)
+        if found is None:
             problems.append(f"not printed: {line}")
             continue
-        for m in matches[:1]:
-            for (spec, ok), value in zip(checks, m.groups()):
-                if not ok(float(value)):
-                    problems.append(f"{value} where the README allows {spec}: {m.group(0)}")
+        start, m = found[0] + 1, found[1]
+        for (spec, ok), value in zip(checks, m.groups()):
+            if not ok(float(value)):
+                problems.append(f"{value} where the README allows {spec}: {m.group(0)}")
     return problems
 
 

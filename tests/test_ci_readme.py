@@ -27,11 +27,29 @@ QUOTED = "cam1: rotation 0.077±0.05 deg, direction * deg, scaled x0.112±5%, er
         ("cam1: rotation 0.077 deg, direction nan deg, scaled x0.112, error 15.3% of the baseline, cam 2", False),
         ("cam1: rotation 0.077 deg, direction 18.19 deg, scaled x0.112, error 15.3% of the baseline, cam 3", False),
         ("cam1: rotation 0.077 deg, direction 18.19 deg, scaled x0.112, error 15.3% of the baseline", False),
+        (
+            "cam1: rotation 0.077 deg, direction 1.9 deg (in the plane), scaled x0.112, error 3% of the baseline, cam 2",
+            True,
+        ),
+        (
+            "cam1: rotation 0.077 deg, direction 1.9 deg in the plane, scaled x0.112, error 3% of the baseline, cam 2",
+            False,
+        ),
     ],
 )
 def test_a_figure_passes_within_its_tolerance_and_fails_outside(printed, ok):
     problems = readme.demo_problems([QUOTED], ["a line before", printed, "a line after"])
     assert (problems == []) == ok, problems
+
+
+def test_quoted_lines_are_found_in_their_order():
+    """A quoted line is held by the printed line after the previous quoted one's, not by a like line before it."""
+    quoted = ["estimator:", "cam1: error ≤10 deg", "adjustment:", "cam1: error ≤20 deg"]
+    assert readme.demo_problems(quoted, ["estimator:", "cam1: error 5 deg", "adjustment:", "cam1: error 15 deg"]) == []
+    swapped = readme.demo_problems(quoted, ["adjustment:", "cam1: error 15 deg", "estimator:", "cam1: error 5 deg"])
+    assert swapped == ["not printed: adjustment:", "not printed: cam1: error ≤20 deg"]
+    late = readme.demo_problems(quoted, ["cam1: error 5 deg", "estimator:", "cam1: error 15 deg", "adjustment:"])
+    assert late[0] == "15 where the README allows ≤10: cam1: error 15 deg"
 
 
 def test_the_readme_quotes_demo_lines_with_tolerances():
