@@ -28,7 +28,7 @@ from ocalib.geometry.pose import chain_motions, invert_pose
 from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.losses.motion import motion_distance
 from ocalib.losses.selfsup import identity_errors, self_supervised_loss
-from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth
+from ocalib.models import MAX_DEPTH, EgoMotionModel, disp_to_depth, load_model
 
 MIN_TRANSLATION = 1e-3  # true motions shorter than this have no translation direction or scale ratio
 
@@ -50,7 +50,9 @@ class EgoMotionModule(pl.LightningModule):
     Images go to TensorBoard every ``image_interval`` steps; ``trajectory_frames``: length of the validation
     trajectory plotted. ``compile``: the training step (networks, alignment and loss, forward and backward) runs
     through ``torch.compile`` (inductor), compiled on the first step (:meth:`compiled_step`; eager, with a
-    warning, on a CPU without a C++ compiler); validation stays eager.
+    warning, on a CPU without a C++ compiler); validation stays eager. ``init_from``: start from the weights of an
+    ocalib model file or training ``.ckpt`` (``"default"``: the shipped model) to fine-tune it on new sequences; its
+    ``size`` must be this module's.
     """
 
     def __init__(
@@ -71,6 +73,7 @@ class EgoMotionModule(pl.LightningModule):
         image_interval: int = 250,
         trajectory_frames: int = 200,
         compile: bool = False,
+        init_from: str | None = None,
     ):
         super().__init__()
         if distill < 0 or (distill > 0 and not align):
@@ -79,7 +82,12 @@ class EgoMotionModule(pl.LightningModule):
                 "pose network towards the aligned motions)"
             )
         self.save_hyperparameters()
+        start = None if init_from is None else load_model(None if init_from == "default" else init_from)
+        if start is not None and start.size != size:
+            raise InputError(f"model.init_from={init_from}: a {start.size!r} model; set model.size: {start.size}")
         self.model = EgoMotionModel(size, height, width)
+        if start is not None:
+            self.model.load_state_dict(start.state_dict())
         self.loss = SelfSupervisedLoss(automask, smoothness, geometry)
         self.nonfinite_steps = 0
         self._skipped = False

@@ -15,7 +15,7 @@ from __future__ import annotations
 import sys
 import time
 import typing
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +36,8 @@ from ocalib.data.static import check_motion
 from ocalib.data.synchronise import clocks, own_clocks, synchronise
 from ocalib.errors import InputError, deferred_interrupts
 from ocalib.eval.calibration_metrics import extrinsic_errors
-from ocalib.frontend import FrontEndOptions, build_frontend
+from ocalib.eval.pose_metrics import congruence_residual
+from ocalib.frontend import AUTO, FRONTENDS, FrontEndOptions, build_frontend
 from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
@@ -46,6 +47,7 @@ if typing.TYPE_CHECKING:
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 SYNC_WARNING = 0.1  # frames: paired frames further apart than this (median) are warned about
+AUTO_FRAMES = 100  # frames each front end runs on where the front end is chosen (--frontend auto)
 
 
 @dataclass
@@ -207,13 +209,35 @@ def open_calibration_sequence(
     return sequence
 
 
-def _estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
-    """Each camera k's clock offset from the front end's rotations over the first ``frames`` frames as they are
-    -> (offsets, OffsetQuality) per camera k >= 1 (see :func:`ocalib.calib.drivers.clock.find_time_offset`)."""
+def _trajectories(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int, desc: str) -> np.ndarray:
+    """Every camera's trajectory (frames, C, 4, 4) from the front end of ``frontend`` over the first ``frames``."""
     front_end = build_frontend(sequence, frontend, device)
     net = OnlineCalibrationNet(front_end, OnlineCalibrator(len(sequence.cameras))).to(device)
     net.head.load_kernel()
-    _, _, trajectory = _stream(net, front_end.frames(sequence), frames, None, None, "finding time offsets")
+    return _stream(net, front_end.frames(sequence), frames, None, None, desc)[2]
+
+
+def choose_frontend(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
+    """The registered front end whose motions over the first ``frames`` frames best keep the rig's screw congruence
+    (:func:`~ocalib.eval.pose_metrics.congruence_residual`: no truth needed) -> (its options, resolved; the
+    residual of every front end tried). ``frontend``: :data:`~ocalib.frontend.AUTO` with the network's settings."""
+    tried = {}
+    for name in FRONTENDS:
+        options = replace(frontend, name=name) if name == "network" else FrontEndOptions(name)
+        desc = f"trying the {name} front end"
+        tried[name] = congruence_residual(_trajectories(sequence, options.resolved(), device, frames, desc))
+    best = min(tried, key=lambda name: (np.isnan(tried[name]), tried[name]))
+    chosen = replace(frontend, name=best) if best == "network" else FrontEndOptions(best)
+    return chosen.resolved(), tried
+
+
+def _estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
+    """Each camera k's clock offset from the front end's rotations over the first ``frames`` frames as they are
+    -> (offsets, OffsetQuality) per camera k >= 1 (see :func:`ocalib.calib.drivers.clock.find_time_offset`);
+    with :data:`~ocalib.frontend.AUTO`, the registry's first front end's."""
+    if frontend.name == AUTO:
+        frontend = replace(frontend, name=next(iter(FRONTENDS)))
+    trajectory = _trajectories(sequence, frontend.resolved(), device, frames, "finding time offsets")
     stamps = clocks(sequence)
     found = [
         find_time_offset(stamps[0][:frames], trajectory[:, 0], t[:frames], trajectory[:, k], (sequence.names[0], name))
@@ -238,7 +262,8 @@ def calibrate_images(
 
     path: a sequence folder, or a sequence :func:`open_calibration_sequence` opened (``cameras``, ``intrinsics``
     and ``time_offset`` are then not used). frontend: which front end and its settings
-    (:class:`~ocalib.frontend.FrontEndOptions`). head: the head's (``refine`` defaults to ``"unobservable"``: a
+    (:class:`~ocalib.frontend.FrontEndOptions`; :data:`~ocalib.frontend.AUTO`: the one :func:`choose_frontend`
+    picks on the first ``AUTO_FRAMES`` frames). head: the head's (``refine`` defaults to ``"unobservable"``: a
     monocular front end's translation directions must not move an observable rotation, see
     :data:`~ocalib.calib.stages.solve.REFINE_MODES`). max_frames: use only the first frames. intrinsics: a file for
     layouts without them. time_offset: for cameras without a shared clock (see :func:`open_calibration_sequence`).
@@ -255,6 +280,10 @@ def calibrate_images(
     if frames < MIN_FRAMES or len(sequence.cameras) < 2:
         raise InputError(f"{path}: {frames} frames of {len(sequence.cameras)} camera(s): too little to calibrate")
     check_motion(sequence)
+    choice = {}
+    if frontend.name == AUTO:
+        frontend, tried = choose_frontend(sequence, frontend, device, min(frames, AUTO_FRAMES))
+        choice = {"frontend_choice": {"frames": min(frames, AUTO_FRAMES), "congruence_residual": finite_or_null(tried)}}
     front_end = build_frontend(sequence, frontend, device)
     C = len(sequence.cameras)
     net = OnlineCalibrationNet(front_end, OnlineCalibrator(C, **head.head_kwargs())).to(device)
@@ -275,7 +304,9 @@ def calibrate_images(
         offset_quality=[None] * C if pairing is None else list(pairing.estimates or [None] * C),
     )
     notes, warnings = front_end.report(sequence.names, frames, final)
-    settings = frontend.settings() | head.settings() | {"frames": frames, "max_dt": None, "sequence": str(path)}
+    settings = (
+        frontend.settings() | choice | head.settings() | {"frames": frames, "max_dt": None, "sequence": str(path)}
+    )
     run = CalibrationRun(rig, final, trace, settings | notes, [])
     run.warnings = run_warnings(run) + warnings
     errors = None

@@ -64,6 +64,23 @@ def frame_motions(poses: np.ndarray, delta: int = 1) -> np.ndarray:
     return invert(poses[:-delta]) @ poses[delta:]
 
 
+def congruence_residual(trajectories: np.ndarray, min_angle_deg: float = 0.05) -> float:
+    """How far a rig's cameras' motions are from turning by one angle every frame, as every rigid rig's must (the
+    screw congruence: ``angle(A) = angle(B)`` whatever the extrinsic), with no truth: for trajectories (T, C, 4, 4)
+    (camera 0 first), per camera k >= 1 ``sum |a0 - ak| / sum (a0 + ak) / 2`` over the frame-to-frame rotation
+    angles of the frames where either turns by ``min_angle_deg`` or more, the median over k. 0 is congruent; a
+    common gain of every camera's rotation does not change it. NaN where no frame turns."""
+    angles = np.stack([rotation_angle_deg(frame_motions(trajectories[:, c])[:, :3, :3])
+                       for c in range(trajectories.shape[1])], 1)  # fmt: skip
+    residuals = []
+    for k in range(1, angles.shape[1]):
+        a0, ak = angles[:, 0], angles[:, k]
+        turning = np.isfinite(a0) & np.isfinite(ak) & (np.maximum(a0, ak) >= min_angle_deg)
+        total = (a0[turning] + ak[turning]).sum() / 2
+        residuals.append(np.abs(a0[turning] - ak[turning]).sum() / total if total > 0 else np.nan)
+    return float(np.median(residuals)) if residuals else float("nan")
+
+
 def snippet_ate(pred: np.ndarray, gt: np.ndarray, length: int = 5) -> np.ndarray:
     """SfMLearner's snippet ATE of every window of ``length`` consecutive frames -> (N - length + 1,).
 

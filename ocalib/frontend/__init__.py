@@ -2,7 +2,9 @@
 
 A front end is a :class:`~ocalib.frontend.base.FrontEnd`; :data:`FRONTENDS` lists them (the command line's
 choices, ``calibrate``, ``demo`` and the benchmarks read it) and :func:`build_frontend` makes one for a
-sequence. Adding a front end: a module with a ``FrontEnd`` subclass and one line here.
+sequence. Adding a front end: a module with a ``FrontEnd`` subclass and one line here. By default (:data:`AUTO`)
+``calibrate`` tries every registered front end on the sequence's first frames and keeps the one whose cameras'
+rotations best fit a rigid rig.
 
 This module stays light (no torch): the command line reads it for its ``--help``.
 
@@ -31,7 +33,7 @@ class FrontEndKind:
     help: str
 
 
-# name -> front end; the first is the default
+# name -> front end
 FRONTENDS: dict[str, FrontEndKind] = {
     "network": FrontEndKind(
         "ocalib.frontend.network:NetworkFrontEnd",
@@ -43,18 +45,20 @@ FRONTENDS: dict[str, FrontEndKind] = {
     ),
 }
 SCALE_MODES = ("head", "normalise")
+AUTO = "auto"  # not a front end: each of FRONTENDS tried, one kept (ocalib.calibnet.run.choose_frontend)
 
 
 @dataclass(frozen=True)
 class FrontEndOptions:
     """How ``calibrate`` makes its front end.
 
-    name: a key of :data:`FRONTENDS`. The network's: ``checkpoint`` (None: the shipped one), ``scale``
+    name: a key of :data:`FRONTENDS`, or :data:`AUTO` (the default: chosen per sequence by ``calibrate``, the
+    network where any of its options is given). The network's: ``checkpoint`` (None: the shipped one), ``scale``
     (see :class:`~ocalib.frontend.network.NetworkFrontEnd`), ``align`` and ``rig_align`` (None: on with the network,
     measured better on the held-out rigs: docs/results-calibrate.md).
     """
 
-    name: str = "network"
+    name: str = AUTO
     checkpoint: str | None = None
     scale: str = "normalise"
     align: bool | None = None
@@ -63,10 +67,14 @@ class FrontEndOptions:
     def resolved(self) -> FrontEndOptions:
         """These options checked, with ``align`` and ``rig_align`` decided; an :class:`InputError` where they
         contradict each other."""
-        if self.name not in FRONTENDS:
-            raise InputError(f"unknown front end {self.name!r}: {', '.join(FRONTENDS)}")
+        if self.name not in FRONTENDS and self.name != AUTO:
+            raise InputError(f"unknown front end {self.name!r}: {', '.join([*FRONTENDS, AUTO])}")
         if self.scale not in SCALE_MODES:
             raise InputError(f"unknown scale mode {self.scale!r}: {', '.join(SCALE_MODES)}")
+        if self.name == AUTO:
+            if self.checkpoint is None and self.align is None and self.rig_align is None and self.scale == "normalise":
+                return self  # align and rig_align are decided with the front end chosen
+            return replace(self, name="network").resolved()  # a network option given: the network it is
         network = self.name == "network"
         align = network if self.align is None else self.align
         if align and not network:

@@ -9,6 +9,9 @@ import pytest
 import torch
 
 from ocalib.cli import main
+from ocalib.eval.pose_metrics import congruence_residual
+from ocalib.frontend import FRONTENDS
+from ocalib.io.poses import read_kitti
 from ocalib.models import EgoMotionModel, save_model
 from ocalib.synth import preset, render_sequence
 
@@ -226,3 +229,25 @@ def test_a_surround_rig_is_calibrated_camera_by_camera_without_a_nan(tmp_path, c
     assert len(doc["ground_truth_errors"]) == 3
     printed = capsys.readouterr()
     assert "nan" not in (printed.out + printed.err).lower()
+
+
+def test_the_default_front_end_is_chosen_by_the_rigs_rotation_angles(tiny, tmp_path, capsys):
+    """``--frontend auto`` (the default): every registered front end tried, each one's congruence residual that of
+    its own trajectories (written by a run with that front end), the smallest kept and said; a network option
+    given makes it the network."""
+    root, seq, model = tiny
+    out = tmp_path / "auto.json"
+    assert main(["calibrate", "--sequence", str(seq), "--no-bundle-adjust", "--out", str(out)]) == 0
+    settings = json.loads(out.read_text())["settings"]
+    tried = settings["frontend_choice"]["congruence_residual"]
+    assert set(tried) == set(FRONTENDS) and settings["frontend"] == min(tried, key=tried.get)
+    assert f"front end: {settings['frontend']}, chosen on the first 12 frames" in capsys.readouterr().out
+    traj = tmp_path / "traj"
+    args = ["--sequence", str(seq), "--no-bundle-adjust", "--frontend", "opencv", "--trajectories", str(traj)]
+    assert main(["calibrate", *args]) == 0
+    poses = np.stack([read_kitti(traj / f"{name}.txt") for name in ("cam0", "cam1")], 1)
+    assert tried["opencv"] == pytest.approx(congruence_residual(poses), rel=1e-9)
+    out = tmp_path / "net.json"
+    assert main(["calibrate", "--sequence", str(seq), "--checkpoint", str(model), "--out", str(out)]) == 0
+    settings = json.loads(out.read_text())["settings"]
+    assert settings["frontend"] == "network" and "frontend_choice" not in settings

@@ -9,6 +9,7 @@ from ocalib.errors import InputError
 from ocalib.eval.alignment import align_poses, align_trajectory, umeyama
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
 from ocalib.eval.pose_metrics import (
+    congruence_residual,
     frame_errors,
     frame_motions,
     pose_metrics,
@@ -280,3 +281,28 @@ def test_rotation_gain_recovers_per_axis_scaling():
     flat = np.stack([pose(rot([0, 1, 0], 0.02 * (i % 3)), [0, 0, 1]) for i in range(30)])  # turns about y only
     g = rotation_gain(flat, flat)
     assert np.isnan(g[[0, 2]]).all() and g[1] == pytest.approx(1.0)
+
+
+def _rig(gain: float = 1.0, noise_deg: float = 0.0, frames: int = 60, seed: int = 0) -> np.ndarray:
+    """Trajectories (T, 2, 4, 4) of a rigid two-camera rig turning about random axes, every rotation angle scaled
+    by ``gain``, camera 1's motions turned further by ``noise_deg`` about random axes."""
+    rng = np.random.default_rng(seed)
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = rot([0.2, 1.0, 0.1], 2.0), [0.5, 0.0, -0.3]  # T_cam0_cam1
+    poses = [np.tile(np.eye(4), (2, 1, 1))]
+    for _ in range(frames - 1):
+        A = np.eye(4)
+        A[:3, :3], A[:3, 3] = rot(rng.normal(size=3), gain * np.radians(rng.uniform(0.5, 3.0))), rng.normal(size=3)
+        B = np.linalg.inv(X) @ A @ X  # the rigid rig's motion of camera 1: A X = X B
+        B[:3, :3] = rot(rng.normal(size=3), np.radians(noise_deg)) @ B[:3, :3]
+        poses.append(np.stack([poses[-1][0] @ A, poses[-1][1] @ B]))
+    return np.stack(poses)
+
+
+def test_congruence_residual_is_zero_on_a_rigid_rig_whatever_the_gain_and_grows_with_noise():
+    assert congruence_residual(_rig()) < 1e-9
+    assert congruence_residual(_rig(gain=0.5)) < 1e-9  # both cameras under-reporting alike: still congruent
+    noisy = [congruence_residual(_rig(noise_deg=n)) for n in (0.05, 0.2, 0.8)]
+    assert 0 < noisy[0] < noisy[1] < noisy[2]
+    still = np.tile(np.eye(4), (10, 2, 1, 1))
+    assert np.isnan(congruence_residual(still))  # nothing turns: nothing to rank by

@@ -10,7 +10,7 @@ from ocalib.cli import build_parser
 from ocalib.data.image_io import read_image
 from ocalib.data.layout import open_sequence
 from ocalib.errors import InputError
-from ocalib.frontend import FRONTENDS, FrontEndOptions, build_frontend, frontend_class
+from ocalib.frontend import AUTO, FRONTENDS, FrontEndOptions, build_frontend, frontend_class
 from ocalib.frontend.base import FrontEnd
 from ocalib.frontend.opencv_vo import run_opencv_vo
 from ocalib.geometry.pose import chain_motions
@@ -80,4 +80,4 @@ def test_the_command_line_lists_the_registry(command):
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command").choices[command]
     frontend = next(a for a in sub._actions if a.dest == "frontend")
-    assert tuple(frontend.choices) == tuple(FRONTENDS) and frontend.default == next(iter(FRONTENDS))
+    assert tuple(frontend.choices) == (*FRONTENDS, AUTO) and frontend.default == AUTO

@@ -3,9 +3,12 @@
 from pathlib import Path
 
 import pytest
+import torch
 from ocalib.train.cli import main
 from ocalib.train.datamodule import SnippetDataModule
 from ocalib.train.synthetic import SyntheticDataModule
+
+from ocalib.models import load_model
 
 CONFIGS = sorted((Path(__file__).parents[2] / "configs" / "train").glob("*.yaml"))
 CPU = [
@@ -19,7 +22,16 @@ CPU = [
 
 def test_all_configs_are_there():
     names = {p.stem for p in CONFIGS}
-    assert {"synthetic-cpu", "synthetic-cpu-sc", "kitti-raw", "kitti-odometry", "sfmlearner", "folder", "gpu"} <= names
+    assert {
+        "synthetic-cpu",
+        "synthetic-cpu-sc",
+        "kitti-raw",
+        "kitti-odometry",
+        "sfmlearner",
+        "folder",
+        "gpu",
+        "finetune",
+    } <= names
 
 
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
@@ -33,5 +45,9 @@ def test_config_instantiates(config, tmp_path):
     if config.stem.startswith("synthetic"):
         assert isinstance(cli.datamodule, SyntheticDataModule) and cli.model.hparams.size == "small"
         assert (cli.model.hparams.geometry > 0) == (config.stem == "synthetic-cpu-sc")
+    if config.stem == "finetune":  # the shipped model's recipe, from its weights
+        shipped = load_model()
+        assert (cli.model.hparams.height, cli.model.hparams.width) == (shipped.height, shipped.width)
+        assert torch.equal(next(iter(cli.model.model.state_dict().values())), next(iter(shipped.state_dict().values())))
     if config.stem == "gpu":
         assert cli.model.hparams.size == "large"

@@ -220,3 +220,18 @@ def test_distill_term_is_the_distance_to_the_refined_motions(tiny_synth):
     torch.testing.assert_close(totals[0.5] - totals[0.0], 0.5 * expected)
     with pytest.raises(ValueError, match="only with model.align"):
         EgoMotionModule(height=32, width=96, distill=0.1)
+
+
+def test_init_from_starts_from_the_models_weights(tiny_synth, tmp_path):
+    """``model.init_from``: the module starts from a model file's weights (the shipped one by name), whatever the
+    training resolution; a model of another size, or a missing file, is one line and exit 2 from the command."""
+    shipped = load_model()
+    module = EgoMotionModule(height=32, width=96, init_from="default")
+    for name, value in shipped.state_dict().items():
+        torch.testing.assert_close(module.model.state_dict()[name], value, rtol=0, atol=0, msg=name)
+    fresh = EgoMotionModule().model.state_dict()
+    assert not all(torch.equal(fresh[name], value) for name, value in shipped.state_dict().items())
+    with pytest.raises(InputError, match="a 'small' model; set model.size: small"):
+        EgoMotionModule(size="large", init_from="default")
+    args = tiny_args(tiny_synth, tmp_path, "--trainer.max_steps=1", f"--model.init_from={tmp_path / 'none.pt'}")
+    assert ocalib_main(["train", "fit", *args]) == 2

@@ -259,6 +259,11 @@ def summary(doc: dict) -> str:
     pm = lambda v, s: f"{v:+.4f}" + (f" ± {s:.2g}" if s is not None else " ± ?(unobservable)")  # noqa: E731
     s = doc["settings"]
     lines = [f"reference: {doc['reference']}  ({s['frames']} frames, solver {s['solver']}, motion {s['motion']})"]
+    if "frontend_choice" in s:  # calibrate --frontend auto
+        residuals = s["frontend_choice"]["congruence_residual"].items()
+        tried = ", ".join(f"{name} " + ("n/a" if r is None else f"{r:.3f}") for name, r in residuals)
+        lines.append(f"front end: {s['frontend']}, chosen on the first {s['frontend_choice']['frames']} frames by "
+                     f"the rig's rotation angles (congruence residual {tried}; 0: every camera turns alike)")  # fmt: skip
     for e in doc["extrinsics"]:
         obs = e["observability"]
         if None in e["quaternion_wxyz"]:  # absolute poses, rotation unobservable: no estimate
