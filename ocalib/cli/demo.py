@@ -18,7 +18,8 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         name,
         help="render a synthetic rig, calibrate it with the shipped checkpoint, print the estimate beside the truth",
         description="Render a non-overlapping rig sequence (synthetic street canyon, held-out seed), calibrate it "
-        "from its images with the pose network and the on-line head, and compare with the true extrinsics. "
+        "from its images (the front end chosen as calibrate chooses it: the pose network on these renders) and the "
+        "on-line head, and compare with the true extrinsics. "
         "Writes the sequence, result.json, trace.csv and plots to --out.",
     )
     p.add_argument(

@@ -1,10 +1,12 @@
-"""Every front end's frame-to-frame motion on a real sequence with ground truth, against the baselines a front end
-must beat: predicting no rotation, and a fixed forward translation.
+"""Every front end's frame-to-frame motion on sequences with ground truth, real or rendered, against the baselines a
+front end must beat (predicting no rotation, and a fixed forward translation), and the front end that ``calibrate
+--frontend auto`` (the default) keeps on each rig.
 
-    python bench/bench_real_frontend.py --sequence data/real/kitti00/sequences/00 [--cameras image_0]
+    python bench/bench_frontends.py --sequences data/real/kitti00/sequences/00 [--cameras image_0]
         [--frontends network opencv] [--checkpoints NAME=FILE ...] [--frames 200] [--crop-rig] [--out JSON]
+    python bench/bench_frontends.py --sequences handheld-1001 front-left-1002 ... --frames 100
 
-The sequence: any supported layout with ground-truth poses, e.g. a KITTI odometry download's ``sequences/00``
+A sequence: any supported layout with ground-truth poses, e.g. a KITTI odometry download's ``sequences/00``
 (``image_0``, ``calib.txt``, ``times.txt``, ``poses/00.txt`` beside ``sequences``). ``--crop-rig``: instead, a real
 rig made of two overlapping crops (left and right, two thirds of the width each) of the first camera, written
 under ``data/real/`` (the rig layout, the camera's poses; its extrinsic is the identity).
@@ -28,7 +30,8 @@ import cv2
 import numpy as np
 import torch
 import yaml
-from common import shown_path, write_json
+from bench_calibnet_accuracy import ensure
+from common import add_sequence_arguments, shown_path, write_json
 from tqdm import tqdm
 
 from ocalib.calibnet.run import AUTO_FRAMES
@@ -84,33 +87,16 @@ def errors(pred: np.ndarray, gt: np.ndarray) -> dict:
 
 
 def baselines(gt: np.ndarray) -> dict:
-    """The errors of predicting no rotation and a translation straight ahead (+z) every frame."""
+    """The :func:`errors` of predicting no rotation and a translation straight ahead (+z) every frame."""
     forward = np.tile(np.eye(4), (len(gt), 1, 1))
     forward[:, 2, 3] = np.arange(len(gt), dtype=np.float64)
-    return {"no motion / forward": errors(forward, gt)}
+    return errors(forward, gt)
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--sequence", default="data/real/kitti00/sequences/00")
-    p.add_argument("--cameras", nargs="+")
-    p.add_argument("--frontends", nargs="+", default=list(FRONTENDS), choices=list(FRONTENDS))
-    p.add_argument("--checkpoints", nargs="*", default=[], metavar="NAME=FILE", help="more network models")
-    p.add_argument("--frames", type=int, default=200)
-    p.add_argument("--crop-rig", action="store_true", help="a rig of two crops of the first camera instead")
-    p.add_argument("--out", default="bench/results/real_frontend.json")
-    args = p.parse_args()
-
-    sequence = open_sequence(args.sequence)
-    if args.cameras:
-        sequence = sequence.select(args.cameras)
-    frames = min(args.frames, len(sequence))
-    if args.crop_rig:
-        sequence = open_sequence(crop_rig(sequence, frames))
-    runs = {name: FrontEndOptions(name) for name in args.frontends}
-    for entry in args.checkpoints:
-        name, _, path = entry.partition("=")
-        runs[name] = FrontEndOptions("network", checkpoint=path)
+def measure(sequence, runs: dict[str, FrontEndOptions], frames: int) -> dict:
+    """Per front end of ``runs`` (label -> options): each camera's :func:`errors`, the frames a second and, with two
+    cameras or more, the congruence residual over the first ``AUTO_FRAMES``; the baselines; the front end
+    ``--frontend auto`` keeps."""
     rows = {}
     for label, options in runs.items():
         traj, fps = trajectories(sequence, options, frames)
@@ -118,28 +104,61 @@ def main() -> None:
         rows[label]["frames_per_second"] = fps
         if len(sequence.cameras) > 1 and label in FRONTENDS:
             rows[label]["congruence_residual"] = congruence_residual(traj[:AUTO_FRAMES])
-    for cam in sequence.cameras:
-        rows.setdefault("baselines", {})[cam.name] = baselines(cam.poses[:frames])
-
-    print(f"\n{sequence.path.name}, {frames} frames: median frame-to-frame errors\n")
-    print("| front end | camera | rotation deg | direction deg | rotation gain x / y / z | frames/s |")
-    print("|---|---|---|---|---|---|")
-    for label, row in rows.items():
-        for cam in sequence.cameras:
-            cells = row[cam.name] if label != "baselines" else row[cam.name]["no motion / forward"]
-            name = "no rotation; forward" if label == "baselines" else label
-            fps = f"{row['frames_per_second']:.1f}" if "frames_per_second" in row else ""
-            gain = " / ".join(f"{g:.2f}" for g in cells["gain_xyz"])
-            print(
-                f"| {name} | {cam.name} | {cells['rotation_deg']:.3f} | {cells['direction_deg']:.2f} | {gain} | {fps} |"
-            )
-    doc = {"sequence": shown_path(args.sequence), "crop_rig": args.crop_rig, "frames": frames, "results": rows}
+    rows["baselines"] = {cam.name: baselines(cam.poses[:frames]) for cam in sequence.cameras}
+    doc = {"frames": frames, "results": rows}
     residuals = {label: row["congruence_residual"] for label, row in rows.items() if "congruence_residual" in row}
     if residuals:
-        doc["auto_choice"] = min(residuals, key=residuals.get)
-        tried = ", ".join(f"{label} {r:.3f}" for label, r in residuals.items())
+        doc["auto_choice"] = min(residuals, key=lambda label: (np.isnan(residuals[label]), residuals[label]))
+    return doc
+
+
+def table(name: str, doc: dict, cameras: list[str]) -> None:
+    """Print ``doc`` (:func:`measure`'s) as a markdown table."""
+    print(f"\n{name}, {doc['frames']} frames: median frame-to-frame errors\n")
+    print("| front end | camera | rotation deg | direction deg | rotation gain x / y / z | frames/s |")
+    print("|---|---|---|---|---|---|")
+    for label, row in doc["results"].items():
+        for cam in cameras:
+            cells = row[cam]
+            shown = "no rotation; forward" if label == "baselines" else label
+            fps = f"{row['frames_per_second']:.1f}" if "frames_per_second" in row else ""
+            gain = " / ".join(f"{g:.2f}" for g in cells["gain_xyz"])
+            print(f"| {shown} | {cam} | {cells['rotation_deg']:.3f} | {cells['direction_deg']:.2f} | {gain} | {fps} |")
+    if "auto_choice" in doc:
+        tried = ", ".join(f"{k} {r['congruence_residual']:.3f}" for k, r in doc["results"].items()
+                          if "congruence_residual" in r)  # fmt: skip
         print(f"\ncongruence residual over the first {AUTO_FRAMES} frames: {tried}; auto keeps {doc['auto_choice']}")
-    write_json(args.out, doc)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_sequence_arguments(p, ["data/real/kitti00/sequences/00"])
+    p.add_argument("--cameras", nargs="+")
+    p.add_argument("--frontends", nargs="+", default=list(FRONTENDS), choices=list(FRONTENDS))
+    p.add_argument("--checkpoints", nargs="*", default=[], metavar="NAME=FILE", help="more network models")
+    p.add_argument("--frames", type=int, default=200)
+    p.add_argument("--crop-rig", action="store_true", help="a rig of two crops of the first camera instead")
+    p.add_argument("--out", default="bench/results/frontends.json")
+    args = p.parse_args()
+
+    runs = {name: FrontEndOptions(name) for name in args.frontends}
+    for entry in args.checkpoints:
+        name, _, path = entry.partition("=")
+        runs[name] = FrontEndOptions("network", checkpoint=path)
+    results = {}
+    for name in args.sequences:
+        path = Path(name) if Path(name).is_dir() else ensure(Path(args.root), name, max(args.frames, 300))
+        sequence = open_sequence(path)
+        if args.cameras:
+            sequence = sequence.select(args.cameras)
+        frames = min(args.frames, len(sequence))
+        if args.crop_rig:
+            sequence = open_sequence(crop_rig(sequence, frames))
+        label = sequence.path.name
+        results[label] = measure(sequence, runs, frames) | {"crop_rig": args.crop_rig}
+        table(label, results[label], sequence.names)
+    write_json(args.out, {"sequences": [shown_path(n) if Path(n).is_dir() else n for n in args.sequences],
+                          "results": results})  # fmt: skip
 
 
 if __name__ == "__main__":
