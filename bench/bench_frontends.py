@@ -34,10 +34,9 @@ from bench_calibnet_accuracy import ensure
 from common import add_sequence_arguments, shown_path, write_json
 from tqdm import tqdm
 
-from ocalib.calibnet.run import AUTO_FRAMES
 from ocalib.data import open_sequence
 from ocalib.eval.pose_metrics import congruence_residual, frame_errors, frame_motions, rotation_gain
-from ocalib.frontend import FRONTENDS, FrontEndOptions, build_frontend
+from ocalib.frontend import AUTO_FRAMES, FRONTENDS, FrontEndOptions, build_frontend
 from ocalib.io.poses import write_kitti
 
 

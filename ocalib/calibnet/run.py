@@ -37,7 +37,7 @@ from ocalib.data.synchronise import clocks, own_clocks, synchronise
 from ocalib.errors import InputError, deferred_interrupts
 from ocalib.eval.calibration_metrics import extrinsic_errors
 from ocalib.eval.pose_metrics import congruence_residual
-from ocalib.frontend import AUTO, FRONTENDS, FrontEndOptions, build_frontend
+from ocalib.frontend import AUTO, AUTO_FRAMES, FRONTENDS, FrontEndOptions, build_frontend
 from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
@@ -47,7 +47,6 @@ if typing.TYPE_CHECKING:
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 SYNC_WARNING = 0.1  # frames: paired frames further apart than this (median) are warned about
-AUTO_FRAMES = 100  # frames each front end runs on where the front end is chosen (--frontend auto)
 
 
 @dataclass

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 
 from ocalib.calib.drivers.options import REFINE_CHOICES, HeadOptions
-from ocalib.frontend import AUTO, FRONTENDS, FrontEndOptions
+from ocalib.frontend import AUTO, AUTO_FRAMES, FRONTENDS, FrontEndOptions
 
 # the head's motion pairings (the keys of ocalib.calib.drivers.options.MOTION_CHOICES) -> what they are
 MOTIONS_HELP = {
@@ -57,9 +57,9 @@ def add_frontend_arguments(p: argparse.ArgumentParser, network_options: bool = T
         choices=[*FRONTENDS, AUTO],
         default=AUTO,
         help="ego-motion front end: " + "; ".join(f"{name}: {kind.help}" for name, kind in FRONTENDS.items())
-        + f"; {AUTO} (default): each tried on the first 100 frames, the one whose cameras turn by the most nearly "
-        "equal angles every frame (as a rigid rig's must) kept; the network where a network option (--checkpoint, "
-        "--scale, --align, --rig-align) is given",
+        + f"; {AUTO} (default): each tried on the first {AUTO_FRAMES} frames, the one whose cameras turn by the most "
+        "nearly equal angles every frame (as a rigid rig's must) kept; the network where a network option "
+        "(--checkpoint, --scale, --align, --rig-align) is given",
     )  # fmt: skip
     p.add_argument(
         "--checkpoint", metavar="CKPT", help="ego-motion model (ocalib model file or training .ckpt; default: shipped)"

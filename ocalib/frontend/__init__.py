@@ -46,6 +46,7 @@ FRONTENDS: dict[str, FrontEndKind] = {
 }
 SCALE_MODES = ("head", "normalise")
 AUTO = "auto"  # not a front end: each of FRONTENDS tried, one kept (ocalib.calibnet.run.choose_frontend)
+AUTO_FRAMES = 100  # the frames each front end runs on where AUTO chooses
 
 
 @dataclass(frozen=True)
