@@ -17,6 +17,11 @@ start, and over the last third of the stream against the first two thirds (it mu
 ``ocalib calibrate --bundle-adjust-every N`` streams it (a run after every N frames on the frames so far, from the
 network front end's head): its seconds per frame and its final errors.
 
+``--metric-noise M``: the estimator takes the trajectory as M metres off (its positions priors, the rig's poses
+solved); by default held, as the rendered poses are exact. ``--trajectory-error DEG``: the trajectory given is off
+as a real one is (its rotation by a random walk of DEG a frame, its positions by 1 cm): held, the estimator reads
+its error as the cameras moving.
+
 ``--change``: camera 1 is knocked at half the frames (2 deg about its y axis; on cars also 5 cm sideways); the
 frame it is noticed at and the error against the new mounting at the end are reported, beside the error of a fresh
 start on the frames after the change (what those frames alone can give). Without ``--change``, every
@@ -79,9 +84,21 @@ def errors(E: np.ndarray, T: np.ndarray, car: bool) -> tuple[float, float, float
     )
 
 
-def run(path: Path, frames: int, options: OnlineRigOptions, first: int = 0) -> dict:
+def off_trajectory(poses: np.ndarray, degrees: float, seed: int = 0) -> np.ndarray:
+    """``poses`` (T, 4, 4) as a real trajectory has them: their rotation off by a random walk of ``degrees`` a frame
+    (about each axis, per square root of a frame), their positions by 1 cm of white noise per axis."""
+    rng = np.random.default_rng(seed)
+    walk = Rotation.from_rotvec(np.cumsum(rng.normal(0, np.radians(degrees), (len(poses), 3)), axis=0)).as_matrix()
+    out = poses.copy()
+    out[:, :3, :3] = walk @ poses[:, :3, :3]
+    out[:, :3, 3] += rng.normal(0, 0.01, (len(poses), 3))
+    return out
+
+
+def run(path: Path, frames: int, options: OnlineRigOptions, first: int = 0, trajectory_error: float = 0.0) -> dict:
     """The estimator over frames ``first`` to ``frames`` of ``path`` (from ``first`` on, a fresh start: the truth its
-    start is turned from is the mounting at ``first``)."""
+    start is turned from is the mounting at ``first``); camera 0's rendered poses the metric trajectory, off by
+    ``trajectory_error`` (:func:`off_trajectory`)."""
     seq = open_sequence(path)
     cams, frames = seq.cameras, min(frames, len(seq))
     car = cams[0].poses is not None and "front" in path.name
@@ -94,7 +111,8 @@ def run(path: Path, frames: int, options: OnlineRigOptions, first: int = 0) -> d
     start = truth.copy()
     turn = Rotation.from_rotvec(np.radians(0.5) * np.array([1.0, 1.0, -1.0]) / np.sqrt(3)).as_matrix()
     start[1:, :3, :3] = turn @ truth[1:, :3, :3]
-    poses = np.linalg.inv(cams[0].poses[first : first + 1]) @ cams[0].poses
+    poses = off_trajectory(cams[0].poses, trajectory_error) if trajectory_error else cams[0].poses
+    poses = np.linalg.inv(poses[first : first + 1]) @ poses
     estimator = OnlineRigEstimator(np.stack([c.K for c in cams]), [tuple(c.size) for c in cams], start, options)
     states, rss = [], []
     with PeakMemory() as memory:
@@ -136,7 +154,11 @@ def run(path: Path, frames: int, options: OnlineRigOptions, first: int = 0) -> d
             "stays_within_targets_from_frame": settled,
             "true_change_frame": change,
             "changes": found,
-            "dismissed_candidates": [{"frame": f, "split_statistic": x} for j, f, x in estimator.dismissed if j == k],
+            "dismissed_candidates": [
+                {"frame": f, "split_statistic": x.statistic, "rotation_change_deg": x.rotation_deg}
+                for j, f, x in estimator.dismissed
+                if j == k
+            ],
         }
     return out
 
@@ -149,17 +171,30 @@ def main() -> None:
     p.add_argument("--keyframe-step", type=int, default=OnlineRigOptions.keyframe_step)
     p.add_argument("--window", type=int, default=OnlineRigOptions.window)
     p.add_argument("--streaming", type=int, metavar="N", help="also the bundle adjustment after every N frames")
+    p.add_argument(
+        "--metric-noise",
+        type=float,
+        default=0.0,
+        help="the estimator's: the trajectory's stated noise, m (default 0: held, the rendered poses exact)",
+    )
+    p.add_argument(
+        "--trajectory-error",
+        type=float,
+        default=0.0,
+        metavar="DEG",
+        help="the trajectory's rotation off by a random walk of DEG a frame, its positions by 1 cm",
+    )
     p.add_argument("--out", default="bench/results/rig_online.json")
     args = p.parse_args()
     cv2.setNumThreads(1)
-    options = OnlineRigOptions(keyframe_step=args.keyframe_step, window=args.window)
+    options = OnlineRigOptions(keyframe_step=args.keyframe_step, window=args.window, metric_noise=args.metric_noise)
     results = {}
     print(f"{'sequence':24} {'camera':8} {'rot':>6} {'dir':>6} {'t/b':>6} {'within from':>11} {'ms/frame':>8} "
           f"{'MB':>5} {'changes (frame, noticed)':>26}")  # fmt: skip
     for name in args.sequences:
         root = Path(args.root)
         path = ensure_knocked(root, name, args.frames) if args.change else ensure(root, name, args.frames)
-        r = results[path.name] = run(path, args.frames, options)
+        r = results[path.name] = run(path, args.frames, options, trajectory_error=args.trajectory_error)
         if args.streaming:
             streamed = run_bundle_adjustment(path, "network", args.frames, BundleOptions(), args.streaming)
             r["streaming_bundle_adjustment"] = {"every": args.streaming} | {
@@ -170,7 +205,7 @@ def main() -> None:
                   f"final {streamed['bundle']}", flush=True)  # fmt: skip
         knocks = [c["true_change_frame"] for c in r["cameras"].values() if c["true_change_frame"] is not None]
         if knocks:  # the reference for the re-convergence: a fresh start on the frames after the change
-            r["fresh_after_change"] = run(path, args.frames, options, first=min(knocks))
+            r["fresh_after_change"] = run(path, args.frames, options, min(knocks), args.trajectory_error)
             for camera, c in r["fresh_after_change"]["cameras"].items():
                 f = c["final"]
                 print(
@@ -188,7 +223,7 @@ def main() -> None:
                 flush=True,
             )
         doc = {"frames": args.frames, "change": args.change, "options": dataclasses.asdict(options),
-               "results": results}  # fmt: skip
+               "trajectory_error_deg": args.trajectory_error, "results": results}  # fmt: skip
         write_json(args.out, doc)  # after every sequence: an interrupted run keeps what it measured
 
 

@@ -29,6 +29,7 @@ from common import add_sequence_arguments, write_json
 from ocalib.calibnet.bundle import refine_calibration
 from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
 from ocalib.frontend import FRONTENDS, FrontEndOptions
+from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
 from ocalib.rigba.stream import RigStream
 
@@ -77,7 +78,7 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
     sequence = open_calibration_sequence(path, max_frames=frames, time_offset=time_offset,
                                          frontend=FrontEndOptions(frontend))  # fmt: skip
     metric = sequence.cameras[0].poses[:frames]
-    rig = RigStream(sequence, metric) if online_rig else None
+    rig = RigStream(sequence, metric, OnlineRigOptions(metric_noise=0.0)) if online_rig else None  # exact: held
     result = calibrate_images(sequence, frontend=FrontEndOptions(frontend), max_frames=frames, progress=False,
                               on_frame=rig)  # fmt: skip
     if rig is not None:

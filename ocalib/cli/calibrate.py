@@ -9,10 +9,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import replace
 
 from ocalib.cli.options import MOTIONS_HELP, add_frontend_arguments, add_head_arguments, frontend_options, head_options
 from ocalib.errors import InputError
-from ocalib.rigba.options import MAPPERS, BundleOptions
+from ocalib.rigba.options import DEFAULT_METRIC_NOISE, MAPPERS, BundleOptions
 
 
 def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
@@ -89,9 +90,10 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "--metric-noise",
         type=float,
         metavar="METRES",
-        help="the metric trajectory's noise per axis: its positions are then priors in the bundle adjustment, so "
-        "weighed; 0: its poses held fixed there (refused, with a warning, where the images disagree with them) "
-        "(default: the reconstruction is only scaled to it)",
+        help="the metric trajectory's noise per axis: its positions are priors so weighed in the on-line rig "
+        f"estimator's window (default {DEFAULT_METRIC_NOISE}; the rig's poses are solved with the images) and in the bundle adjustment "
+        "(default: its reconstruction is only scaled to it); 0: its poses held fixed in both, for an exact "
+        "trajectory (the bundle adjustment refuses it, with a warning, where the images disagree with them)",
     )
     ba.add_argument("--colmap-workspace", metavar="DIR", help="keep the COLMAP workspace (database, model) here")
     ba.add_argument(
@@ -211,7 +213,10 @@ def _metric_trajectory(args, sequence):
 
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
     metric = read_metric_trajectory(args.metric_trajectory, sequence, frames)
-    rig = RigStream(sequence, metric, OnlineRigOptions(keyframe_step=args.keyframe_step)) if args.online_rig else None
+    options = OnlineRigOptions(keyframe_step=args.keyframe_step)
+    if args.metric_noise is not None:
+        options = replace(options, metric_noise=args.metric_noise)
+    rig = RigStream(sequence, metric, options) if args.online_rig else None
     return metric, rig
 
 

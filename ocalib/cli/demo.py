@@ -53,6 +53,7 @@ def run(args) -> int:
     from ocalib.calibnet.run import calibrate_images
     from ocalib.cli.calibrate import print_errors
     from ocalib.data.layout import open_sequence
+    from ocalib.rigba.online import OnlineRigOptions
     from ocalib.rigba.stream import RigStream
     from ocalib.synth import preset, render_sequence
     from ocalib.synth.presets import knocked
@@ -65,7 +66,7 @@ def run(args) -> int:
     sequence = out / "sequence"
     render_sequence(cfg, sequence, overwrite=True, workers=2)
     metric = open_sequence(sequence).cameras[0].poses  # the rendered poses stand for wheel odometry
-    rig = RigStream(open_sequence(sequence), metric)
+    rig = RigStream(open_sequence(sequence), metric, OnlineRigOptions(metric_noise=0.0))  # exact: held
     result = calibrate_images(sequence, frontend=frontend, device=args.device, on_frame=rig)
     rig.attach(result)
     if args.bundle_adjust:

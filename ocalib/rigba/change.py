@@ -16,7 +16,8 @@ keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
 few keyframes (they then agree with it): each window estimate, before it is fused, against the track, ``d^T (P +
 P_w)^-1 d`` with ``d`` the innovation from the track's ``E`` to ``E_w``; the track holds the windows before it, so on a
 steady rig the statistic sits well under a chi-square with 6 degrees of freedom, and over its quantile at
-``DRIFT_FALSE_ALARM`` on ``persistence`` windows in a row the track moves to the window's estimate.
+``DRIFT_FALSE_ALARM`` on ``persistence`` windows in a row, by a step of at least ``min_change``, the track moves
+to the window's estimate.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_ref`` with ``d`` =
 (rotation rad, translation) in camera 0's axes; rig poses camera-to-world (4, 4).
@@ -33,6 +34,7 @@ from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.drivers.change import Change, step_size
 from ocalib.data.distortion import project
+from ocalib.geometry.pose import cross_matrix
 
 HISTORY = 30  # steady keyframes whose statistics give the overdispersion
 MIN_HISTORY = 10  # steady keyframes needed before the test runs
@@ -50,6 +52,7 @@ class ExtrinsicTrack:
     overlap: float = 1.0
     false_alarm: float = 1e-8
     persistence: int = 2
+    min_change: tuple[float, float] = (0.0, 0.0)  # the least step (rotation deg, translation) :meth:`drifted` takes
     extrinsic: np.ndarray | None = None
     covariance: np.ndarray | None = None
     chi2: float = float("nan")
@@ -82,7 +85,8 @@ class ExtrinsicTrack:
             statistic = float(d @ np.linalg.solve(self.covariance + covariance, d))
         except np.linalg.LinAlgError:
             return None
-        if not statistic > chi2_distribution.ppf(1 - DRIFT_FALSE_ALARM, 6):
+        large = np.degrees(np.linalg.norm(d[:3])) >= self.min_change[0] or np.linalg.norm(d[3:]) >= self.min_change[1]
+        if not (statistic > chi2_distribution.ppf(1 - DRIFT_FALSE_ALARM, 6) and large):
             self._drifting.clear()
             return None
         self._drifting.append(frame)
@@ -162,6 +166,21 @@ def information(xy: np.ndarray, xyz: np.ndarray, K: np.ndarray, pose: np.ndarray
                   for e in np.eye(6)], axis=1)  # fmt: skip
     variance = float(np.median((residuals(extrinsic).reshape(-1, 2) ** 2).sum(1))) / (2 * np.log(2))
     return J.T @ J / variance
+
+
+def relative_information(info: np.ndarray, reference_info: np.ndarray, extrinsic: np.ndarray) -> np.ndarray:
+    """The information (6, 6) of a keyframe's ``extrinsic`` (4, 4) measured against camera 0's own resection:
+    ``info`` (camera k's, camera 0 held) with camera 0's uncertainty added, ``reference_info`` its information about
+    a perturbation ``pose exp(d0)`` of its pose (:func:`information` with the identity extrinsic), which moves the
+    measurement by ``-d0`` and its translation by ``t x w0``. NaN where either is."""
+    A = -np.eye(6)
+    A[3:, :3] = cross_matrix(extrinsic[:3, 3])
+    with np.errstate(invalid="ignore"):
+        try:
+            covariance = np.linalg.inv(info) + A @ np.linalg.inv(reference_info) @ A.T
+            return np.linalg.inv(covariance)
+        except np.linalg.LinAlgError:
+            return np.full((6, 6), np.nan)
 
 
 def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:

@@ -1,21 +1,25 @@
 """The on-line rig estimator: the whole extrinsic of every camera, translation included, kept up to date as the
 stream goes, in memory that does not grow with the sequence, and a change of any camera's mounting noticed.
 
-Camera 0's metric trajectory (wheel odometry, GNSS, a stereo or visual-inertial system) is the rig's path, held as
-given (as CamOdoCal holds the odometry); what the images must give is each camera's extrinsic. Every
-``keyframe_step``-th frame, :meth:`OnlineRigEstimator.update`:
+Camera 0's metric trajectory (wheel odometry, GNSS, a stereo or visual-inertial system) is the rig's path: held as
+given (as CamOdoCal holds the odometry) where it is exact (``metric_noise`` 0), or by default its positions are
+priors of ``metric_noise`` metres and the images solve the rig's poses with the extrinsics (a real trajectory's
+rotation, tenths of a degree off, would otherwise read as the cameras moving); what the images must give is each
+camera's extrinsic. Every ``keyframe_step``-th frame, :meth:`OnlineRigEstimator.update`:
 
 1. extracts every camera's features (:mod:`ocalib.rigba.features`) and matches them to the same camera's
    ``match_previous`` latest keyframes;
 2. resects every camera from its 2-D-3-D matches (COLMAP's absolute pose), keeping the matches that agree: with the
-   rig's pose, each gives that keyframe's own measurement of the camera's extrinsic, with its information;
+   rig's pose (camera 0's own resection where the poses are solved), each gives that keyframe's own measurement of
+   the camera's extrinsic, with its information;
 3. tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
 4. continues the tracks the matches extend and triangulates new points, each camera where the window puts it, or
    where its own resection does while it disagrees with the window; a candidate change (``persistence``
    keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN`` keyframes from the
    candidate's frame on (the camera held meanwhile, its new points where its own resections put it), adjusted
    with a second extrinsic for the camera from the candidate's frame on
-   (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move;
+   (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move, nor is
+   a step under ``min_change_deg`` and ``min_change_m``;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
    (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track; a camera whose
    observations span fewer than ``MIN_SPAN`` keyframes (at the start, after a change) is held where it is: so short
@@ -39,10 +43,11 @@ from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion, undistort_pixels
-from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, information, with_unobservable
+from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, information, relative_information, with_unobservable
 from ocalib.rigba.colmap import pinhole_params, to_matrix
 from ocalib.rigba.features import Features, SiftExtractor, match_features
-from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window, split_statistic
+from ocalib.rigba.options import DEFAULT_METRIC_NOISE
+from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, SplitTest, adjust_window, shares_pose, split_statistic
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
 CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
@@ -65,6 +70,13 @@ class OnlineRigOptions:
     min_angle_deg: float = 1.0  # a new point's least triangulation angle
     false_alarm: float = 1e-8  # a keyframe's chance to look like a change, were the test's ratio chi-square
     persistence: int = 2  # keyframes in a row that must disagree before a change is declared
+    # the trajectory's noise (m per axis): its positions are priors and the images solve the rig's poses; 0 or
+    # None: held as given (an exact trajectory, e.g. a render's)
+    metric_noise: float | None = DEFAULT_METRIC_NOISE
+    # the least step the window's split test must find to confirm a change (rotation deg, or translation m): real
+    # images hold what no model does (intrinsics, texture, moving things) and make smaller steps significant
+    min_change_deg: float = 0.25
+    min_change_m: float = 0.1
 
 
 @dataclass
@@ -103,7 +115,8 @@ class OnlineRigEstimator:
         self.extrinsics[0] = np.eye(4)
         C = len(self.K)
         overlap = options.window / options.adjust_every  # windows a keyframe is adjusted in
-        self.tracks = [ExtrinsicTrack(overlap, options.false_alarm, options.persistence) for _ in range(C)]
+        least = (options.min_change_deg, options.min_change_m)
+        self.tracks = [ExtrinsicTrack(overlap, options.false_alarm, options.persistence, least) for _ in range(C)]
         self.window_covariance = np.tile(np.eye(6) * UNINFORMED, (C, 1, 1))  # of the window's last extrinsics
         self.keyframes: deque[Keyframe] = deque()
         self.points: dict[int, np.ndarray] = {}
@@ -114,8 +127,9 @@ class OnlineRigEstimator:
             for i, (k, (h, w)) in enumerate(zip(self.K, self.sizes))
         ]
         self.frames_seen = 0
+        self._last_metric = np.eye(4)  # camera 0's metric pose at the last keyframe
         self.keyframes_unregistered = 0
-        self.dismissed: list[tuple[int, int, float]] = []  # candidates the window did not confirm: camera, frame, ratio
+        self.dismissed: list[tuple[int, int, SplitTest]] = []  # candidates the window did not confirm: camera, frame
         # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
         # is never judged: the camera keeps the window's estimate, and RigStream reports it)
         self.pending: dict[int, Change] = {}
@@ -131,7 +145,7 @@ class OnlineRigEstimator:
         start = time.perf_counter()
         features = [self._features(image, k) for k, image in enumerate(images)]
         poses = np.broadcast_to(np.asarray(pose, np.float64), (len(images), 4, 4)).copy()
-        kf = Keyframe(frame, poses, features, [np.full(len(f), -1) for f in features])
+        kf = Keyframe(frame, self._working(poses), features, [np.full(len(f), -1) for f in features], poses[0, :3, 3])
         measured = {}
         if self.keyframes:
             recent = list(self.keyframes)[-self.options.match_previous :]
@@ -150,7 +164,8 @@ class OnlineRigEstimator:
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
             held = self._held() | frozenset(self.pending)  # a camera under suspicion: the window does not follow it
-            window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held)
+            window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held,
+                                   self.options.metric_noise)  # fmt: skip
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None and k not in held:
                     self.window_covariance[k] = with_unobservable(u.covariance, u.unobservable)
@@ -161,6 +176,16 @@ class OnlineRigEstimator:
                     self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
         registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)
+
+    def _working(self, metric: np.ndarray) -> np.ndarray:
+        """The new keyframe's poses (C, 4, 4) from the trajectory's ``metric`` ones: as given where the window holds
+        them; where it solves them, moved by the last keyframe's correction (solved from metric), until camera 0's
+        own resection places it (:meth:`_resect`)."""
+        correction = np.eye(4)
+        if self.options.metric_noise and self.keyframes:
+            correction = self.keyframes[-1].poses[0] @ np.linalg.inv(self._last_metric)
+        self._last_metric = metric[0]
+        return correction @ metric
 
     def _features(self, image: np.ndarray, k: int) -> Features:
         """Camera k's SIFT features of ``image``, their keypoints moved to the pinhole pixels of their rays where the
@@ -200,12 +225,24 @@ class OnlineRigEstimator:
             for (i, pid), inlier in zip(where, inliers):
                 if inlier:
                     kf.point_ids[k][i] = pid
-            extrinsic = np.linalg.inv(kf.poses[k]) @ np.linalg.inv(to_matrix(result["cam_from_world"]))
+            camera_pose = np.linalg.inv(to_matrix(result["cam_from_world"]))
+            xy, xyz = np.asarray(xy)[inliers], np.asarray(xyz)[inliers]
+            if k == 0 and self._places_rig(kf):
+                kf.poses[:] = camera_pose  # the rig's pose is camera 0's: the extrinsics are measured against it
+            extrinsic = np.linalg.inv(kf.poses[k]) @ camera_pose
             info = np.full((6, 6), np.nan)
             if inliers.sum() >= self.options.min_test_inliers:
-                info = information(np.asarray(xy)[inliers], np.asarray(xyz)[inliers], self.K[k], kf.poses[k], extrinsic)
+                info = information(xy, xyz, self.K[k], kf.poses[k], extrinsic)
+                if k > 0 and self._places_rig(kf):
+                    reference = measured[0][1] if 0 in measured else np.full((6, 6), np.nan)
+                    info = relative_information(info, reference, extrinsic)
             measured[k] = extrinsic, info
         return measured
+
+    def _places_rig(self, kf: Keyframe) -> bool:
+        """Whether camera 0's resection places keyframe ``kf``'s rig: the window solves the poses (the trajectory's
+        noise over 0) and the keyframe's cameras share one pose."""
+        return bool(self.options.metric_noise) and shares_pose(kf)
 
     def _poses(self, kf: Keyframe, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
         """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or where its own
@@ -312,12 +349,20 @@ class OnlineRigEstimator:
         camera more than it moves it; two resections place it poorly), held until its new observations span
         ``MIN_SPAN`` keyframes; its track then takes the next windows' estimates."""
         track = self.tracks[k]
-        statistic = split_statistic(
-            list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, k, change.frame
+        split = split_statistic(
+            list(self.keyframes),
+            self.points,
+            self.extrinsics,
+            self.K,
+            self.sizes,
+            k,
+            change.frame,
+            self.options.metric_noise,
         )
-        if not statistic > chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6):  # NaN: too little to confirm
+        large = split.rotation_deg >= self.options.min_change_deg or split.translation >= self.options.min_change_m
+        if not (split.statistic > chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6) and large):  # NaN: too little
             track.dismiss()
-            self.dismissed.append((k, change.detected, statistic))
+            self.dismissed.append((k, change.detected, split))
             return False
         lever_arm = self.extrinsics[k][:3, 3].copy()
         track.accept(change)

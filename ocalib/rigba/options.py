@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 # global: COLMAP's GLOMAP (rotation averaging, global positioning, bundle adjustment), the default: faster than
 # incremental at equal accuracy (docs/results-rigba.md). incremental: frame by frame, bundle adjustment after each few.
 MAPPERS = ("global", "incremental")
+# metres per axis the on-line rig estimator takes a metric trajectory to be off by where its user does not say
+DEFAULT_METRIC_NOISE = 0.05
 
 
 @dataclass(frozen=True)

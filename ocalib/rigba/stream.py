@@ -152,7 +152,8 @@ class RigStream:
     def result_json(self) -> dict:
         """The estimator's final state and cost: per camera k >= 1 its extrinsic (metres) with 1-sigma, the
         keyframes, the seconds per keyframe (median) and per frame, the candidate changes the window dismissed
-        (the frame they were raised at and the split test's likelihood ratio) and those raised too late to judge."""
+        (the frame they were raised at, the split test's likelihood ratio and step) and those raised too late to
+        judge."""
         final, seconds = self.final, [s.seconds for s in self.states]
         doc = {
             "units": "metres",
@@ -173,8 +174,14 @@ class RigStream:
                 for k, c in sorted(self.unjudged().items())
             ],  # fmt: skip
             "dismissed_changes": [
-                {"camera": self.sequence.names[k], "frame": frame, "split_statistic": _finite(statistic)}
-                for k, frame, statistic in ([] if self.estimator is None else self.estimator.dismissed)
+                {
+                    "camera": self.sequence.names[k],
+                    "frame": frame,
+                    "split_statistic": _finite(split.statistic),
+                    "rotation_change_deg": _finite(split.rotation_deg),
+                    "translation_change": _finite(split.translation),
+                }
+                for k, frame, split in ([] if self.estimator is None else self.estimator.dismissed)
             ],
             "extrinsics": [],
         }

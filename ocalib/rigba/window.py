@@ -4,9 +4,12 @@ them on COLMAP, with every camera's ``sensor_from_rig`` free.
 A :class:`Keyframe` holds, per camera, the rig's pose when that camera captured its image (one pose for all where the
 cameras are triggered together; the rig's pose at each camera's own capture time where they are not), its features
 and the 3-D point each keypoint observes (-1: none). :func:`adjust_window` builds a COLMAP reconstruction of the
-window (one rig, camera 0 its reference; intrinsics and the rig's metric poses held), solves for the points and the
-extrinsics with a robust loss, drops the observations that stay far off, and returns the extrinsics' uncertainty
-(:mod:`ocalib.rigba.covariance`).
+window (one rig, camera 0 its reference; intrinsics held), solves for the points and the extrinsics with a robust
+loss, drops the observations that stay far off, and returns the extrinsics' uncertainty
+(:mod:`ocalib.rigba.covariance`). The rig's poses are either held at the metric trajectory (exact: a render, or
+cameras without a shared trigger, each at its own capture pose) or, given the trajectory's noise, solved with the
+images, camera 0's metric positions weighted priors: a real trajectory's rotation (GNSS/INS, odometry) is off by
+tenths of a degree, pixels at a camera's focal length, which a held window would read as the extrinsics moving.
 
 Convention: poses are the rig's (camera 0's) camera-to-world (4, 4); ``extrinsics`` (C, 4, 4) are ``T_cam0_camk``
 (``p_cam0 = R p_camk + t``), the identity for camera 0; keypoints and K in ocalib's pixels (integer centres),
@@ -20,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pycolmap
 
+from ocalib.rigba.change import innovation
 from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
 from ocalib.rigba.covariance import ExtrinsicUncertainty, Observations, observations_uncertainty
 from ocalib.rigba.features import Features
@@ -35,12 +39,13 @@ MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts f
 class Keyframe:
     """One frame of the window: ``frame`` index, ``poses`` (C, 4, 4) the rig's pose when each camera captured its
     image, per camera its ``features`` and ``point_ids`` (N_k,) int64 (the 3-D point each keypoint observes, -1 for
-    none)."""
+    none); ``prior`` (3,) camera 0's position from the metric trajectory where the window solves the poses."""
 
     frame: int
     poses: np.ndarray
     features: list[Features]
     point_ids: list[np.ndarray]
+    prior: np.ndarray | None = None
 
 
 @dataclass
@@ -97,19 +102,22 @@ def adjust_window(
     K: np.ndarray,
     sizes: list[tuple[int, int]],
     held: frozenset[int] = frozenset(),
+    prior_noise: float | None = None,
 ) -> WindowResult:
     """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity;
-    so do those of the cameras in ``held``), the keyframes' poses held. K (C, 3, 3) and ``sizes`` (C,) of (height,
-    width) per camera. Outlying observations are dropped from the keyframes afterwards (their ``point_ids`` set to
-    -1)."""
+    so do those of the cameras in ``held``). The keyframes' poses are held, or with ``prior_noise`` (metres per
+    axis, > 0) solved too where every keyframe's cameras share one pose (:func:`solves_poses`). K (C, 3, 3) and
+    ``sizes`` (C,) of (height, width) per camera. Outlying observations are dropped from the keyframes afterwards
+    (their ``point_ids`` set to -1)."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
-    xyz = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held)
+    xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held, prior_noise)
     for pid, x in zip(obs["ids"], xyz):
         points[int(pid)] = x
-    poses = np.stack([kf.poses for kf in keyframes])  # (F, C, 4, 4)
+    for kf, pose in zip(keyframes, poses):
+        kf.poses = pose.copy()
     error = reprojection_errors(obs, poses[obs["frame"], obs["camera"]], extrinsics, xyz, K)
     outlier = ~(error < MAX_ERROR_PX)
     for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
@@ -120,6 +128,24 @@ def adjust_window(
     return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()))
 
 
+@dataclass
+class SplitTest:
+    """:func:`split_statistic`'s outcome: the likelihood ratio ``statistic`` and the ``step`` (6,) from the camera's
+    extrinsic before to after (rotation vector rad, translation; camera 0's axes; see
+    :func:`ocalib.rigba.change.innovation`)."""
+
+    statistic: float
+    step: np.ndarray
+
+    @property
+    def rotation_deg(self) -> float:
+        return float(np.degrees(np.linalg.norm(self.step[:3])))
+
+    @property
+    def translation(self) -> float:
+        return float(np.linalg.norm(self.step[3:]))
+
+
 def split_statistic(
     keyframes: list[Keyframe],
     points: dict[int, np.ndarray],
@@ -128,45 +154,64 @@ def split_statistic(
     sizes: list[tuple[int, int]],
     camera: int,
     frame: int,
-) -> float:
+    prior_noise: float | None = None,
+) -> SplitTest:
     """The likelihood ratio of camera ``camera`` having moved at ``frame``: the window adjusted with one extrinsic
     for the camera, then from that solution with a second one for its keyframes from ``frame`` on; the fall of the
     truncated squared reprojection errors (``min(e^2, c^2)``, c^2 the chi-square's 1e-3 quantile with 2 degrees of
     freedom over the variance per axis) over that variance. Near chi-square with 6 degrees of freedom where it has
-    not moved; the points are free in both, so resections misled by a few of them are not taken for a move. NaN
-    where either side has under ``MIN_SPLIT_OBSERVATIONS``. Nothing given is changed."""
+    not moved; the points (and, with ``prior_noise``, the rig's poses: see :func:`adjust_window`) are free in both,
+    so resections misled by a few of them, or a trajectory a little off, are not taken for a move. NaN where either
+    side has under ``MIN_SPLIT_OBSERVATIONS``. With it, the step from the first extrinsic to the second. Nothing
+    given is changed."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
     after = (obs["camera"] == camera) & (np.array([kf.frame for kf in keyframes])[obs["frame"]] >= frame)
     before = (obs["camera"] == camera) & ~after
     if min(after.sum(), before.sum()) < MIN_SPLIT_OBSERVATIONS:
-        return float("nan")
-    poses = np.stack([kf.poses for kf in keyframes])[obs["frame"], obs["camera"]]  # the rig's at each observation
+        return SplitTest(float("nan"), np.full(6, np.nan))
     source = list(range(C)) + [camera]
     split = dict(obs, camera=np.where(after, C, obs["camera"]))
     errors, E, points = [], extrinsics.copy(), dict(points)
     for o, sensors in ((obs, source[:C]), (split, source)):
         E = np.concatenate([E, E[camera : camera + 1]]) if len(sensors) > len(E) else E
-        xyz = _solve(keyframes, points, E, K[sensors], [sizes[k] for k in sensors], o, sensors)
+        xyz, poses = _solve(keyframes, points, E, K[sensors], [sizes[k] for k in sensors], o, sensors,
+                            prior_noise=prior_noise)  # fmt: skip
         points.update(zip(obs["ids"].tolist(), xyz))
+        poses = poses[obs["frame"], np.array(sensors)[o["camera"]]]  # the rig's at each observation
         errors.append(reprojection_errors(o, poses, E, xyz, K[sensors]) ** 2)
     variance = max(float(np.median(errors[1])) / (2 * np.log(2)), 1e-12)  # per axis: a chi-square's median, 2 dof
     cap = SPLIT_TRUNCATION * variance
-    return float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
+    statistic = float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
+    return SplitTest(statistic, innovation(E[camera], E[C]))
 
 
-def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset()) -> np.ndarray:
+def solves_poses(keyframes: list[Keyframe], prior_noise: float | None) -> bool:
+    """Whether the window solves the rig's poses: a trajectory noise is given (> 0), every keyframe has camera 0's
+    metric position, and its cameras share one pose (a shared trigger; COLMAP's rig frame then holds them all)."""
+    return bool(prior_noise) and all(kf.prior is not None and shares_pose(kf) for kf in keyframes)
+
+
+def shares_pose(kf: Keyframe) -> bool:
+    """Whether keyframe ``kf``'s cameras captured their images at one pose of the rig (a shared trigger)."""
+    return bool((kf.poses == kf.poses[0]).all())
+
+
+def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(), prior_noise=None):
     """Adjust the window's points and rig sensors (robust loss; sensor k sees camera ``source[k]``; those in ``held``
-    stay), the intrinsics and the rig's poses held: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of
-    ``obs["ids"]``."""
-    rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source)
+    stay), the intrinsics held, the rig's poses held or solved (:func:`solves_poses`), camera 0's metric positions
+    then priors of ``prior_noise`` metres: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of
+    ``obs["ids"]`` and the keyframes' poses (F, C, 4, 4) after it."""
+    shared = solves_poses(keyframes, prior_noise)
+    rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared)
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.images:
         config.add_image(image_id)
     for k in range(len(extrinsics)):
         config.set_constant_cam_intrinsics(k + 1)
-    for frame_id in rec.frames:
-        config.set_constant_rig_from_world_pose(frame_id)
+    if not shared:
+        for frame_id in rec.frames:
+            config.set_constant_rig_from_world_pose(frame_id)
     for k in held:
         config.set_constant_sensor_from_rig_pose(_sensor(k))
     options = pycolmap.BundleAdjustmentOptions()
@@ -177,17 +222,47 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
     options.ceres.loss_function_scale = LOSS_SCALE_PX
     options.ceres.solver_options.num_threads = 1
     options.ceres.solver_options.max_num_iterations = MAX_ITERATIONS
-    pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    if shared:
+        _prior_adjuster(rec, config, options, keyframes, prior_noise).solve()
+    else:
+        pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
     rig = rec.rig(1)
     for k in range(1, len(extrinsics)):
         extrinsics[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
-    return np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)])
+    xyz = np.stack([rec.point3D(int(p)).xyz for p in range(1, len(obs["ids"]) + 1)])
+    poses = np.stack([kf.poses for kf in keyframes])
+    if shared:
+        S = len(extrinsics)
+        solved = [np.linalg.inv(to_matrix(rec.frame(i * S + 1).rig_from_world)) for i in range(len(keyframes))]
+        poses = np.repeat(np.stack(solved)[:, None], poses.shape[1], axis=1)
+    return xyz, poses
 
 
-def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source) -> pycolmap.Reconstruction:
+def _prior_adjuster(rec, config, options, keyframes, noise: float):
+    """COLMAP's pose-prior bundle adjuster: camera 0's image of keyframe i (id ``i C + 1``) has the position prior
+    ``keyframes[i].prior`` of ``noise`` metres per axis. Its Sim(3) alignment to the priors runs seeded (the window
+    is already in their frame: it stays put)."""
+    C = len(rec.cameras)
+    priors = [
+        pycolmap.PosePrior(
+            corr_data_id=rec.image(i * C + 1).data_id,
+            position=kf.prior,
+            position_covariance=np.eye(3) * noise**2,
+            coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+        )
+        for i, kf in enumerate(keyframes)
+    ]
+    prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
+    prior_options.alignment_ransac.max_error = 3 * noise
+    prior_options.alignment_ransac.random_seed = 0
+    return pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec)
+
+
+def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared=False) -> pycolmap.Reconstruction:
     """The window as a COLMAP reconstruction: camera k has id k + 1; keyframe i's image of sensor k has id
-    ``i C + k + 1``, in a frame of its own (same id) at the rig's pose when camera ``source[k]`` captured it (the
-    frames' poses are held); point p (of ``obs["ids"]``) id p + 1. Sensor k sees camera ``source[k]``'s keypoints."""
+    ``i C + k + 1``, in a frame of its own (same id) at the rig's pose when camera ``source[k]`` captured it, or with
+    ``shared`` in keyframe i's one frame (id ``i C + 1``, at camera 0's pose); point p (of ``obs["ids"]``) id p + 1.
+    Sensor k sees camera ``source[k]``'s keypoints."""
     C = len(extrinsics)
     rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
@@ -202,18 +277,21 @@ def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source) -> pyc
             rig.add_sensor(_sensor(k), to_rigid(np.linalg.inv(extrinsics[k])))
     rec.add_rig(rig)
     for i, kf in enumerate(keyframes):
+        frames = [pycolmap.Frame(frame_id=i * C + k + 1, rig_id=1) for k in range(1 if shared else C)]
         for k in range(C):
-            frame = pycolmap.Frame(frame_id=i * C + k + 1, rig_id=1)
+            frame = frames[0 if shared else k]
             frame.rig_from_world = to_rigid(np.linalg.inv(kf.poses[source[k]]))
             frame.add_data_id(pycolmap.data_t(_sensor(k), i * C + k + 1))
+        for frame in frames:
             rec.add_frame(frame)
+        for k in range(C):
             image = pycolmap.Image(
                 name=f"c{k}/{kf.frame:06d}",
                 keypoints=kf.features[source[k]].keypoints + 0.5,
                 camera_id=k + 1,
                 image_id=i * C + k + 1,
             )
-            image.frame_id = i * C + k + 1
+            image.frame_id = frames[0 if shared else k].frame_id
             rec.add_image(image)
     order = np.argsort(obs["point"], kind="stable")
     starts = np.searchsorted(obs["point"][order], np.arange(len(obs["ids"]) + 1))
