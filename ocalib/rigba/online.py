@@ -179,8 +179,8 @@ class OnlineRigEstimator:
 
     def _working(self, metric: np.ndarray) -> np.ndarray:
         """The new keyframe's poses (C, 4, 4) from the trajectory's ``metric`` ones: as given where the window holds
-        them; where it solves them, moved by the last keyframe's correction (solved from metric), until camera 0's
-        own resection places it (:meth:`_resect`)."""
+        them; where it solves them, moved as the window moved the last keyframe's from its metric pose, until camera
+        0's own resection places the rig (:meth:`_resect`)."""
         correction = np.eye(4)
         if self.options.metric_noise and self.keyframes:
             correction = self.keyframes[-1].poses[0] @ np.linalg.inv(self._last_metric)

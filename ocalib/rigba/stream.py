@@ -73,6 +73,12 @@ class RigStream:
         sizes = [tuple(cam.size) for cam in self.sequence.cameras]
         distortions = [cam.distortion for cam in self.sequence.cameras]
         self.estimator, self.start = OnlineRigEstimator(K, sizes, extrinsics, self.options, distortions), t
+        if self.options.metric_noise and not self.solves_poses:
+            self.warnings.append(
+                "on-line rig estimator: the cameras were not triggered together, so each is placed at the metric "
+                "trajectory's pose when it captured its image, held as given (its noise is not used): an error of "
+                "its rotation reads as the cameras moving"
+            )
         return True
 
     def attach(self, result) -> None:
@@ -100,6 +106,13 @@ class RigStream:
             if cam.change is not None and cam.change.frame < frames:
                 truth[k] = cam.change.T_cam0_cam
         result.rig_errors = self.errors(np.linalg.inv(truth[:1]) @ truth)
+
+    @property
+    def solves_poses(self) -> bool:
+        """Whether the windows solve the rig's poses (camera 0's positions priors) rather than hold the metric
+        trajectory's: a noise stated (over 0) and the cameras triggered together (each at its own capture pose
+        otherwise, which only held poses allow)."""
+        return bool(self.options.metric_noise) and bool((self.capture == self.capture[:, :1]).all())
 
     @property
     def final(self) -> RigState | None:
@@ -164,6 +177,8 @@ class RigStream:
             "seconds_per_frame": float(np.sum(seconds) / max(1, self.estimator.frames_seen)) if seconds else None,
             "window_keyframes": self.options.window,
             "keyframe_step": self.options.keyframe_step,
+            "rig_poses": "solved" if self.solves_poses else "held",
+            "metric_noise_m": self.options.metric_noise or 0.0,
             "unjudged_changes": [
                 {
                     "camera": self.sequence.names[k],

@@ -15,7 +15,7 @@ from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturbed
+from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturbed, relative_information
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
@@ -205,6 +205,31 @@ def test_a_keyframes_information_makes_its_error_a_chi_square_with_six_degrees_o
         d = innovation(mounting, extrinsic)
         statistics.append(d @ information(xy, xyz, K, pose, extrinsic) @ d)
     assert 5.0 < np.mean(statistics) < 7.0 and 7.0 < np.var(statistics) < 18.0  # chi-square(6): mean 6, variance 12
+
+
+def test_an_extrinsic_measured_against_camera_0s_resection_has_its_error_chi_square_with_both_uncertainties():
+    """Where the rig's pose is camera 0's own resection (the window solves the poses), a keyframe's extrinsic is
+    ``inverse(camera 0's pose) @ camera k's``: its error weighed by :func:`relative_information` (camera k's
+    information with camera 0's uncertainty added) is chi-square with 6 degrees of freedom; by camera k's alone, it
+    is well over (camera 0's error left out)."""
+    rng = np.random.default_rng(1)
+    mounting = _mounting([0, 90, 0], [0.9, 0, 0])
+    both, alone = [], []
+    for _ in range(200):
+        pose = _mounting(rng.normal(0, 10, 3), rng.normal(0, 2, 3))
+        xy0, xyz0, measured0 = _resected(rng, pose, np.eye(4))
+        xy, xyz, measured = _resected(rng, pose, mounting)
+        rig = np.linalg.inv(measured0)  # camera 0's resected camera-to-world: the rig's pose
+        extrinsic = np.linalg.inv(rig) @ np.linalg.inv(measured)
+        d = innovation(mounting, extrinsic)
+        info = information(xy, xyz, K, rig, extrinsic)
+        both.append(d @ relative_information(info, information(xy0, xyz0, K, rig, np.eye(4)), extrinsic) @ d)
+        alone.append(d @ info @ d)
+    assert 5.0 < np.mean(both) < 7.0 and 7.0 < np.var(both) < 18.0 and np.mean(alone) > 20.0, (
+        np.mean(both),
+        np.var(both),
+        np.mean(alone),
+    )
 
 
 @pytest.mark.parametrize("seed", range(5))

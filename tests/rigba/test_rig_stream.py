@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ocalib.data.synchronise import Pairing
+from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.stream import RigStream, capture_poses
 
 
@@ -30,6 +31,8 @@ def test_a_late_camera_is_placed_at_the_rigs_pose_when_it_captured():
     inside = (times + late >= 0) & (times + late <= times[-1])  # camera 0's frames bracket the capture
     np.testing.assert_allclose(poses[inside, 1], _trajectory(times + late)[inside], atol=1e-9)
     np.testing.assert_array_equal(poses[~inside, 1], _trajectory(times)[~inside])  # outside: camera 0's
+    stream = RigStream(sequence, _trajectory(times))  # the default: a trajectory's noise stated
+    assert not stream.solves_poses  # each camera at its own capture pose: only held poses allow it
 
 
 def test_synchronised_cameras_share_the_rigs_pose():
@@ -37,6 +40,8 @@ def test_synchronised_cameras_share_the_rigs_pose():
     sequence = SimpleNamespace(cameras=[None, None, None], names=["a", "b", "c"], times=times, pairing=None)
     poses = capture_poses(sequence, _trajectory(times))
     assert poses.shape == (5, 3, 4, 4) and (poses == _trajectory(times)[:, None]).all()
+    assert RigStream(sequence, _trajectory(times)).solves_poses
+    assert not RigStream(sequence, _trajectory(times), OnlineRigOptions(metric_noise=0.0)).solves_poses
 
 
 def test_the_final_errors_leave_out_the_axes_the_data_do_not_inform():
