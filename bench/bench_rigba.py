@@ -126,7 +126,11 @@ def main() -> None:
     p.add_argument("--overlap", type=int, default=FeatureOptions().overlap, help="frames each frame is matched to")
     p.add_argument("--threads", type=int, default=-1, help="COLMAP's threads (-1: all)")
     p.add_argument("--every", type=int, help="the streaming variant: a run after every N frames")
-    p.add_argument("--online-rig", action="store_true", help="run the on-line rig estimator in the on-line pass too (the rendered poses held: exact)")
+    p.add_argument(
+        "--online-rig",
+        action="store_true",
+        help="run the on-line rig estimator in the on-line pass too (the rendered poses held: exact)",
+    )
     p.add_argument("--metric-noise", type=float, help="calibrate's: the metric trajectory inside the adjustment")
     p.add_argument("--out", default="bench/results/rigba.json")
     args = p.parse_args()
