@@ -29,6 +29,10 @@ from ocalib.rigba.covariance import WEAK_SHARE
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions, RigState
 
 START_FRAME = 20  # the earliest frame the estimator starts at: the head's rotation needs some motion first
+HELD_HINT = (  # after a change found with the trajectory's poses held: where they are not exact, that is a suspect
+    " (the metric trajectory's poses are held as exact: if they are not, their rotation error reads as a move; "
+    "give its noise with --metric-noise)"
+)
 
 
 class RigStream:
@@ -59,6 +63,7 @@ class RigStream:
                     f"on-line rig estimator: {self.sequence.names[k]}: its extrinsic changed at frame {change.frame} "
                     f"(noticed at frame {change.detected}): {change.rotation_change_deg:.2f} deg, "
                     f"{change.translation_change:.3f} m; the estimate follows the new one"
+                    + ("" if self.options.metric_noise else HELD_HINT)
                 )
         return state
 

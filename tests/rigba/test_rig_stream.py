@@ -3,10 +3,12 @@ camera captured it, where the cameras run on clocks of their own."""
 
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ocalib.calib.drivers.change import Change
 from ocalib.data.synchronise import Pairing
 from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.stream import RigStream, capture_poses
@@ -62,3 +64,20 @@ def test_the_final_errors_leave_out_the_axes_the_data_do_not_inform():
     a, b = E[1, :3, 3], truth[1, :3, 3]
     expected = np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)))
     assert informed["translation_direction_error_deg"] == pytest.approx(expected)
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.05])
+def test_a_change_found_with_the_trajectory_held_says_so(noise, tmp_path):
+    """A change warning says the trajectory's poses were held as exact (its rotation error would read as a move)
+    where its noise was given as 0, and not where the windows solved the poses."""
+    image = tmp_path / "a.png"
+    cv2.imwrite(str(image), np.zeros((4, 4), np.uint8))
+    cameras = [SimpleNamespace(images=[image]), SimpleNamespace(images=[image])]
+    sequence = SimpleNamespace(cameras=cameras, names=["cam0", "cam1"], times=None, pairing=None)
+    stream = RigStream(sequence, _trajectory(np.zeros(1)), OnlineRigOptions(metric_noise=noise))
+    state = SimpleNamespace(changes=[(1, Change(40, 44, 1.0, 0.05))])
+    stream.estimator = SimpleNamespace(update=lambda t, images, pose: state)
+    stream(0, None)
+    [said] = stream.warnings
+    assert said.startswith("on-line rig estimator: cam1: its extrinsic changed at frame 40 (noticed at frame 44)")
+    assert ("--metric-noise" in said) == (noise == 0.0), said
