@@ -48,6 +48,7 @@ from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.rigba.options import BundleOptions
+from ocalib.sim.trajectory import off_trajectory
 from ocalib.synth import preset, render_sequence
 from ocalib.synth.presets import knocked
 
@@ -84,21 +85,10 @@ def errors(E: np.ndarray, T: np.ndarray, car: bool) -> tuple[float, float, float
     )
 
 
-def off_trajectory(poses: np.ndarray, degrees: float, seed: int = 0) -> np.ndarray:
-    """``poses`` (T, 4, 4) as a real trajectory has them: their rotation off by a random walk of ``degrees`` a frame
-    (about each axis, per square root of a frame), their positions by 1 cm of white noise per axis."""
-    rng = np.random.default_rng(seed)
-    walk = Rotation.from_rotvec(np.cumsum(rng.normal(0, np.radians(degrees), (len(poses), 3)), axis=0)).as_matrix()
-    out = poses.copy()
-    out[:, :3, :3] = walk @ poses[:, :3, :3]
-    out[:, :3, 3] += rng.normal(0, 0.01, (len(poses), 3))
-    return out
-
-
 def run(path: Path, frames: int, options: OnlineRigOptions, first: int = 0, trajectory_error: float = 0.0) -> dict:
     """The estimator over frames ``first`` to ``frames`` of ``path`` (from ``first`` on, a fresh start: the truth its
     start is turned from is the mounting at ``first``); camera 0's rendered poses the metric trajectory, off by
-    ``trajectory_error`` (:func:`off_trajectory`)."""
+    ``trajectory_error`` (:func:`ocalib.sim.trajectory.off_trajectory`)."""
     seq = open_sequence(path)
     cams, frames = seq.cameras, min(frames, len(seq))
     car = cams[0].poses is not None and "front" in path.name

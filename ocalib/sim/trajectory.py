@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 from torch import Tensor
 
 from ocalib.geometry.pose import make_pose, rereference
@@ -139,3 +141,15 @@ def add_noise(poses: Tensor, sigma: float, generator: torch.Generator, model: st
             out.append(out[-1] @ steps[i] @ noise[i + 1])
         return torch.stack(out)
     raise ValueError(f"noise model must be 'independent' or 'drift', got {model!r}")
+
+
+def off_trajectory(poses: np.ndarray, degrees: float, seed: int = 0) -> np.ndarray:
+    """``poses`` (T, 4, 4) as a real metric trajectory (GNSS/INS, odometry) has them: their rotation off by a random
+    walk of ``degrees`` a frame (about each world axis, per square root of a frame), their positions by 1 cm of white
+    noise per axis. Numpy, float64."""
+    rng = np.random.default_rng(seed)
+    walk = Rotation.from_rotvec(np.cumsum(rng.normal(0, np.radians(degrees), (len(poses), 3)), axis=0)).as_matrix()
+    out = poses.copy()
+    out[:, :3, :3] = walk @ poses[:, :3, :3]
+    out[:, :3, 3] += rng.normal(0, 0.01, (len(poses), 3))
+    return out

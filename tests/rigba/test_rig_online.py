@@ -21,6 +21,7 @@ from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.rigba.stream import RigStream
 from ocalib.rigba.window import Keyframe, adjust_window, split_statistic
+from ocalib.sim.trajectory import off_trajectory
 from ocalib.synth import preset
 from ocalib.synth.presets import knocked
 
@@ -292,24 +293,13 @@ def knocked_rig(render):
 EXACT = OnlineRigOptions(metric_noise=0.0)  # the rendered poses: exact, held
 
 
-def _off(poses: np.ndarray, degrees: float, seed: int = 0) -> np.ndarray:
-    """``poses`` (T, 4, 4) off as a real trajectory's are: rotation by a random walk of ``degrees`` a frame per axis,
-    positions by 1 cm of white noise."""
-    rng = np.random.default_rng(seed)
-    out = poses.copy()
-    walk = np.cumsum(rng.normal(0, np.radians(degrees), (len(poses), 3)), axis=0)
-    out[:, :3, :3] = Rotation.from_rotvec(walk).as_matrix() @ poses[:, :3, :3]
-    out[:, :3, 3] += rng.normal(0, 0.01, (len(poses), 3))
-    return out
-
-
 def _run(sequence, frames, options=EXACT, trajectory_error: float = 0.0):
     cams = sequence.cameras
     truth = np.stack([np.linalg.inv(cams[0].T_cam0_cam) @ c.T_cam0_cam for c in cams])
     start = truth.copy()
     start[1, :3, :3] = Rotation.from_rotvec(np.radians([0.3, 0.2, -0.2])).as_matrix() @ truth[1, :3, :3]
     estimator = OnlineRigEstimator(np.stack([c.K for c in cams]), [tuple(c.size) for c in cams], start, options)
-    poses = _off(cams[0].poses, trajectory_error) if trajectory_error else cams[0].poses
+    poses = off_trajectory(cams[0].poses, trajectory_error) if trajectory_error else cams[0].poses
     poses = np.linalg.inv(poses[:1]) @ poses
     states = []
     for t in frames:
