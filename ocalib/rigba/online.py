@@ -127,7 +127,6 @@ class OnlineRigEstimator:
             for i, (k, (h, w)) in enumerate(zip(self.K, self.sizes))
         ]
         self.frames_seen = 0
-        self._last_metric = np.eye(4)  # camera 0's metric pose at the last keyframe
         self.keyframes_unregistered = 0
         self.dismissed: list[tuple[int, int, SplitTest]] = []  # candidates the window did not confirm: camera, frame
         # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
@@ -145,7 +144,7 @@ class OnlineRigEstimator:
         start = time.perf_counter()
         features = [self._features(image, k) for k, image in enumerate(images)]
         poses = np.broadcast_to(np.asarray(pose, np.float64), (len(images), 4, 4)).copy()
-        kf = Keyframe(frame, self._working(poses), features, [np.full(len(f), -1) for f in features], poses[0, :3, 3])
+        kf = Keyframe(frame, self._working(poses), features, [np.full(len(f), -1) for f in features], poses[0].copy())
         measured = {}
         if self.keyframes:
             recent = list(self.keyframes)[-self.options.match_previous :]
@@ -181,11 +180,10 @@ class OnlineRigEstimator:
         """The new keyframe's poses (C, 4, 4) from the trajectory's ``metric`` ones: as given where the window holds
         them; where it solves them, moved as the window moved the last keyframe's from its metric pose, until camera
         0's own resection places the rig (:meth:`_resect`)."""
-        correction = np.eye(4)
-        if self.options.metric_noise and self.keyframes:
-            correction = self.keyframes[-1].poses[0] @ np.linalg.inv(self._last_metric)
-        self._last_metric = metric[0]
-        return correction @ metric
+        if not self.options.metric_noise or not self.keyframes:
+            return metric
+        last = self.keyframes[-1]
+        return last.poses[0] @ np.linalg.inv(last.prior) @ metric
 
     def _features(self, image: np.ndarray, k: int) -> Features:
         """Camera k's SIFT features of ``image``, their keypoints moved to the pinhole pixels of their rays where the

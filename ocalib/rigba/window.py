@@ -39,7 +39,8 @@ MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts f
 class Keyframe:
     """One frame of the window: ``frame`` index, ``poses`` (C, 4, 4) the rig's pose when each camera captured its
     image, per camera its ``features`` and ``point_ids`` (N_k,) int64 (the 3-D point each keypoint observes, -1 for
-    none); ``prior`` (3,) camera 0's position from the metric trajectory where the window solves the poses."""
+    none); ``prior`` (4, 4) camera 0's pose from the metric trajectory (its position a prior where the window solves
+    the poses)."""
 
     frame: int
     poses: np.ndarray
@@ -240,13 +241,13 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
 
 def _prior_adjuster(rec, config, options, keyframes, noise: float):
     """COLMAP's pose-prior bundle adjuster: camera 0's image of keyframe i (id ``i C + 1``) has the position prior
-    ``keyframes[i].prior`` of ``noise`` metres per axis. Its Sim(3) alignment to the priors runs seeded (the window
+    of ``keyframes[i].prior`` of ``noise`` metres per axis. Its Sim(3) alignment to the priors runs seeded (the window
     is already in their frame: it stays put)."""
     C = len(rec.cameras)
     priors = [
         pycolmap.PosePrior(
             corr_data_id=rec.image(i * C + 1).data_id,
-            position=kf.prior,
+            position=kf.prior[:3, 3],
             position_covariance=np.eye(3) * noise**2,
             coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
         )

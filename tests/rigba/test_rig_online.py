@@ -65,7 +65,7 @@ def _window(rng, truth, moved=None, at: int = 8, sigma_px: float = 0.3, late: fl
             inside = (p[:, 2] > 0) & (xy >= 0).all(1) & (xy < [416, 128]).all(1)
             features.append(Features(xy, np.zeros((150, 128), np.float32)))
             ids.append(np.where(inside, 150 * k + np.arange(150), -1))
-        keyframes.append(Keyframe(i, captured, features, ids, pose[:3, 3].copy()))
+        keyframes.append(Keyframe(i, captured, features, ids, pose.copy()))
     return keyframes, points
 
 
