@@ -67,6 +67,7 @@ SLOW = (
     "rigba/test_calibrate_bundle.py",
     "rigba/test_rig_online.py::test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed",
     "rigba/test_rig_online.py::test_a_trajectory_off_as_a_real_one_is_needs_its_noise_stated",
+    "rigba/test_rig_online.py::test_the_windows_solved_poses_take_the_metric_positions_as_priors",
     "rigba/test_rig_online.py::test_a_textureless_stretch_is_counted_not_fatal",
     "rigba/test_rig_online.py::test_a_candidate_raised_at_the_streams_end_is_reported_unjudged",
     "sim/test_experiment.py::test_cli_end_to_end",
