@@ -154,9 +154,8 @@ def test_a_trajectory_whose_rotation_is_off_is_not_read_as_a_moved_camera_where_
     rotation is off by tenths of a degree): held, the split test reads camera 1 as moved; with the trajectory's noise
     stated the window solves the rig's poses (on this synthetic window COLMAP's pose-prior adjuster does not align to
     the positions and anchors the window at its first keyframe instead: its fallback gauge), and the ratio stays near
-    chi-square(6)
-    (mean 6), the extrinsic and the rig's turns as from the true trajectory, while a 1 deg turn of the camera stays
-    in the thousands."""
+    chi-square(6) (mean 6), the extrinsic and the rig's turns as from the true trajectory, while a 1 deg turn of the
+    camera stays in the thousands."""
     truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
     Ks, sizes = np.stack([K, K]), [(128, 416)] * 2
 
