@@ -12,7 +12,9 @@ Per frame:
    loss, :mod:`~ocalib.frontend.refine`); the cheaper one wins (PnP resolves the rotation/translation
    ambiguity of a planar scene, e.g. a wall, that two views cannot).
 4. Degeneracy: too few tracks or inliers, or a median rotation-compensated flow below ``min_parallax`` px,
-   flags the frame; without landmarks the motion is then rotation-only (t = 0).
+   flags the frame; without landmarks the motion is then rotation-only (t = 0). With too few tracks (the view
+   blocked, or a blank wall close by) the frame is lost: its step is the last measured one again (constant
+   velocity; none before the first), as a rotation fitted to a handful of tracks is off by degrees.
 5. A sliding-window bundle adjustment (:mod:`~ocalib.frontend.window`) over the last ``scale_window`` frames,
    the oldest ``window_fixed`` held: the returned step is the adjusted motion from the previous frame.
 
@@ -111,6 +113,7 @@ class OpenCVOdometry:
         self._history: deque = deque(maxlen=scale_window + 1)  # (frame, ids, pixels) after each step
         self._shape: tuple | None = None
         self._speed: float | None = None  # length of the last translation; None until the unit is set
+        self._velocity = np.eye(4)  # T_cur_prev of the last step measured (not degenerate), a lost frame's step
         self._frame = 0
 
     def step(self, image) -> np.ndarray:
@@ -136,6 +139,8 @@ class OpenCVOdometry:
         if self.window and self.status.scale_points:
             self._adjust()
         T = np.linalg.inv(self._poses[n - 1]) @ self._poses[n] if n else np.eye(4)
+        if not self.status.degenerate:
+            self._velocity = np.linalg.inv(T)
         self.pose = self.pose @ T
         self._frame += 1
         return T
@@ -167,6 +172,9 @@ class OpenCVOdometry:
         ba, bb = bearings(pa, self.K), bearings(pb, self.K)
         px = self.ransac_threshold * self._shape[1] / 640.0
         found = essential_motion(pa, pb, self.K, px, self.prob, self.method) if len(ids) >= self.min_tracks else None
+        if len(ids) < self.min_tracks:  # lost: the last measured step again (constant velocity), else none
+            status.reason = "too few tracks"
+            return self._velocity[:3, :3], self._velocity[:3, 3], status
         if found is None or found[2].sum() < self.min_inliers:  # no two-view geometry: rotation only
             R = rotation_from_bearings(ba, bb) if len(ids) >= 3 else np.eye(3)
             status.inliers = 0 if found is None else int(found[2].sum())

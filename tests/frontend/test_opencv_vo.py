@@ -85,6 +85,22 @@ def test_straight_segment_has_one_scale(street_pose):
     assert np.degrees(np.arccos(directions[:, 2])).max() < 5  # straight ahead (camera z)
 
 
+def test_lost_frames_repeat_the_last_step(street_pose):
+    """A view blocked for two frames (a blank image: no track survives) gives the last step again, flagged, instead
+    of a rotation fitted to the few tracks left; the tracks start again after it."""
+    K = preset("front-left").cameras[0].K(128, 416)
+    poses = np.stack([street_pose @ _turn(1.0 * i, 0.5 * i) for i in range(12)])  # a steady turn, 1 deg a frame
+    images = render_poses(poses, K)
+    images[6:8] = 128  # uniform grey: nothing to track
+    est, flags = run_opencv_vo(images, K)
+    lost = flags["reason"] == "too few tracks"
+    assert lost[6:8].all() and flags["degenerate"][lost].all() and not lost[:6].any()
+    steps = frame_motions(est)
+    np.testing.assert_allclose(steps[5:7], np.broadcast_to(steps[4], (2, 4, 4)), atol=1e-12)  # frames 6, 7
+    err = step_errors(est, poses)["rotation_deg"]
+    assert err.max() < 0.25  # a rotation fitted to no tracks would be off by the turn, 1 deg
+
+
 def test_bad_intrinsics_and_options_are_input_errors():
     for K in (np.eye(2), np.zeros((3, 4)), np.diag([0.0, 1.0, 1.0]), np.full((3, 3), np.nan)):
         with pytest.raises(InputError, match="intrinsics K"):
