@@ -1,6 +1,5 @@
 """The rig bundle adjustment (:mod:`ocalib.rigba`) as the stage after the on-line pass of ``ocalib calibrate``: it
-starts from the on-line rotations (the rig estimator's where it ran, else the head's) and the front end's
-trajectories, and leaves its result beside the on-line ones.
+starts from the head's rotations and the front end's trajectories, and leaves its result beside the head's.
 
 Convention: as :mod:`ocalib.rigba.adjust`; ``metric`` is camera 0's camera-to-world trajectory in metres at the
 sequence's frames (T, 4, 4).
@@ -35,7 +34,12 @@ def refine_calibration(
     frames = run.settings["frames"]
     if metric is not None and len(metric) < frames:
         raise InputError(f"the metric trajectory has {len(metric)} poses for {frames} frames")
-    initial, known = _start(result)
+    C = len(sequence.cameras)
+    initial = np.tile(np.eye(4), (C, 1, 1))
+    initial[1:, :3, :3] = run.final.rotation[0].double().numpy()
+    initial[1:, :3, 3] = run.final.translation[0].double().numpy()
+    # The head's rotations the result must stay near: those it observed (directly, or through the planar route).
+    known = (run.final.rotation_observable | run.final.planar_motion)[0].numpy()
     result.bundle = adjust_rig(
         sequence,
         initial,
@@ -46,7 +50,7 @@ def refine_calibration(
         workdir=workdir,
         every=every,
         progress=progress,
-        check_rotation=known,
+        check_rotation=np.concatenate([[True], known]),
     )
     _trace(result)
     if result.truth is not None:
@@ -57,23 +61,6 @@ def refine_calibration(
         trusted = result.bundle.trusted[1:]  # where the head's estimate is kept, so are its errors
         result.bundle_errors = [e if ok else head for e, head, ok in zip(errors, result.errors, trusted)]
     return result
-
-
-def _start(result: ImageCalibration) -> tuple[np.ndarray, np.ndarray]:
-    """The extrinsics (C, 4, 4) the adjustment starts from (their rotations; camera 0's the identity) and which of
-    them are estimates the result must stay near (C,) bool: the on-line rig estimator's final ones where it placed the
-    camera (from the images themselves, they are the closer), else the head's where it observed the rotation
-    (directly, or through the planar route)."""
-    final = result.run.final
-    initial = np.tile(np.eye(4), (len(result.sequence.cameras), 1, 1))
-    initial[1:, :3, :3] = final.rotation[0].double().numpy()
-    known = np.concatenate([[True], (final.rotation_observable | final.planar_motion)[0].numpy()])
-    state = result.rig.final if result.rig is not None else None
-    if state is not None:
-        placed = np.isfinite(state.std).all(1)
-        initial[placed, :3, :3] = state.extrinsics[placed, :3, :3]
-        known |= placed
-    return initial, known
 
 
 def _trace(result: ImageCalibration) -> None:

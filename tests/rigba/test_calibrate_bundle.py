@@ -98,29 +98,3 @@ def test_clear_errors(stereo, tmp_path, capsys, extra, message):
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
 
-
-def test_the_adjustment_starts_from_the_rig_estimators_rotations_where_it_placed_the_camera():
-    """The rotations the adjustment starts from and is checked against: the on-line rig estimator's where it placed
-    the camera (finite 1-sigma), else the head's, checked only where the head observed it."""
-    from types import SimpleNamespace
-
-    from scipy.spatial.transform import Rotation
-
-    from ocalib.calibnet.bundle import _start
-
-    head = torch.from_numpy(Rotation.from_euler("y", [[10.0], [80.0], [170.0]], degrees=True).as_matrix())
-    final = SimpleNamespace(rotation=head[None], rotation_observable=torch.tensor([[False, False, True]]),
-                            planar_motion=torch.tensor([[True, False, False]]))  # fmt: skip
-    result = SimpleNamespace(run=SimpleNamespace(final=final), sequence=SimpleNamespace(cameras=[None] * 4), rig=None)
-    initial, known = _start(result)
-    np.testing.assert_allclose(initial[1:, :3, :3], head.numpy())
-    assert known.tolist() == [True, True, False, True]
-    placed = np.tile(np.eye(4), (4, 1, 1))
-    placed[1:, :3, :3] = Rotation.from_euler("y", [[0.0], [90.0], [180.0]], degrees=True).as_matrix()
-    std = np.zeros((4, 6))
-    std[3] = np.nan  # camera 3 not placed yet
-    result.rig = SimpleNamespace(final=SimpleNamespace(extrinsics=placed, std=std))
-    initial, known = _start(result)
-    np.testing.assert_allclose(initial[1:3], placed[1:3])
-    np.testing.assert_allclose(initial[3, :3, :3], head[2].numpy())
-    assert known.tolist() == [True, True, True, True]
