@@ -97,4 +97,3 @@ def test_clear_errors(stereo, tmp_path, capsys, extra, message):
     assert main(["calibrate", "--sequence", str(folder), "--frontend", "opencv", *extra]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
-
