@@ -55,7 +55,8 @@ TRACKER_OPTIONS = ("max_features", "quality", "min_distance", "win_size", "level
 @dataclass
 class VOStatus:
     """What one frame's step saw. ``degenerate``: no reliable translation direction (see ``reason``); the step
-    is then rotation-only (t = 0), or, when landmarks measured it, a small translation. ``scale_points``:
+    is then rotation-only (t = 0), or, when landmarks measured it, a small translation; a lost frame's (``reason``
+    "too few tracks") is the last measured step again. ``scale_points``:
     landmarks that fixed the translation's length (0 when it was set otherwise: the first moving pair sets
     the unit, or the previous step's length is kept when too few tracks were old enough)."""
 
@@ -171,21 +172,15 @@ class OpenCVOdometry:
         status = VOStatus(frame=n, tracked=len(ids))
         ba, bb = bearings(pa, self.K), bearings(pb, self.K)
         px = self.ransac_threshold * self._shape[1] / 640.0
-        found = essential_motion(pa, pb, self.K, px, self.prob, self.method) if len(ids) >= self.min_tracks else None
         if len(ids) < self.min_tracks:  # lost: the last measured step again (constant velocity), else none
             status.reason = "too few tracks"
             return self._velocity[:3, :3], self._velocity[:3, 3], status
+        found = essential_motion(pa, pb, self.K, px, self.prob, self.method)
         if found is None or found[2].sum() < self.min_inliers:  # no two-view geometry: rotation only
             R = rotation_from_bearings(ba, bb) if len(ids) >= 3 else np.eye(3)
             status.inliers = 0 if found is None else int(found[2].sum())
             status.parallax_px = float(np.median(parallax_px(ba, bb, R, self.K))) if len(ids) else 0.0
-            status.reason = (
-                "too few tracks"
-                if len(ids) < self.min_tracks
-                else "low parallax"
-                if status.parallax_px < self.min_parallax
-                else "too few inliers"
-            )
+            status.reason = "low parallax" if status.parallax_px < self.min_parallax else "too few inliers"
             return R, np.zeros(3), status
         R, t, inl = found
         idx, X = self._landmarks(ids) if self._speed is not None else (np.zeros(0, int), np.zeros((0, 3)))
