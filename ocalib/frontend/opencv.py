@@ -16,6 +16,8 @@ from ocalib.data.sequence import Sequence
 from ocalib.frontend.base import FrontEnd
 from ocalib.frontend.opencv_vo import OpenCVOdometry
 
+LOST_WARNING = 0.05  # share of a camera's frames without tracks above which calibrate warns
+
 
 class GreyFrames(Dataset):
     """Frame t of every camera at its own size -> a list of C (H, W) uint8 grey images."""
@@ -49,8 +51,22 @@ class OpenCVFrontEnd(FrontEnd):
 
     def reset(self) -> None:
         self.odometry = [OpenCVOdometry(K, **self.options) for K in self.K]
+        self.lost = np.zeros(len(self.K), int)  # frames each camera lost its tracks on
 
     def forward(self, images: list[Tensor], rig_rotation: Tensor | None = None) -> Tensor:
         """images: C grey images (H, W) uint8 (or anything :class:`OpenCVOdometry` reads) -> (1, C, 4, 4) float64."""
         steps = [vo.step(np.asarray(image)) for vo, image in zip(self.odometry, images)]
+        self.lost += [vo.status.reason == "too few tracks" for vo in self.odometry]
         return torch.from_numpy(np.stack(steps))[None]
+
+    def report(self, names: list[str], frames: int, estimate) -> tuple[dict, list[str]]:
+        """The frames each camera lost its tracks on, and a warning for a camera that lost ``LOST_WARNING`` of them
+        or more (their steps are guesses: the last measured one again)."""
+        lost = dict(zip(names, self.lost.tolist()))
+        warnings = [
+            f"{name}: the OpenCV front end lost its tracks on {n} of {frames} frames (the view blocked, or a blank "
+            "wall close by); their motion is the last measured one again, a guess"
+            for name, n in lost.items()
+            if n >= LOST_WARNING * frames
+        ]
+        return {"lost_frames": lost}, warnings

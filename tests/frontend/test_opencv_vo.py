@@ -9,6 +9,7 @@ from frontend_scenes import render_poses
 
 from ocalib.errors import InputError
 from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
+from ocalib.frontend.opencv import OpenCVFrontEnd
 from ocalib.frontend.opencv_vo import OpenCVOdometry, run_opencv_vo
 from ocalib.synth import preset
 
@@ -85,13 +86,22 @@ def test_straight_segment_has_one_scale(street_pose):
     assert np.degrees(np.arccos(directions[:, 2])).max() < 5  # straight ahead (camera z)
 
 
-def test_lost_frames_repeat_the_last_step(street_pose):
-    """A view blocked for two frames (a blank image: no track survives) gives the last step again, flagged, instead
-    of a rotation fitted to the few tracks left; the tracks start again after it."""
+@pytest.fixture(scope="module")
+def blocked(street_pose):
+    """A steady turn (1 deg a frame) whose view is blocked on frames 6 and 7 (uniform grey: nothing to track):
+    K, poses (12, 4, 4), the clear images and the blocked ones (12, H, W, 3) uint8."""
     K = preset("front-left").cameras[0].K(128, 416)
-    poses = np.stack([street_pose @ _turn(1.0 * i, 0.5 * i) for i in range(12)])  # a steady turn, 1 deg a frame
-    images = render_poses(poses, K)
-    images[6:8] = 128  # uniform grey: nothing to track
+    poses = np.stack([street_pose @ _turn(1.0 * i, 0.5 * i) for i in range(12)])
+    clear = render_poses(poses, K)
+    images = clear.copy()
+    images[6:8] = 128
+    return K, poses, clear, images
+
+
+def test_lost_frames_repeat_the_last_step(blocked):
+    """A view blocked for two frames (no track survives) gives the last step again, flagged, instead of a rotation
+    fitted to the few tracks left; the tracks start again after it."""
+    K, poses, _, images = blocked
     est, flags = run_opencv_vo(images, K)
     lost = flags["reason"] == "too few tracks"
     assert lost[6:8].all() and flags["degenerate"][lost].all() and not lost[:6].any()
@@ -99,6 +109,19 @@ def test_lost_frames_repeat_the_last_step(street_pose):
     np.testing.assert_allclose(steps[5:7], np.broadcast_to(steps[4], (2, 4, 4)), atol=1e-12)  # frames 6, 7
     err = step_errors(est, poses)["rotation_deg"]
     assert err.max() < 0.25  # a rotation fitted to no tracks would be off by the turn, 1 deg
+
+
+def test_the_front_end_reports_each_cameras_lost_frames(blocked):
+    """Through ``calibrate``'s front end: the lost frames counted per camera, and a warning for the camera that lost
+    them."""
+    K, _, clear, images = blocked
+    front_end = OpenCVFrontEnd(np.stack([K, K]))
+    for pair in zip(clear, images):
+        front_end([cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) for image in pair])
+    settings, warnings = front_end.report(["clear", "blocked"], len(clear), None)
+    assert settings == {"lost_frames": {"clear": 0, "blocked": 3}}  # 6, 7 and 8 (nothing to follow from 7 yet)
+    [said] = warnings
+    assert said.startswith("blocked: the OpenCV front end lost its tracks on 3 of 12 frames")
 
 
 def test_bad_intrinsics_and_options_are_input_errors():
