@@ -16,7 +16,7 @@ from ocalib.data.sequence import Sequence
 from ocalib.frontend.base import FrontEnd
 from ocalib.frontend.opencv_vo import OpenCVOdometry
 
-LOST_WARNING = 0.05  # share of a camera's frames without tracks above which calibrate warns
+LOST_WARNING = 0.05  # share of a camera's frames without tracks from which calibrate warns
 
 
 class GreyFrames(Dataset):
