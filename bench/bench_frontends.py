@@ -14,7 +14,8 @@ under ``data/real/`` (the rig layout, the camera's poses; its extrinsic is the i
 Per camera and front end (each of :data:`ocalib.frontend.FRONTENDS` as ``calibrate`` makes it, defaults; each
 ``--checkpoints`` entry as the network front end with that model): the median frame-to-frame rotation error (deg),
 the median translation direction error (deg, frames that move), the rotation gain about each camera axis (1 is
-unbiased; below 1 the front end under-reports rotation) and the frames a second. With two cameras or more (a real
+unbiased; below 1 the front end under-reports rotation), the frames it lost its tracks on (the OpenCV front end's)
+and the frames a second. With two cameras or more (a real
 rig, e.g. two crops of one camera: its extrinsic the identity), each front end's congruence residual over the first
 ``AUTO_FRAMES`` frames, which ``calibrate --frontend auto`` (the default) ranks the front ends by, and the one it
 keeps. Prints a table, writes the JSON.
@@ -40,8 +41,9 @@ from ocalib.frontend import AUTO_FRAMES, FRONTENDS, FrontEndOptions, build_front
 from ocalib.io.poses import write_kitti
 
 
-def trajectories(sequence, options: FrontEndOptions, frames: int) -> tuple[np.ndarray, float]:
-    """Every camera's trajectory (T, C, 4, 4) from the front end of ``options``, and its frames a second."""
+def trajectories(sequence, options: FrontEndOptions, frames: int) -> tuple[np.ndarray, float, dict]:
+    """Every camera's trajectory (T, C, 4, 4) from the front end of ``options``, its frames a second, and what it
+    reports of the stream (e.g. the OpenCV front end's frames lost per camera)."""
     front_end = build_frontend(sequence, options)
     data = front_end.frames(sequence)
     C = len(sequence.cameras)
@@ -52,7 +54,8 @@ def trajectories(sequence, options: FrontEndOptions, frames: int) -> tuple[np.nd
         for t in tqdm(range(frames), desc=options.name if options.checkpoint is None else options.checkpoint):
             pose = pose @ front_end(data[t], rig)
             out.append(pose[0].clone())
-    return torch.stack(out).numpy(), frames / (time.perf_counter() - start)
+    fps = frames / (time.perf_counter() - start)
+    return torch.stack(out).numpy(), fps, front_end.report(sequence.names, frames, None)[0]
 
 
 def crop_rig(sequence, frames: int, root: Path = Path("data/real")) -> Path:
@@ -98,8 +101,10 @@ def measure(sequence, runs: dict[str, FrontEndOptions], frames: int) -> dict:
     ``--frontend auto`` keeps."""
     rows = {}
     for label, options in runs.items():
-        traj, fps = trajectories(sequence, options, frames)
+        traj, fps, report = trajectories(sequence, options, frames)
         rows[label] = {cam.name: errors(traj[:, c], cam.poses[:frames]) for c, cam in enumerate(sequence.cameras)}
+        for name, lost in report.get("lost_frames", {}).items():
+            rows[label][name]["lost_frames"] = lost
         rows[label]["frames_per_second"] = fps
         if len(sequence.cameras) > 1 and label in FRONTENDS:
             rows[label]["congruence_residual"] = congruence_residual(traj[:AUTO_FRAMES])
@@ -114,15 +119,18 @@ def measure(sequence, runs: dict[str, FrontEndOptions], frames: int) -> dict:
 def table(name: str, doc: dict, cameras: list[str]) -> None:
     """Print ``doc`` (:func:`measure`'s) as a markdown table."""
     print(f"\n{name}, {doc['frames']} frames: median frame-to-frame errors\n")
-    print("| front end | camera | rotation deg | direction deg | rotation gain x / y / z | frames/s |")
-    print("|---|---|---|---|---|---|")
+    print("| front end | camera | rotation deg | direction deg | rotation gain x / y / z | frames lost | frames/s |")
+    print("|---|---|---|---|---|---|---|")
     for label, row in doc["results"].items():
         for cam in cameras:
             cells = row[cam]
             shown = "no rotation; forward" if label == "baselines" else label
             fps = f"{row['frames_per_second']:.1f}" if "frames_per_second" in row else ""
             gain = " / ".join(f"{g:.2f}" for g in cells["gain_xyz"])
-            print(f"| {shown} | {cam} | {cells['rotation_deg']:.3f} | {cells['direction_deg']:.2f} | {gain} | {fps} |")
+            lost = cells.get("lost_frames", "")
+            print(
+                f"| {shown} | {cam} | {cells['rotation_deg']:.3f} | {cells['direction_deg']:.2f} | {gain} | {lost} | {fps} |"
+            )
     if "auto_choice" in doc:
         tried = ", ".join(f"{k} {r['congruence_residual']:.3f}" for k, r in doc["results"].items()
                           if "congruence_residual" in r)  # fmt: skip

@@ -40,5 +40,5 @@ class FrontEnd(nn.Module):
 
     def report(self, names: list[str], frames: int, estimate) -> tuple[dict, list[str]]:
         """After a stream of ``frames`` frames of cameras ``names``: settings for the result JSON and warnings
-        (``estimate``: the last :class:`~ocalib.calib.drivers.result.Calibration`)."""
+        (``estimate``: the last :class:`~ocalib.calib.drivers.result.Calibration`, None where no head ran)."""
         return {}, []

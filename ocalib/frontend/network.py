@@ -155,7 +155,7 @@ class NetworkFrontEnd(FrontEnd):
                 for name, n in settings["aligned_frames"].items()
                 if n < ALIGNED_WARNING * (frames - 1)
             ]
-        planar = estimate.planar_motion[0].tolist()
+        planar = [] if estimate is None else estimate.planar_motion[0].tolist()
         warnings += [f"{name}: {PLANAR_ADVICE}" for name, flat in zip(names[1:], planar) if flat]
         return settings, warnings
 
