@@ -15,10 +15,9 @@ Per camera and front end (each of :data:`ocalib.frontend.FRONTENDS` as ``calibra
 ``--checkpoints`` entry as the network front end with that model): the median frame-to-frame rotation error (deg),
 the median translation direction error (deg, frames that move), the rotation gain about each camera axis (1 is
 unbiased; below 1 the front end under-reports rotation), the frames it lost its tracks on (the OpenCV front end's)
-and the frames a second. With two cameras or more (a real
-rig, e.g. two crops of one camera: its extrinsic the identity), each front end's congruence residual over the first
-``AUTO_FRAMES`` frames, which ``calibrate --frontend auto`` (the default) ranks the front ends by, and the one it
-keeps. Prints a table, writes the JSON.
+and the frames a second. With two cameras or more (a real rig, e.g. two crops of one camera: its extrinsic the
+identity), each front end's congruence residual over the first ``AUTO_FRAMES`` frames, which ``calibrate --frontend
+auto`` (the default) ranks the front ends by, and the one it keeps. Prints a table, writes the JSON.
 """
 
 from __future__ import annotations
