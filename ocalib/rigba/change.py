@@ -85,8 +85,7 @@ class ExtrinsicTrack:
             statistic = float(d @ np.linalg.solve(self.covariance + covariance, d))
         except np.linalg.LinAlgError:
             return None
-        large = np.degrees(np.linalg.norm(d[:3])) >= self.min_change[0] or np.linalg.norm(d[3:]) >= self.min_change[1]
-        if not (statistic > chi2_distribution.ppf(1 - DRIFT_FALSE_ALARM, 6) and large):
+        if not (statistic > chi2_distribution.ppf(1 - DRIFT_FALSE_ALARM, 6) and reaches(d, self.min_change)):
             self._drifting.clear()
             return None
         self._drifting.append(frame)
@@ -181,6 +180,12 @@ def relative_information(info: np.ndarray, reference_info: np.ndarray, extrinsic
             return np.linalg.inv(covariance)
         except np.linalg.LinAlgError:
             return np.full((6, 6), np.nan)
+
+
+def reaches(d: np.ndarray, least: tuple[float, float]) -> bool:
+    """Whether the step ``d`` (6,) (see :func:`innovation`) is at least ``least``: its rotation (deg) or its
+    translation (m). False for NaN."""
+    return bool(np.degrees(np.linalg.norm(d[:3])) >= least[0] or np.linalg.norm(d[3:]) >= least[1])
 
 
 def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:

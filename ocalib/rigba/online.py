@@ -43,7 +43,14 @@ from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion, undistort_pixels
-from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, information, relative_information, with_unobservable
+from ocalib.rigba.change import (
+    UNINFORMED,
+    ExtrinsicTrack,
+    information,
+    reaches,
+    relative_information,
+    with_unobservable,
+)
 from ocalib.rigba.colmap import pinhole_params, to_matrix
 from ocalib.rigba.features import Features, SiftExtractor, match_features
 from ocalib.rigba.options import DEFAULT_METRIC_NOISE
@@ -357,8 +364,10 @@ class OnlineRigEstimator:
             change.frame,
             self.options.metric_noise,
         )
-        large = split.rotation_deg >= self.options.min_change_deg or split.translation >= self.options.min_change_m
-        if not (split.statistic > chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6) and large):  # NaN: too little
+        if not (
+            split.statistic > chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6)
+            and reaches(split.step, track.min_change)
+        ):  # NaN: too little
             track.dismiss()
             self.dismissed.append((k, change.detected, split))
             return False

@@ -16,7 +16,7 @@ from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturbed, relative_information
+from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturbed, reaches, relative_information
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
@@ -428,3 +428,14 @@ def test_keypoints_of_a_distorted_camera_are_moved_to_the_pinhole_pixels_of_thei
     assert len(moved.keypoints) == len(raw.keypoints) > 100
     reference = cv2.fisheye.undistortPoints(raw.keypoints[:, None].astype(np.float64), K, np.array(lens.coeffs), P=K)
     np.testing.assert_allclose(moved.keypoints, reference[:, 0], atol=1e-6)
+
+
+def test_a_step_reaches_the_least_change_by_its_rotation_or_its_translation():
+    """The least step a change must make (0.25 deg, 0.1 m), on steps built by :func:`perturbed` from a rotation about
+    one axis and a translation: either part alone suffices, neither short of it does, and an unmeasured step never."""
+    E = np.eye(4)
+    step = lambda deg, m: innovation(E, perturbed(E, np.r_[np.radians(deg), 0, 0, 0, m, 0]))  # noqa: E731
+    least = (0.25, 0.1)
+    assert reaches(step(0.3, 0.0), least) and reaches(step(0.0, 0.12), least)
+    assert not reaches(step(0.2, 0.08), least)
+    assert not reaches(np.full(6, np.nan), least)
