@@ -67,6 +67,7 @@ def errors_row(e: dict) -> dict:
         "direction_deg": e["translation_direction_error_deg"],
         "translation_rel_baseline": e.get("translation_error_rel_baseline"),
         "in_plane": e["compared_in_plane"],
+        "height_m": e.get("height_error"),  # along the ground's normal on a car (outside its targets)
     }
 
 
@@ -105,6 +106,10 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
             }
             for name, h, r, e, t in zip(names, result.errors, rig_errors, result.bundle_errors, b.trusted[1:])
         },  # fmt: skip
+        "extrinsics": {  # T_cam0_camk, camera 0's first: the batch adjustment's (its units), the estimator's (metres)
+            "bundle": b.extrinsics.tolist(),
+            "rig_estimator": None if rig is None or rig.final is None else rig.final.extrinsics.tolist(),
+        },
         "warnings": b.warnings,
         "online_seconds": online,
         "stage_seconds": stage,

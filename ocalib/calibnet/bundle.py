@@ -12,6 +12,7 @@ import torch
 
 from ocalib.calibnet.run import ImageCalibration
 from ocalib.errors import InputError
+from ocalib.eval.calibration_metrics import planar_axes
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.rigba.adjust import adjust_rig
 from ocalib.rigba.evaluate import adjustment_errors
@@ -57,7 +58,8 @@ def refine_calibration(
         truth = None
         if all(cam.poses is not None for cam in sequence.cameras):
             truth = np.stack([cam.poses[:frames] for cam in sequence.cameras], 1)
-        errors = adjustment_errors(result.bundle, np.concatenate([np.eye(4)[None], result.truth]), truth)
+        extrinsics = np.concatenate([np.eye(4)[None], result.truth])
+        errors = adjustment_errors(result.bundle, extrinsics, truth, planar_axes(run.final))
         trusted = result.bundle.trusted[1:]  # where the head's estimate is kept, so are its errors
         result.bundle_errors = [e if ok else head for e, head, ok in zip(errors, result.errors, trusted)]
     return result

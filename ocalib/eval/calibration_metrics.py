@@ -77,6 +77,33 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(a @ b)))
 
 
+def planar_axes(estimate: Calibration) -> np.ndarray:
+    """(K, 3) per camera k >= 1 of rig 0, the axis the rig turns about where the head found its motion planar (a
+    car's vertical; camera 0's axes), NaN rows elsewhere: the normal of the ground plane a car's translation is
+    compared in, by every stage alike."""
+    axes = estimate.planar_axis[0].double().cpu().numpy().copy()
+    axes[~estimate.planar_motion[0].cpu().numpy()] = np.nan
+    return axes
+
+
+def height_error(t: np.ndarray, t_true: np.ndarray, axis: np.ndarray) -> float | None:
+    """The error of translation ``t`` (3,) against ``t_true`` along the ground's normal ``axis`` (3,) (a car's
+    camera height: outside the targets compared in the ground plane); None where ``axis`` is NaN (not planar)."""
+    return float(abs(axis @ (t - t_true))) if np.isfinite(axis).all() else None
+
+
+def projector_without(directions: np.ndarray) -> np.ndarray:
+    """(3, 3) the orthogonal projector onto what ``directions`` (n, 3) (unit rows; NaN rows ignored) leave: rows
+    within about 15 deg of each other count as one direction (a car's height, unobservable and the ground's normal)."""
+    rows = np.asarray(directions, np.float64).reshape(-1, 3)
+    rows = rows[np.isfinite(rows).all(1)]
+    if not len(rows):
+        return np.eye(3)
+    _, s, vt = np.linalg.svd(rows)
+    basis = vt[: int(np.sum(s > 0.2))]
+    return np.eye(3) - basis.T @ basis
+
+
 def extrinsic_errors(
     estimate: Calibration, extrinsics: np.ndarray, trajectory: np.ndarray, truth: np.ndarray | None
 ) -> list[dict]:

@@ -21,7 +21,7 @@ import torch
 from ocalib.calib.drivers.result import Calibration
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
-from ocalib.eval.calibration_metrics import angle_deg
+from ocalib.eval.calibration_metrics import angle_deg, height_error, planar_axes, projector_without
 from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.io.timing import interpolate
@@ -110,7 +110,7 @@ class RigStream:
         for k, cam in enumerate(cameras):
             if cam.change is not None and cam.change.frame < frames:
                 truth[k] = cam.change.T_cam0_cam
-        result.rig_errors = self.errors(np.linalg.inv(truth[:1]) @ truth)
+        result.rig_errors = self.errors(np.linalg.inv(truth[:1]) @ truth, planar_axes(result.run.final))
 
     @property
     def solves_poses(self) -> bool:
@@ -223,27 +223,30 @@ class RigStream:
             )
         return doc
 
-    def errors(self, truth: np.ndarray) -> list[dict]:
+    def errors(self, truth: np.ndarray, plane: np.ndarray | None = None) -> list[dict]:
         """Per camera k >= 1, the final estimate's errors against the true ``truth`` (C, 4, 4) ``T_cam0_camk``
         (after any change), in the keys of :func:`ocalib.calib.poses.report.errors_table`; the translation compared
-        without the axes the data do not pin (a 1-sigma over ``WEAK_SHARE`` of the lever arm, or none: a car's height),
-        as the bundle adjustment's are."""
+        without the axes the data do not pin (a 1-sigma over ``WEAK_SHARE`` of the lever arm, or none) and, on a
+        planar drive, in the ground plane of normal ``plane`` (C - 1, 3) (NaN rows elsewhere; the error along it is
+        ``height_error``), as the bundle adjustment's are."""
+        plane = np.full((len(truth) - 1, 3), np.nan) if plane is None else plane
         out = []
         for k in range(1, len(truth)):
             E, T = self.final.extrinsics[k], truth[k]
             loose = ~(self.final.std[k, 3:] <= WEAK_SHARE * np.linalg.norm(E[:3, 3]))
-            project = np.diag((~loose).astype(float))
-            t, t_true = project @ E[:3, 3], project @ T[:3, 3]
+            project = projector_without(np.vstack([np.eye(3)[loose], plane[k - 1]]))
+            t, t_true, rank = project @ E[:3, 3], project @ T[:3, 3], int(np.linalg.matrix_rank(project))
             baseline, error = float(np.linalg.norm(t_true)), float(np.linalg.norm(t - t_true))
             out.append(
                 {
                     "camera": k,
                     "rotation_error_deg": float(rotation_angle_deg(E[:3, :3].T @ T[:3, :3])),
-                    "translation_direction_error_deg": angle_deg(t, t_true) if loose.sum() <= 1 else math.nan,
-                    "compared_in_plane": bool(loose.any()),
+                    "translation_direction_error_deg": angle_deg(t, t_true) if rank >= 2 else math.nan,
+                    "compared_in_plane": rank < 3,
                     "metric_scale": 1.0,
                     "translation_error": error,
                     "translation_error_rel_baseline": error / baseline if baseline > 0 else math.nan,
+                    "height_error": height_error(E[:3, 3], T[:3, 3], plane[k - 1]),
                 }
             )
         return out

@@ -5,6 +5,7 @@ never as a NaN; defined figures are printed as computed. The summary's frame cou
 import math
 
 import numpy as np
+import pytest
 
 from ocalib.calib.poses.report import errors_table
 from ocalib.rigba.covariance import ExtrinsicUncertainty
@@ -123,3 +124,22 @@ def test_the_summary_says_what_its_frame_counts_count():
     doc["extrinsics"] = [_camera(None, 297, 3)]
     first = summary(doc).splitlines()[1]
     assert first == "cam1: from the on-line head; the on-line head used 297 frames and rejected 3"
+
+
+def test_a_cars_translation_is_compared_in_the_ground_plane_whatever_the_stage_claims():
+    """On a planar drive the adjustment's height (here claimed observable) is left out of the car's figures, as the
+    head's is, and said apart: 0.2 m off in y with x and z exact is no error in the plane, 0.2 m of height."""
+    t_true = np.array([-0.9, 0.3, -1.0])
+    extrinsics, poses = _truth(t_true)
+    estimate = _adjustment(t_true + [0.0, 0.2, 0.0], np.zeros((0, 3)))
+    [free] = adjustment_errors(estimate, extrinsics, poses)
+    assert not free["compared_in_plane"] and free["translation_error"] == pytest.approx(0.2)
+    assert free["height_error"] is None
+    [car] = adjustment_errors(estimate, extrinsics, poses, plane=np.array([[0.0, 1.0, 0.0]]))
+    assert car["compared_in_plane"] and car["translation_error"] == pytest.approx(0.0, abs=1e-12)
+    assert car["translation_direction_error_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert car["height_error"] == pytest.approx(0.2)
+    # the baseline is the lever arm in the plane: 0.1 m off along x is 0.1 / |(-0.9, -1.0)|
+    [off] = adjustment_errors(_adjustment(t_true + [0.1, 0.2, 0.0], np.zeros((0, 3))), extrinsics, poses,
+                              plane=np.array([[0.0, 1.0, 0.0]]))  # fmt: skip
+    assert off["translation_error_rel_baseline"] == pytest.approx(0.1 / np.hypot(0.9, 1.0))

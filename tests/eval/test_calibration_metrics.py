@@ -61,3 +61,19 @@ def test_too_few_moving_frames_give_nan_and_lost_frames_are_left_out():
     lost[100:110, 1] = np.nan  # a front end that lost camera 1 for ten frames
     wander, signal = scale_wander(lost, truth)
     assert wander < 1e-9 and signal == pytest.approx(scale_wander(truth, truth)[1], rel=0.1)
+
+
+def test_projector_without_leaves_the_complement_of_the_directions_given():
+    """Against hand-built projectors: none given is the identity; one unit row u gives I - u u^T; a second row 5 deg
+    from the first is the same direction (a car's unobservable height and its ground normal), while two orthogonal
+    rows leave one axis; NaN rows are ignored."""
+    from ocalib.eval.calibration_metrics import projector_without
+
+    y = np.array([0.0, 1.0, 0.0])
+    assert np.allclose(projector_without(np.zeros((0, 3))), np.eye(3))
+    assert np.allclose(projector_without(y[None]), np.eye(3) - np.outer(y, y))
+    near = np.array([np.sin(np.radians(5)), np.cos(np.radians(5)), 0.0])
+    P = projector_without(np.stack([y, near]))
+    assert np.linalg.matrix_rank(P) == 2 and np.allclose(P @ P, P) and np.allclose(P, P.T)
+    assert np.linalg.norm(P @ y) < np.sin(np.radians(5))
+    assert np.allclose(projector_without(np.stack([y, [1.0, 0, 0], [np.nan] * 3])), np.diag([0.0, 0, 1]))

@@ -49,7 +49,7 @@ def test_synchronised_cameras_share_the_rigs_pose():
 def test_the_final_errors_leave_out_the_axes_the_data_do_not_inform():
     """A car's camera height (its 1-sigma over a tenth of the lever arm, as the bundle adjustment's rule) is not
     compared: 1 m off in y, exact in x and z, is no error; the same estimate with every axis pinned is compared in
-    3-D (against a hand computation)."""
+    3-D (against a hand computation), unless the drive is planar (the ground plane's normal given)."""
     truth = np.stack([np.eye(4), np.eye(4)])
     truth[1, :3, 3] = [1.2, 0.3, -0.5]
     E = truth.copy()
@@ -64,6 +64,9 @@ def test_the_final_errors_leave_out_the_axes_the_data_do_not_inform():
     a, b = E[1, :3, 3], truth[1, :3, 3]
     expected = np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)))
     assert informed["translation_direction_error_deg"] == pytest.approx(expected)
+    # on a planar drive the ground's normal is left out too, however well pinned, and its error said apart
+    (planar,) = RigStream.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth, np.eye(3)[1:2])
+    assert planar["compared_in_plane"] and planar["translation_error"] == 0 and planar["height_error"] == 1.0
 
 
 @pytest.mark.parametrize("noise", [0.0, 0.05])
