@@ -50,7 +50,7 @@ from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.rigba.options import BundleOptions
 from ocalib.sim.trajectory import off_trajectory
 from ocalib.synth import preset, render_sequence
-from ocalib.synth.presets import knocked
+from ocalib.synth.presets import PRESETS, knocked
 
 DEFAULT = ["handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001", "front-left-1002"]
 TARGETS = {"car": (0.5, 5.0, 0.1), "handheld": (0.5, 10.0, 0.25)}  # rotation deg, direction deg, translation / baseline
@@ -85,13 +85,20 @@ def errors(E: np.ndarray, T: np.ndarray, car: bool) -> tuple[float, float, float
     )
 
 
+def drives(name: str) -> bool:
+    """Whether held-out sequence ``name`` (PRESET-SEED..., e.g. surround-1001 or front-left-1008-knocked) is of a
+    preset that drives (a car: the ground-plane comparison and the car's targets)."""
+    presets = sorted((p for p in PRESETS if name.startswith(p + "-")), key=len)
+    return bool(presets) and PRESETS[presets[-1]]["trajectory"]["kind"] == "drive"
+
+
 def run(path: Path, frames: int, options: OnlineRigOptions, first: int = 0, trajectory_error: float = 0.0) -> dict:
     """The estimator over frames ``first`` to ``frames`` of ``path`` (from ``first`` on, a fresh start: the truth its
     start is turned from is the mounting at ``first``); camera 0's rendered poses the metric trajectory, off by
     ``trajectory_error`` (:func:`ocalib.sim.trajectory.off_trajectory`)."""
     seq = open_sequence(path)
     cams, frames = seq.cameras, min(frames, len(seq))
-    car = cams[0].poses is not None and "front" in path.name
+    car = drives(path.name)
     truth = np.stack([np.linalg.inv(cams[0].T_cam0_cam) @ c.T_cam0_cam for c in cams])
     after = truth.copy()
     for k, c in enumerate(cams):
