@@ -52,6 +52,7 @@ def refine_calibration(
         every=every,
         progress=progress,
         check_rotation=np.concatenate([[True], known]),
+        estimator=None if result.rig is None else result.rig.steady_extrinsics(),
     )
     _trace(result)
     if result.truth is not None:

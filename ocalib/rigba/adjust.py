@@ -52,6 +52,7 @@ def adjust_rig(
     every: int | None = None,
     progress: bool | None = None,
     check_rotation: np.ndarray | None = None,
+    estimator: np.ndarray | None = None,
 ) -> RigAdjustment:
     """Refine the extrinsics ``initial`` (C, 4, 4) of ``sequence``'s cameras by a joint rig bundle adjustment over its
     first ``frames`` frames (all by default).
@@ -63,7 +64,8 @@ def adjust_rig(
     ``stats["stream"]`` holds each run's frame, extrinsics and seconds. ``workdir``: keep the COLMAP workspace there
     (default: a temporary folder, removed). progress: a bar over the runs (None: on a terminal). check_rotation (C,)
     bool: the cameras whose initial rotation is an estimate the result must stay near (default all; the head's
-    unobservable rotations are not).
+    unobservable rotations are not). estimator (C, 4, 4): the on-line rig estimator's final extrinsics, where it ran
+    (a result near its rotation is trusted too; one far from it is said: :func:`ocalib.rigba.trust.checks`).
     """
     start = time.perf_counter()
     frames = len(sequence) if frames is None else min(frames, len(sequence))
@@ -76,7 +78,7 @@ def adjust_rig(
         ws = create_workspace(Path(workdir) if workdir is not None else Path(tmp), sequence, rig_init, options.features)
         for end in tqdm(ends, desc="bundle adjustment", unit="run", disable=None if progress is None else not progress):
             run_start = time.perf_counter()
-            out = _solve(ws, index[index < end], initial, front_end, metric, options.mapper, check_rotation)
+            out = _solve(ws, index[index < end], initial, front_end, metric, options.mapper, check_rotation, estimator)
             stream.append(
                 {
                     "frame": end,
@@ -100,8 +102,10 @@ def _solve(
     metric: np.ndarray | None,
     options: MapperOptions,
     check_rotation: np.ndarray | None,
+    estimator: np.ndarray | None,
 ) -> RigAdjustment:
-    """Add the frames ``index`` to ``ws``, map them and read the result, checked."""
+    """Add the frames ``index`` to ``ws``, map them and read the result, checked against the on-line estimates (see
+    :func:`adjust_rig`)."""
     ws.add_frames(index.tolist())
     start = time.perf_counter()
     models = map_rig(ws, options)
@@ -121,11 +125,8 @@ def _solve(
     else:
         out = _read(models[0], ws, index, front_end, metric)
         check = np.ones(len(initial), bool) if check_rotation is None else np.asarray(check_rotation, bool)
-        out.warnings = (
-            checks(out, ws.sequence, np.where(check[:, None, None], initial, np.nan), models, keypoints)
-            + metric_warnings
-            + out.warnings
-        )
+        head = np.where(check[:, None, None], initial, np.nan)
+        out.warnings = checks(out, ws.sequence, head, models, keypoints, estimator) + metric_warnings + out.warnings
     out.stats.update(
         models=len(models),
         keypoints_median=keypoints,

@@ -123,6 +123,17 @@ class RigStream:
     def final(self) -> RigState | None:
         return self.states[-1] if self.states else None
 
+    def steady_extrinsics(self) -> np.ndarray | None:
+        """(C, 4, 4) the final extrinsics of the cameras the estimator placed and found steady all run (NaN rows for
+        one not yet placed, or that moved: the bundle adjustment's one extrinsic is not theirs); None before a
+        keyframe."""
+        if self.final is None:
+            return None
+        out = self.final.extrinsics.copy()
+        moved = [k for s in self.states for k, _ in s.changes]
+        out[np.isnan(self.final.std[:, 0]) | np.isin(np.arange(len(out)), moved)] = np.nan
+        return out
+
     def trace(self, frames: int) -> dict[str, np.ndarray]:
         """Per frame (F = ``frames``), each camera k >= 1's latest estimate: ``rig_quaternion`` (F, K, 4),
         ``rig_translation`` (F, K, 3), ``rig_translation_std`` (F, K, 3), ``rig_chi2`` (F, K); NaN before the

@@ -1,6 +1,7 @@
 """Whether the rig bundle adjustment's extrinsics can be used: each camera's registered share, the reconstruction's
-pieces and drift from a metric trajectory, a rotation moved far from the head's, an extrinsic the data do not
-determine, a lens missing from rig.yaml. A camera that fails keeps the head's estimate; the warnings say why.
+pieces and drift from a metric trajectory, a rotation moved far from every on-line estimate (the head's, the on-line
+rig estimator's), an extrinsic the data do not determine, a lens missing from rig.yaml. A camera that fails keeps the
+head's estimate; the warnings say why, and where a trusted result and the on-line rig estimator's disagree.
 """
 
 from __future__ import annotations
@@ -19,11 +20,23 @@ WARN_REGISTERED = 0.9  # share below which the missing frames are reported
 MIN_KEYPOINTS = 100  # median keypoints an image below which the images are reported as too poor in features
 MAX_DRIFT = 0.05  # RMS position error over the path length, after the Sim(3) fit to a metric trajectory
 MAX_ROTATION_STD_DEG = 1.0  # a rotation 1-sigma above this (deg, any axis): the images do not determine the camera
+DISAGREE_DEG = 1.0  # a trusted rotation and the on-line rig estimator's this far apart (twice a car's target): said
 
 
-def checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: list, keypoints: float) -> list[str]:
-    """Warnings on what went wrong, and ``out.trusted`` cleared for the cameras whose extrinsic cannot be used
-    (``initial``: NaN where its rotation is not to be checked against)."""
+def checks(
+    out: RigAdjustment,
+    sequence: Sequence,
+    initial: np.ndarray,
+    models: list,
+    keypoints: float,
+    estimator: np.ndarray | None = None,
+) -> list[str]:
+    """Warnings on what went wrong, and ``out.trusted`` cleared for the cameras whose extrinsic cannot be used.
+    A camera's rotation must stay near the head's ``initial`` (C, 4, 4; NaN where not to be checked against) or the
+    on-line rig estimator's ``estimator`` (C, 4, 4, where it ran); a trusted result far from the estimator's is said
+    (:func:`disagreements`)."""
+    estimator = np.full_like(initial, np.nan) if estimator is None else estimator
+    references = (initial, estimator)
     warnings = []
     names = sequence.names
     N = len(out.frames)
@@ -63,7 +76,8 @@ def checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: 
         )
         out.trusted[:] = False
     for k in range(1, len(names)):
-        change = float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ initial[k, :3, :3]))
+        changes = [float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ r[k, :3, :3])) for r in references]
+        change = min(changes, key=lambda c: math.inf if math.isnan(c) else c)
         if change > MAX_ROTATION_CHANGE_DEG:  # False for NaN: not checked
             warnings.append(
                 f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
@@ -82,11 +96,28 @@ def checks(out: RigAdjustment, sequence: Sequence, initial: np.ndarray, models: 
             out.trusted[k] = False
     for k in np.flatnonzero(~out.trusted[1:]) + 1:
         warnings.append(f"bundle adjustment: {names[k]}: the on-line estimate is kept")
-    for k in np.flatnonzero(out.trusted[1:] & np.isnan(initial[1:, 0, 0])) + 1:  # the head's rotation not known
+    unchecked = np.isnan(initial[1:, 0, 0]) & np.isnan(estimator[1:, 0, 0])  # no on-line rotation known
+    for k in np.flatnonzero(out.trusted[1:] & unchecked) + 1:
         warnings.append(
             f"bundle adjustment: {names[k]}: the motion does not determine its rotation for the on-line head (too "
             "little turning); the adjustment's rests on the images alone, unchecked, and its 1-sigma may understate "
             "its error"
         )
     out.trusted[0] = True
-    return warnings
+    return warnings + disagreements(out, names, estimator)
+
+
+def disagreements(out: RigAdjustment, names: list[str], estimate: np.ndarray) -> list[str]:
+    """A warning per trusted camera k >= 1 whose rotation and ``estimate``'s (C, 4, 4; NaN: none) are ``DISAGREE_DEG``
+    or more apart: at least one of the two is off (the estimator after a late start, the adjustment on a drive that
+    turns too little). The rotations only: both pin a car's camera height too loosely to compare translations."""
+    out_of = []
+    for k in np.flatnonzero(out.trusted[1:] & np.isfinite(estimate[1:, 0, 0])) + 1:
+        angle = float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ estimate[k, :3, :3]))
+        if angle >= DISAGREE_DEG:
+            out_of.append(
+                f"bundle adjustment: {names[k]}: its rotation and the on-line rig estimator's are {angle:.2f} deg "
+                "apart: one of them is off (the estimator after a late start, or the adjustment on a drive that turns "
+                "too little)"
+            )
+    return out_of

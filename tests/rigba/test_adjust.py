@@ -150,6 +150,36 @@ def test_a_rotation_the_head_could_not_check_is_flagged(rig):
         assert out.trusted[1] and len(said) == flagged, said
 
 
+def test_the_on_line_rig_estimators_rotation_vouches_for_a_result_or_disagrees_with_it(rig):
+    """A result 11 deg from the head's rotation is trusted where the on-line rig estimator's is 0.1 deg from it (the
+    head's was off), and not where the estimator's is off too; one near the head's but 5 deg from the estimator's
+    stays trusted and the two are said to disagree, by the angle between them."""
+    from scipy.spatial.transform import Rotation
+
+    from ocalib.rigba.covariance import ExtrinsicUncertainty
+    from ocalib.rigba.result import RigAdjustment
+    from ocalib.rigba.trust import checks as _checks
+
+    seq, extrinsics, _ = rig
+
+    def turned(deg: float) -> np.ndarray:
+        out = extrinsics.copy()
+        out[1, :3, :3] = Rotation.from_rotvec(np.radians(deg) * np.array([0.0, 1.0, 0.0])).as_matrix() @ out[1, :3, :3]
+        return out
+
+    for head, estimator, trusted, apart in (
+        (turned(11.0), turned(0.1), True, None),
+        (turned(11.0), turned(-11.0), False, None),
+        (turned(0.2), turned(5.0), True, 5.0),
+    ):
+        out = RigAdjustment(extrinsics.copy(), np.ones(2, bool), [None, ExtrinsicUncertainty(np.eye(6) * 1e-8, np.zeros((0, 3)))],
+                            np.ones(2), np.arange(10), np.tile(np.eye(4), (10, 1, 1)), np.ones((10, 2), bool), "metres")  # fmt: skip
+        warnings = _checks(out, seq, head, [None], 500.0, estimator)
+        said = [w for w in warnings if "on-line rig estimator's are" in w]
+        assert out.trusted[1] == trusted, warnings
+        assert len(said) == (apart is not None) and (apart is None or f"{apart:.2f} deg apart" in said[0]), said
+
+
 def test_a_distorted_rig_is_adjusted_through_its_lens(rig, tmp_path):
     """The rendered rig seen through a pincushion lens (its images warped by the lens, rig.yaml naming it): the
     adjustment reads them through COLMAP's OPENCV model, held as given. The rotation is found as on the pinhole rig
