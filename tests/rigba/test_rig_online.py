@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
+import torch
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
@@ -399,7 +400,8 @@ def test_a_candidate_raised_at_the_streams_end_is_reported_unjudged(knocked_rig)
     stream.estimator, stream.states = estimator, states
     [entry] = stream.result_json()["unjudged_changes"]
     assert entry["camera"] == "cam1" and 70 <= entry["frame"] <= 74 and entry["rotation_change_deg"] > 1.0
-    stream.attach(SimpleNamespace(run=SimpleNamespace(trace={"frame": np.arange(75)})))
+    head = SimpleNamespace(planar_axis=torch.zeros(1, 1, 3), planar_motion=torch.zeros(1, 1, dtype=torch.bool))
+    stream.attach(SimpleNamespace(run=SimpleNamespace(trace={"frame": np.arange(75)}, final=head)))
     [said] = [w for w in stream.warnings if "too close to the stream's end" in w]
     assert said.startswith("on-line rig estimator: cam1: ") and f"frame {entry['frame']} " in said
     final = states[-1].extrinsics[1]  # held where the window had it: the mounting before the knock
