@@ -27,6 +27,7 @@ from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.io.timing import interpolate
 from ocalib.rigba.covariance import WEAK_SHARE
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions, RigState
+from ocalib.rigba.trust import MAX_ROTATION_STD_DEG
 
 START_FRAME = 20  # the earliest frame the estimator starts at: the head's rotation needs some motion first
 HELD_HINT = (  # after a change found with the trajectory's poses held: where they are not exact, that is a suspect
@@ -125,13 +126,14 @@ class RigStream:
 
     def steady_extrinsics(self) -> np.ndarray | None:
         """(C, 4, 4) the final extrinsics of the cameras the estimator placed and found steady all run (NaN rows for
-        one not yet placed, or that moved: the bundle adjustment's one extrinsic is not theirs); None before a
-        keyframe."""
+        one not placed, its rotation's 1-sigma over ``MAX_ROTATION_STD_DEG`` on an axis, or that moved: the bundle
+        adjustment's one extrinsic is not theirs); None before a keyframe."""
         if self.final is None:
             return None
         out = self.final.extrinsics.copy()
-        moved = [k for s in self.states for k, _ in s.changes]
-        out[np.isnan(self.final.std[:, 0]) | np.isin(np.arange(len(out)), moved)] = np.nan
+        moved = np.isin(np.arange(len(out)), [k for s in self.states for k, _ in s.changes])
+        loose = ~(np.degrees(self.final.std[:, :3]).max(1) <= MAX_ROTATION_STD_DEG)  # NaN: not placed
+        out[loose | moved] = np.nan
         return out
 
     def trace(self, frames: int) -> dict[str, np.ndarray]:

@@ -84,3 +84,18 @@ def test_a_change_found_with_the_trajectory_held_says_so(noise, tmp_path):
     [said] = stream.warnings
     assert said.startswith("on-line rig estimator: cam1: its extrinsic changed at frame 40 (noticed at frame 44)")
     assert ("--metric-noise" in said) == (noise == 0.0), said
+
+
+def test_the_extrinsics_the_adjustment_is_checked_against_are_those_the_estimator_placed_and_found_steady():
+    """Of four cameras, the one placed with a tight rotation is kept; one never placed (NaN 1-sigma), one whose
+    rotation 1-sigma is 2 deg, and one that moved mid-run are not (NaN rows)."""
+    E = np.tile(np.eye(4), (5, 1, 1))
+    E[1:, :3, 3] = np.arange(12.0).reshape(4, 3)
+    std = np.zeros((5, 6))
+    std[1:, :3] = np.radians(0.1)
+    std[2] = np.nan
+    std[3, 1] = np.radians(2.0)
+    final = SimpleNamespace(extrinsics=E, std=std)
+    states = [SimpleNamespace(changes=[(4, object())]), SimpleNamespace(changes=[])]
+    out = RigStream.steady_extrinsics(SimpleNamespace(final=final, states=states))
+    assert np.array_equal(out[:2], E[:2]) and np.isnan(out[2:]).all()
