@@ -111,13 +111,13 @@ def disagreements(out: RigAdjustment, names: list[str], estimate: np.ndarray) ->
     """A warning per trusted camera k >= 1 whose rotation and ``estimate``'s (C, 4, 4; NaN: none) are ``DISAGREE_DEG``
     or more apart: at least one of the two is off (the estimator after a late start, the adjustment on a drive that
     turns too little). The rotations only: both pin a car's camera height too loosely to compare translations."""
-    out_of = []
+    said = []
     for k in np.flatnonzero(out.trusted[1:] & np.isfinite(estimate[1:, 0, 0])) + 1:
         angle = float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ estimate[k, :3, :3]))
         if angle >= DISAGREE_DEG:
-            out_of.append(
+            said.append(
                 f"bundle adjustment: {names[k]}: its rotation and the on-line rig estimator's are {angle:.2f} deg "
                 "apart: one of them is off (the estimator after a late start, or the adjustment on a drive that turns "
                 "too little)"
             )
-    return out_of
+    return said
