@@ -130,16 +130,15 @@ def extrinsic_errors(
         rebased = np.linalg.inv(truth[:1]) @ truth  # each camera's truth relative to its first frame
         scales = [trajectory_scale(trajectory[:, c], rebased[:, c]) for c in range(C)]
         gains = [front_end_rotation_gain(trajectory[:, c], rebased[:, c]) for c in range(C)]
+    axes = planar_axes(estimate)
     out = []
     for k in range(1, C):
         R, t = estimate.rotation[0, k - 1].double().numpy(), estimate.translation[0, k - 1].double().numpy()
         R_gt, t_gt = rel[k, :3, :3], rel[k, :3, 3]
         cos = np.clip((np.trace(R.T @ R_gt) - 1) / 2, -1.0, 1.0)
-        planar = bool(estimate.planar_motion[0, k - 1])
-        if planar:
-            axis = estimate.planar_axis[0, k - 1].double().numpy()
-            project = np.eye(3) - np.outer(axis, axis)
-            t, t_gt = project @ t, project @ t_gt
+        planar = bool(np.isfinite(axes[k - 1]).all())
+        project = projector_without(axes[k - 1])
+        t, t_gt = project @ t, project @ t_gt
         e = {
             "camera": k,
             "rotation_error_deg": math.degrees(math.acos(cos)),

@@ -36,7 +36,6 @@ def checks(
     on-line rig estimator's ``estimator`` (C, 4, 4, where it ran); a trusted result far from the estimator's is said
     (:func:`disagreements`)."""
     estimator = np.full_like(initial, np.nan) if estimator is None else estimator
-    references = (initial, estimator)
     warnings = []
     names = sequence.names
     N = len(out.frames)
@@ -76,8 +75,9 @@ def checks(
         )
         out.trusted[:] = False
     for k in range(1, len(names)):
-        changes = [float(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ r[k, :3, :3])) for r in references]
-        change = min(changes, key=lambda c: math.inf if math.isnan(c) else c)
+        change = float(
+            np.fmin(*(rotation_angle_deg(out.extrinsics[k, :3, :3].T @ r[k, :3, :3]) for r in (initial, estimator)))
+        )
         if change > MAX_ROTATION_CHANGE_DEG:  # False for NaN: not checked
             warnings.append(
                 f"bundle adjustment: {names[k]}: the rotation moved {change:.1f} deg from the on-line "
