@@ -28,7 +28,14 @@ from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.calib.drivers.options import MOTION_CHOICES, HeadOptions
 from ocalib.calib.drivers.result import Calibration
 from ocalib.calib.poses.pipeline import RigPoses, offset_specs
-from ocalib.calib.poses.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
+from ocalib.calib.poses.report import (
+    SOURCES,
+    CalibrationRun,
+    progress_text,
+    run_warnings,
+    stack_estimates,
+    trace_rows,
+)
 from ocalib.calibnet.net import OnlineCalibrationNet
 from ocalib.data.layout import open_sequence
 from ocalib.data.sequence import Sequence
@@ -109,8 +116,16 @@ class ImageCalibration:
         rig = doc.get("rig_estimator", {}).get("extrinsics", [])
         moved = {c["camera"] for c in doc.get("changes", [])}
         apart = {self.sequence.names[k] for k in _apart(self.sequence)} if self.sequence is not None else set()
+        undetermined = {} if self.rig is None else self.rig.undetermined()
         for k, estimate in enumerate(rig):
             if doc["extrinsics"][k].get("source") != "bundle_adjustment" or estimate["camera"] in moved | apart:
+                if k + 1 in undetermined:
+                    whose = SOURCES.get(doc["extrinsics"][k].get("source"), "the on-line head")
+                    doc["warnings"].append(
+                        f"on-line rig estimator: {estimate['camera']}: not reported, {undetermined[k + 1]}; the "
+                        f"extrinsic is {whose}'s"
+                    )
+                    continue
                 keys = ("rotation", "quaternion_wxyz", "translation", "rotation_std_deg", "translation_std", "source")
                 doc["extrinsics"][k] = online[k] | {key: estimate[key] for key in keys}
                 doc["units"] = "metres"
@@ -157,8 +172,6 @@ def _pairing_warnings(sequence: Sequence, placed: bool = False) -> list[str]:
 def _replaced_said(warnings: list[str], extrinsics: list[dict]) -> list[str]:
     """The head's warnings that its translation is not supported, said as the head's where a later stage's result
     replaced it."""
-    from ocalib.calib.poses.report import SOURCES
-
     out = []
     for w in warnings:
         e = next((e for e in extrinsics if w.startswith(f"{e['camera']}: the translation equations")), None)

@@ -115,7 +115,7 @@ def extrinsic_errors(
 
     Keys: ``rotation_error_deg``, ``translation_direction_error_deg``, and with ``truth``:
     ``metric_scale`` (front-end units of camera 0 -> metres), ``translation_error`` (metres, after that
-    scale), ``translation_error_rel_baseline`` (over the true baseline, same components),
+    scale), ``translation_error_rel_baseline`` (over the whole true baseline),
     ``scale_true`` (the scale that maps camera k's front-end units into camera 0's), and
     ``rotation_gain_reference`` / ``rotation_gain`` (3 each): the front end's rotation gain about each axis of
     camera 0 / camera k (:func:`~ocalib.eval.pose_metrics.rotation_gain`; unequal gains bend the rotation axes),
@@ -138,6 +138,7 @@ def extrinsic_errors(
         cos = np.clip((np.trace(R.T @ R_gt) - 1) / 2, -1.0, 1.0)
         planar = bool(np.isfinite(axes[k - 1]).all())
         project = projector_without(axes[k - 1])
+        baseline = float(np.linalg.norm(t_gt))  # the whole lever arm, whatever is compared
         t, t_gt = project @ t, project @ t_gt
         e = {
             "camera": k,
@@ -149,7 +150,6 @@ def extrinsic_errors(
             a = scales[0]
             e["metric_scale"] = a
             e["translation_error"] = float(np.linalg.norm(a * t - t_gt))
-            baseline = float(np.linalg.norm(t_gt))
             e["translation_error_rel_baseline"] = e["translation_error"] / baseline if baseline > 0 else math.nan
             e["scale_true"] = scales[k] / a if a and math.isfinite(a) else math.nan
             e["scale"] = float(estimate.scale[0, k - 1])

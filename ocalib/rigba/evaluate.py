@@ -26,7 +26,8 @@ def adjustment_errors(
     remain), and
     with ``truth`` (T, C, 4, 4) ground-truth poses: ``metric_scale`` (the result's units -> metres, a Sim(3) fit of
     camera 0's reconstructed trajectory to its truth; 1 in metres), ``translation_error`` (metres),
-    ``translation_error_rel_baseline`` and ``height_error`` (:func:`~ocalib.eval.calibration_metrics.height_error`)."""
+    ``translation_error_rel_baseline`` (over the whole true lever arm; NaN where no direction is determined) and
+    ``height_error`` (:func:`~ocalib.eval.calibration_metrics.height_error`)."""
     rel = np.linalg.inv(extrinsics[0]) @ extrinsics
     scale = 1.0
     ok = adjustment.registered[:, 0]
@@ -49,8 +50,8 @@ def adjustment_errors(
             "compared_in_plane": rank < 3,
         }
         if truth is not None:
-            error = float(np.linalg.norm(project @ (t - t_true)))
-            baseline = float(np.linalg.norm(project @ t_true))
+            error = float(np.linalg.norm(project @ (t - t_true))) if rank else math.nan  # nothing determined
+            baseline = float(np.linalg.norm(t_true))  # the whole lever arm, whatever is compared
             e.update(
                 metric_scale=scale,
                 translation_error=error,

@@ -21,11 +21,15 @@ camera's extrinsic. Every ``keyframe_step``-th frame, :meth:`OnlineRigEstimator.
    (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move, nor is
    a step under ``min_change_deg`` and ``min_change_m``;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
-   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track; a camera whose
-   observations span fewer than ``MIN_SPAN`` keyframes (at the start, after a change) is held where it is: so short
-   a stretch of motion lets the adjustment throw it metres off.
+   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
+   its track empty) at the start and after a change, until the window determines it: the 1-sigma of its
+   extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`), under
+   ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two best-determined
+   directions (a car's height is never pinned by planar motion): released sooner, a window over a short stretch of
+   motion throws the lever arm metres off; later, the stream is spent waiting.
 
-The estimator starts from the on-line head's rotations and zero lever arms; its translations are in metres.
+The estimator starts from the on-line head's rotations and zero lever arms; while a camera waits at the start, its
+rotation follows the head's latest estimate (``update``'s ``rotations``); its translations are in metres.
 
 Convention: poses camera-to-world (4, 4); ``extrinsics`` (C, 4, 4) ``T_cam0_camk`` (``p_cam0 = R p_camk + t``);
 K (C, 3, 3) in ocalib's pixels (integer centres); images grayscale (H, W) uint8.
@@ -58,7 +62,6 @@ from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, SplitTest, adjust_window
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
 CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
-MIN_SPAN = 10  # keyframes a camera's observations must span before the window moves its extrinsic
 MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
 CONFIRM_SPAN = 4  # keyframes from a candidate change's frame on before the window's split test judges it
 
@@ -84,6 +87,9 @@ class OnlineRigOptions:
     # images hold what no model does (intrinsics, texture, moving things) and make smaller steps significant
     min_change_deg: float = 0.25
     min_change_m: float = 0.1
+    # a waiting camera is released once the window's 1-sigma of it is under these (see the module)
+    release_rotation_deg: float = 0.5
+    release_translation_m: float = 0.1
 
 
 @dataclass
@@ -139,16 +145,28 @@ class OnlineRigEstimator:
         # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
         # is never judged: the camera keeps the window's estimate, and RigStream reports it)
         self.pending: dict[int, Change] = {}
+        # per waiting camera (see the module), whether its rotation follows the head's (at the start, not after a change)
+        self.waiting: dict[int, bool] = {k: True for k in range(1, C)}
+        self.released: dict[int, int] = {}  # camera -> the keyframe it was last released at
+        self.tried = np.zeros(C, int)  # per camera, the keyframes it was resected at since its release (or the start)
+        self.resected = np.zeros(C, int)  # of which those it registered at
 
-    def update(self, frame: int, images: list[np.ndarray], pose: np.ndarray) -> RigState | None:
+    def update(
+        self, frame: int, images: list[np.ndarray], pose: np.ndarray, rotations: np.ndarray | None = None
+    ) -> RigState | None:
         """Consume frame ``frame``: ``images`` one per camera, ``pose`` camera 0's metric camera-to-world pose (4, 4),
         or (C, 4, 4) the rig's pose when each camera captured its image (cameras without a shared trigger: the
-        trajectory interpolated at each one's capture time). Returns the state after a keyframe, None for the frames
-        between."""
+        trajectory interpolated at each one's capture time); ``rotations`` (C - 1, 3, 3) the on-line head's latest
+        rotations of cameras 1.., taken by those waiting since the start. Returns the state after a keyframe, None
+        for the frames between."""
         self.frames_seen += 1
         if (self.frames_seen - 1) % self.options.keyframe_step:
             return None
         start = time.perf_counter()
+        if rotations is not None:
+            for k, follows in self.waiting.items():
+                if follows and np.isfinite(rotations[k - 1]).all():
+                    self.extrinsics[k][:3, :3] = rotations[k - 1]
         features = [self._features(image, k) for k, image in enumerate(images)]
         poses = np.broadcast_to(np.asarray(pose, np.float64), (len(images), 4, 4)).copy()
         kf = Keyframe(frame, self._working(poses), features, [np.full(len(f), -1) for f in features], poses[0].copy())
@@ -159,6 +177,8 @@ class OnlineRigEstimator:
                        enumerate(features)]  # fmt: skip
             measured = self._resect(kf, recent, matches)
             self.keyframes_unregistered += len(measured) < len(features)
+            self.tried += 1
+            self.resected[list(measured)] += 1
             candidates = self._candidates(frame, measured)
             self._triangulate(kf, recent, matches, self._poses(kf, measured))
         else:
@@ -169,19 +189,34 @@ class OnlineRigEstimator:
         changes = self._judged(frame)
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
-            held = self._held() | frozenset(self.pending)  # a camera under suspicion: the window does not follow it
+            held = frozenset(self.waiting) | frozenset(self.pending)  # waiting or suspect: the window does not move it
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held,
                                    self.options.metric_noise)  # fmt: skip
             for k, u in enumerate(window.uncertainty, start=1):
-                if u is not None and k not in held:
+                if u is not None and k in self.waiting and self._determines(u):
+                    del self.waiting[k]  # released: the next window moves it
+                    self.released[k], self.tried[k], self.resected[k] = frame, 0, 0
+                elif u is not None and k not in held:
                     self.window_covariance[k] = with_unobservable(u.covariance, u.unobservable)
                     drift = self.tracks[k].drifted(frame, self.extrinsics[k], self.window_covariance[k])
+                    self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
                     if drift is not None:
                         self._forget_before(k, drift.frame)
+                        self.waiting[k] = False
                         changes.append((k, drift))
-                    self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
         registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)
+
+    def _determines(self, u) -> bool:
+        """Whether the window's uncertainty ``u`` (:class:`~ocalib.rigba.covariance.ExtrinsicUncertainty`) of a
+        camera releases it: its rotation's 1-sigma under ``release_rotation_deg`` about every axis, its translation's
+        under ``release_translation_m`` along the two best-determined directions."""
+        rotation = np.degrees(u.rotation_std)
+        translation = np.linalg.eigvalsh(with_unobservable(u.covariance, u.unobservable)[3:, 3:])
+        return bool(
+            np.all(rotation <= self.options.release_rotation_deg)
+            and np.sqrt(max(translation[1], 0.0)) <= self.options.release_translation_m
+        )
 
     def _working(self, metric: np.ndarray) -> np.ndarray:
         """The new keyframe's poses (C, 4, 4) from the trajectory's ``metric`` ones: as given where the window holds
@@ -351,8 +386,8 @@ class OnlineRigEstimator:
     def _confirmed(self, k: int, change: Change) -> bool:
         """Whether the window confirms camera k's candidate ``change``; confirmed, the camera loses its observations
         from before it, and it restarts from the candidate's rotation with the lever arm it had (a knock turns a
-        camera more than it moves it; two resections place it poorly), held until its new observations span
-        ``MIN_SPAN`` keyframes; its track then takes the next windows' estimates."""
+        camera more than it moves it; two resections place it poorly), waiting until the window determines it; its
+        track then takes the next windows' estimates."""
         track = self.tracks[k]
         split = split_statistic(
             list(self.keyframes),
@@ -376,13 +411,8 @@ class OnlineRigEstimator:
         self.extrinsics[k][:3, :3] = track.extrinsic[:3, :3]
         self.extrinsics[k][:3, 3] = track.extrinsic[:3, 3] = lever_arm
         self._forget_before(k, change.frame)
+        self.waiting[k] = False
         return True
-
-    def _held(self) -> frozenset[int]:
-        """The cameras whose observations span fewer than ``MIN_SPAN`` of the window's keyframes (after the start or a
-        change): too short a stretch of the rig's motion to place them, their extrinsic is held."""
-        span = np.sum([[bool((ids >= 0).any()) for ids in kf.point_ids] for kf in self.keyframes], axis=0)
-        return frozenset(int(k) for k in np.flatnonzero(span < MIN_SPAN) if k > 0)
 
     def _forget_before(self, k: int, frame: int) -> None:
         """Drop camera k's observations before ``frame``: they saw the camera where it no longer is."""

@@ -1,6 +1,7 @@
 """The on-line rig estimator (:mod:`ocalib.rigba.online`) as a stage of ``ocalib calibrate``'s stream: called
-after the head on every frame, it starts once the head's rotation of every camera is known, reads the frame's
-images at their own size, and keeps each keyframe's state for the trace, the plot, TensorBoard and the JSON.
+after the head on every frame, it starts at ``START_FRAME`` from the head's rotations (each camera's following the
+head's until the window determines it), reads the frame's images at their own size, and keeps each keyframe's state
+for the trace, the plot, TensorBoard and the JSON.
 
 Cameras on clocks of their own (a sequence paired in time) are placed at the rig's pose when each captured its image,
 the metric trajectory interpolated there (:func:`capture_poses`), so a pair's residual offset does not bias the lever
@@ -29,7 +30,7 @@ from ocalib.rigba.covariance import WEAK_SHARE
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions, RigState
 from ocalib.rigba.trust import MAX_ROTATION_STD_DEG
 
-START_FRAME = 20  # the earliest frame the estimator starts at: the head's rotation needs some motion first
+START_FRAME = 10  # the frame the estimator starts at: the head's rotation needs some motion first
 HELD_HINT = (  # after a change found with the trajectory's poses held: where they are not exact, that is a suspect
     " (the metric trajectory's poses are held as exact: if they are not, their rotation error reads as a move; "
     "give its noise with --metric-noise)"
@@ -56,7 +57,8 @@ class RigStream:
             if image is None:
                 raise InputError(f"{cam.images[t]}: not an image OpenCV can read")
             images.append(image)
-        state = self.estimator.update(t, images, self.capture[t])
+        rotations = estimate.rotation[0].double().cpu().numpy()
+        state = self.estimator.update(t, images, self.capture[t], rotations)
         if state is not None:
             self.states.append(state)
             for k, change in state.changes:
@@ -69,9 +71,8 @@ class RigStream:
         return state
 
     def _started(self, t: int, estimate: Calibration) -> bool:
-        """Start the estimator at the head's rotations once every camera's is known (observed, or planar)."""
-        known = (estimate.rotation_observable | estimate.planar_motion)[0]
-        if t < START_FRAME or not bool(known.all()):
+        """Start the estimator at the head's rotations from ``START_FRAME`` on, once they are finite."""
+        if t < START_FRAME or not bool(torch.isfinite(estimate.rotation).all()):
             return False
         extrinsics = np.tile(np.eye(4), (len(self.sequence.cameras), 1, 1))
         extrinsics[1:, :3, :3] = estimate.rotation[0].double().cpu().numpy()
@@ -101,8 +102,8 @@ class RigStream:
             )
         if self.final is None:
             self.warnings.append(
-                "on-line rig estimator: never started (the on-line head's rotation of every camera was not observed "
-                f"from frame {START_FRAME} on); the translation comes from the bundle adjustment alone"
+                f"on-line rig estimator: never started (the sequence is shorter than {START_FRAME + 1} frames, or the "
+                "on-line head gave no rotation); no on-line translation"
             )
         cameras = self.sequence.cameras
         if self.final is None or any(cam.T_cam0_cam is None for cam in cameras):
@@ -134,6 +135,32 @@ class RigStream:
         moved = np.isin(np.arange(len(out)), [k for s in self.states for k, _ in s.changes])
         loose = ~(np.degrees(self.final.std[:, :3]).max(1) <= MAX_ROTATION_STD_DEG)  # NaN: not placed
         out[loose | moved] = np.nan
+        return out
+
+    def undetermined(self) -> dict[int, str]:
+        """Camera k >= 1 -> why its final estimate is not to be reported: the window never determined it (it still
+        waits), its rotation's 1-sigma over ``MAX_ROTATION_STD_DEG`` on an axis, fewer than two translation axes with
+        a 1-sigma under ``WEAK_SHARE`` of the lever arm (a car's height is never pinned), or most of its keyframes
+        since its release unregistered. Every camera before the first keyframe."""
+        C = len(self.sequence.cameras)
+        if self.final is None:
+            return {k: "the estimator never started" for k in range(1, C)}
+        tried, resected = self.estimator.tried, self.estimator.resected
+        out = {}
+        for k in range(1, C):
+            std, lever_arm = self.final.std[k], float(np.linalg.norm(self.final.extrinsics[k, :3, 3]))
+            rotation = np.degrees(std[:3])
+            if k in self.estimator.waiting or not np.isfinite(rotation).all():
+                out[k] = "the window never determined it (too little motion or too few registered keyframes)"
+            elif rotation.max() > MAX_ROTATION_STD_DEG:
+                out[k] = f"its rotation's 1-sigma is {rotation.max():.2f} deg (over {MAX_ROTATION_STD_DEG:g})"
+            elif np.sum(std[3:] <= WEAK_SHARE * lever_arm) < 2:
+                out[k] = (
+                    f"its translation's 1-sigma ({', '.join(f'{v:.3g}' for v in std[3:])} m) leaves fewer than two "
+                    f"axes within {WEAK_SHARE:.0%} of its {lever_arm:.3f} m lever arm"
+                )
+            elif tried[k] - resected[k] > tried[k] / 2:
+                out[k] = f"{tried[k] - resected[k]} of its {tried[k]} keyframes since its release did not register"
         return out
 
     def trace(self, frames: int) -> dict[str, np.ndarray]:
@@ -181,7 +208,7 @@ class RigStream:
         ]
 
     def result_json(self) -> dict:
-        """The estimator's final state and cost: per camera k >= 1 its extrinsic (metres) with 1-sigma, the
+        """The estimator's final state and cost: per camera k >= 1 its extrinsic (metres) with 1-sigma and covariance, the
         keyframes, the seconds per keyframe (median) and per frame, the candidate changes the window dismissed
         (the frame they were raised at, the split test's likelihood ratio and step) and those raised too late to
         judge."""
@@ -230,7 +257,10 @@ class RigStream:
                     "translation": E[:3, 3].tolist(),
                     "rotation_std_deg": [_finite(math.degrees(v)) for v in std[:3]],
                     "translation_std": [_finite(v) for v in std[3:]],
+                    # rotation rad, translation m, camera 0's axes; variances of UNINFORMED where the data say nothing
+                    "covariance": None if (P := self.estimator.tracks[k].covariance) is None else P.tolist(),
                     "chi2": _finite(final.chi2[k]),
+                    "released_at_frame": self.estimator.released.get(k),
                     "source": "rig_estimator",
                 }
             )
@@ -241,7 +271,8 @@ class RigStream:
         (after any change), in the keys of :func:`ocalib.calib.poses.report.errors_table`; the translation compared
         without the axes the data do not pin (a 1-sigma over ``WEAK_SHARE`` of the lever arm, or none) and, on a
         planar drive, in the ground plane of normal ``plane`` (C - 1, 3) (NaN rows elsewhere; the error along it is
-        ``height_error``), as the bundle adjustment's are."""
+        ``height_error``), as the bundle adjustment's are; the error over the whole true lever arm, NaN where no
+        direction of it is determined."""
         plane = np.full((len(truth) - 1, 3), np.nan) if plane is None else plane
         out = []
         for k in range(1, len(truth)):
@@ -249,7 +280,8 @@ class RigStream:
             loose = ~(self.final.std[k, 3:] <= WEAK_SHARE * np.linalg.norm(E[:3, 3]))
             project = projector_without(np.vstack([np.eye(3)[loose], plane[k - 1]]))
             t, t_true, rank = project @ E[:3, 3], project @ T[:3, 3], round(float(np.trace(project)))  # its rank
-            baseline, error = float(np.linalg.norm(t_true)), float(np.linalg.norm(t - t_true))
+            baseline = float(np.linalg.norm(T[:3, 3]))  # the whole lever arm, whatever is compared
+            error = float(np.linalg.norm(t - t_true)) if rank else math.nan  # nothing determined: no error
             out.append(
                 {
                     "camera": k,

@@ -47,17 +47,17 @@ def test_a_straight_drive_prints_no_nan_but_says_the_direction_is_undefined():
     text = errors_table(errors, ["cam0", "cam1"], "after the rig bundle adjustment")
     assert "nan" not in text.lower()
     assert "translation direction n/a (fewer than two of its components observable)" in text
-    # the translation along the observable axis is still a figure: 0.01 m of a 0.2 m baseline component
-    assert "translation 0.010 m = 5.0% of the baseline" in text
+    # the translation along the observable axis is still a figure, over the whole baseline: 0.01 m of 0.548 m
+    assert f"translation 0.010 m = {0.01 / np.linalg.norm(t_true):.1%} of the baseline" in text
 
 
-def test_all_directions_unobservable_says_no_baseline_instead_of_nan():
+def test_all_directions_unobservable_says_the_translation_is_undetermined_instead_of_nan():
     t_true = np.array([0.5, 0.1, 0.2])
     extrinsics, poses = _truth(t_true)
     errors = adjustment_errors(_adjustment(t_true, np.eye(3)), extrinsics, poses)
     text = errors_table(errors, ["cam0", "cam1"])
     assert "nan" not in text.lower()
-    assert "= n/a (no observable baseline)" in text
+    assert "translation n/a (no direction of it determined)" in text
 
 
 def test_defined_figures_print_as_computed_and_undefined_head_figures_as_n_a():
@@ -139,7 +139,7 @@ def test_a_cars_translation_is_compared_in_the_ground_plane_whatever_the_stage_c
     assert car["compared_in_plane"] and car["translation_error"] == pytest.approx(0.0, abs=1e-12)
     assert car["translation_direction_error_deg"] == pytest.approx(0.0, abs=1e-6)
     assert car["height_error"] == pytest.approx(0.2)
-    # the baseline is the lever arm in the plane: 0.1 m off along x is 0.1 / |(-0.9, -1.0)|
+    # the error in the plane over the whole lever arm: 0.1 m off along x is 0.1 / |(-0.9, 0.3, -1.0)|
     [off] = adjustment_errors(_adjustment(t_true + [0.1, 0.2, 0.0], np.zeros((0, 3))), extrinsics, poses,
                               plane=np.array([[0.0, 1.0, 0.0]]))  # fmt: skip
-    assert off["translation_error_rel_baseline"] == pytest.approx(0.1 / np.hypot(0.9, 1.0))
+    assert off["translation_error_rel_baseline"] == pytest.approx(0.1 / np.linalg.norm(t_true))

@@ -6,6 +6,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
+import torch
 from scipy.spatial.transform import Rotation
 
 from ocalib.calib.drivers.change import Change
@@ -79,8 +80,8 @@ def test_a_change_found_with_the_trajectory_held_says_so(noise, tmp_path):
     sequence = SimpleNamespace(cameras=cameras, names=["cam0", "cam1"], times=None, pairing=None)
     stream = RigStream(sequence, _trajectory(np.zeros(1)), OnlineRigOptions(metric_noise=noise))
     state = SimpleNamespace(changes=[(1, Change(40, 44, 1.0, 0.05))])
-    stream.estimator = SimpleNamespace(update=lambda t, images, pose: state)
-    stream(0, None)
+    stream.estimator = SimpleNamespace(update=lambda t, images, pose, rotations: state)
+    stream(0, SimpleNamespace(rotation=torch.eye(3, dtype=torch.float64)[None, None]))
     [said] = stream.warnings
     assert said.startswith("on-line rig estimator: cam1: its extrinsic changed at frame 40 (noticed at frame 44)")
     assert ("--metric-noise" in said) == (noise == 0.0), said
@@ -99,3 +100,28 @@ def test_the_extrinsics_the_adjustment_is_checked_against_are_those_the_estimato
     states = [SimpleNamespace(changes=[(4, object())]), SimpleNamespace(changes=[])]
     out = RigStream.steady_extrinsics(SimpleNamespace(final=final, states=states))
     assert np.array_equal(out[:2], E[:2]) and np.isnan(out[2:]).all()
+
+
+def test_an_estimate_the_window_did_not_determine_is_not_to_be_reported():
+    """Of five cameras on a 1 m lever arm, the one with tight 1-sigmas is reportable; one still waiting, one whose
+    rotation 1-sigma is 2 deg and one whose translation 1-sigma is 0.5 m on two axes are not, each with its reason
+    (a car's height alone may be loose: the fifth, 0.5 m on one axis, is reportable)."""
+    E = np.tile(np.eye(4), (6, 1, 1))
+    E[1:, :3, 3] = [1.0, 0.0, 0.0]
+    std = np.zeros((6, 6))
+    std[1:, :3], std[1:, 3:] = np.radians(0.1), 0.02
+    std[2] = np.nan
+    std[3, 1] = np.radians(2.0)
+    std[4, 3:5] = 0.5
+    std[5, 4] = 0.5
+    stream = SimpleNamespace(
+        sequence=SimpleNamespace(cameras=[None] * 6),
+        final=SimpleNamespace(extrinsics=E, std=std),
+        estimator=SimpleNamespace(waiting={2: True}, tried=np.full(6, 10), resected=np.full(6, 9)),
+    )
+    out = RigStream.undetermined(stream)
+    assert sorted(out) == [2, 3, 4], out
+    assert "never determined" in out[2] and "2.00 deg" in out[3] and "fewer than two axes" in out[4]
+    stream.estimator.resected[5] = 4  # most of camera 5's keyframes since its release unregistered
+    assert sorted(RigStream.undetermined(stream)) == [2, 3, 4, 5]
+    assert "6 of its 10 keyframes since its release did not register" in RigStream.undetermined(stream)[5]

@@ -341,8 +341,13 @@ def errors_table(errors: list[dict], cameras: list[str], what: str | None = None
         text += direction_text
         if "translation_error_rel_baseline" in e:
             relative = _finite(e["translation_error_rel_baseline"], ".1%", "n/a")
-            relative += " of the baseline" if relative[0].isdigit() else " (no observable baseline)"
-            text += f", translation {_finite(e['translation_error'], '.3f', 'n/a')} m = {relative}" + (
+            if relative[0].isdigit():
+                text += f", translation {e['translation_error']:.3f} m = {relative} of the baseline"
+            elif _finite(e["translation_error"], ".3f", ""):
+                text += f", translation {e['translation_error']:.3f} m (a zero baseline)"
+            else:
+                text += ", translation n/a (no direction of it determined)"
+            text += (
                 ""
                 if e["metric_scale"] == 1
                 else f" (camera 0 scaled to metres x{_finite(e['metric_scale'], '.3g', 'n/a')})"

@@ -1,0 +1,213 @@
+"""``ocalib calibrate`` as a user runs it, on a fixed test split of rendered rigs never used while developing: the
+share of rigs within the targets at the end (Wilson 95 % intervals), medians and 90th percentiles of the errors, the
+on-line rig estimator's normalised estimation error squared (NEES) against the chi-square band, and knocks found.
+
+Each rig is rendered once under ``--root`` (outside git) and calibrated by ``ocalib calibrate --sequence DIR
+--metric-trajectory CAM0/poses.txt`` (its front end chosen as by default), with ``--no-bundle-adjust`` (mode
+``online``) or with the defaults (mode ``default``); each run's JSON is kept under ``ROOT/runs/MODE/`` and reused, so
+the split is filled over several sittings. Knocked rigs (``NAME-knocked``: camera 1 turned by 2 deg at mid-stream,
+cars also moved 5 cm) give the detection rate and delay; every change reported on a steady rig is a false alarm.
+
+    python bench/bench_calibrate_split.py --split test --modes online [--presets front-left handheld] [--limit N]
+    python bench/bench_calibrate_split.py --split test --summary-only      # the table from the runs kept
+
+The ``dev`` split (seeds 6001..) may be tuned on; the ``test`` split (seeds 7001..) is only measured.
+Targets: cars 0.5 deg, 5 deg of direction in the ground plane, 0.1 baselines; hand-held 0.5 deg, 10 deg, 0.25.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_calibnet_accuracy import ensure
+from bench_rig_online import ensure_knocked
+from common import write_json
+from scipy.stats import chi2, norm
+
+from ocalib.data.layout import open_sequence
+from ocalib.rigba.change import UNINFORMED, innovation
+
+TARGETS = {"car": (0.5, 5.0, 0.1), "handheld": (0.5, 10.0, 0.25)}  # rotation deg, direction deg, translation / baseline
+SPLITS = {"dev": 6001, "test": 7001}  # the first seed of each split
+COUNTS = {"handheld": 20, "front-left": 20, "surround": 10}  # rigs per preset
+KNOCKED = 10  # of the first presets' rigs, knocked too
+FRAMES = 300
+DETECT_WITHIN = 30  # frames after the knock a change must be noticed in
+
+
+def rigs(split: str, presets: list[str]) -> list[tuple[str, bool]]:
+    """(name, knocked) of the split: per preset ``COUNTS`` steady rigs, the hand-held and car ones ``KNOCKED`` times
+    knocked too; steady first, preset by preset."""
+    first = SPLITS[split]
+    steady = [(f"{p}-{first + i}", False) for p in presets for i in range(COUNTS[p])]
+    knocks = [(f"{p}-{first + i}", True) for p in presets if p != "surround" for i in range(KNOCKED)]
+    return steady + knocks
+
+
+def run(root: Path, name: str, knocked: bool, mode: str) -> dict:
+    """The result JSON of ``ocalib calibrate`` on the rig (rendered and run where missing), with the seconds it
+    took (``bench_seconds``)."""
+    out = root / "runs" / mode / f"{name}{'-knocked' * knocked}.json"
+    if out.exists():
+        return json.loads(out.read_text())
+    path = ensure_knocked(root, name, FRAMES) if knocked else ensure(root, name, FRAMES)
+    cam0 = open_sequence(path).cameras[0].name
+    command = [sys.executable, "-m", "ocalib", "calibrate", "--sequence", str(path), "--metric-trajectory",
+               str(path / cam0 / "poses.txt"), "--out", str(out.with_suffix(".tmp"))]  # fmt: skip
+    command += ["--no-bundle-adjust"] if mode == "online" else []
+    out.parent.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"{name}: ocalib calibrate failed ({done.returncode}): {done.stderr.strip()[-500:]}")
+    doc = json.loads(out.with_suffix(".tmp").read_text()) | {"bench_seconds": time.perf_counter() - start}
+    out.write_text(json.dumps(doc))
+    out.with_suffix(".tmp").unlink()
+    return doc
+
+
+def within(e: dict, kind: str) -> bool:
+    """Whether one camera's reported errors are within ``kind``'s targets (an undefined figure is not)."""
+    rotation, direction, relative = TARGETS[kind]
+    values = [e.get("rotation_error_deg"), e.get("translation_direction_error_deg"),
+              e.get("translation_error_rel_baseline")]  # fmt: skip
+    return all(v is not None and math.isfinite(v) for v in values) and (
+        values[0] <= rotation and values[1] <= direction and values[2] <= relative
+    )
+
+
+def nees(doc: dict, path: Path) -> list[tuple[float, int]]:
+    """Per camera the estimator's final ``(e^T P^-1 e, d)`` against the truth (after any knock): ``e`` its error
+    (:func:`ocalib.rigba.change.innovation`), ``P`` its stated covariance restricted to the ``d`` directions it
+    informs (variance under ``UNINFORMED / 10``); none where the estimator stated none."""
+    cams = open_sequence(path).cameras
+    out = []
+    for k, estimate in enumerate(doc.get("rig_estimator", {}).get("extrinsics", []), start=1):
+        if estimate.get("covariance") is None:
+            continue
+        truth = cams[k].change.T_cam0_cam if cams[k].change is not None else cams[k].T_cam0_cam
+        truth = np.linalg.inv(cams[0].T_cam0_cam) @ truth
+        E = np.eye(4)
+        E[:3, :3], E[:3, 3] = estimate["rotation"], estimate["translation"]
+        P = np.array(estimate["covariance"])
+        lam, V = np.linalg.eigh((P + P.T) / 2)
+        keep = lam < UNINFORMED / 10
+        e = V[:, keep].T @ innovation(E, truth)
+        out.append((float(e @ (e / lam[keep])), int(keep.sum())))
+    return out
+
+
+def wilson(successes: int, n: int) -> tuple[float, float]:
+    """The Wilson score 95 % interval of a rate."""
+    if n == 0:
+        return (math.nan, math.nan)
+    z = norm.ppf(0.975)
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (centre - half, centre + half)
+
+
+def summarise(root: Path, docs: dict[tuple[str, bool], dict]) -> dict:
+    """Per preset the rates, error quantiles, NEES and knocks of the runs ``docs`` ((name, knocked) -> JSON)."""
+    out = {}
+    for preset in dict.fromkeys(name.rsplit("-", 1)[0] for name, _ in docs):
+        kind = "handheld" if preset == "handheld" else "car"
+        steady = {n: d for (n, k), d in docs.items() if not k and n.startswith(preset + "-")}
+        cameras = [e for d in steady.values() for e in d.get("ground_truth_errors", [])]
+        rig_ok = [all(within(e, kind) for e in d.get("ground_truth_errors", [{}])) for d in steady.values()]
+        sources = [e.get("source") for d in steady.values() for e in d["extrinsics"]]
+        stats = {"rigs": len(steady), "within": int(sum(rig_ok)), "within_interval": wilson(sum(rig_ok), len(rig_ok))}
+        for key in ("rotation_error_deg", "translation_direction_error_deg", "translation_error_rel_baseline"):
+            v = np.array([np.nan if e.get(key) is None else e[key] for e in cameras], float)
+            stats[key] = {"median": float(np.nanmedian(v)) if len(v) else None,
+                          "p90": float(np.nanpercentile(v, 90)) if len(v) else None,
+                          "undefined": int(np.isnan(v).sum())}  # fmt: skip
+        stats["sources"] = {s: sources.count(s) for s in set(sources)}
+        terms = [t for n, d in steady.items() for t in nees(d, root / n)]
+        if terms:
+            total, dof = sum(t for t, _ in terms), sum(d for _, d in terms)
+            stats["nees_per_dof"] = total / dof
+            stats["nees_band"] = (chi2.ppf(0.025, dof) / dof, chi2.ppf(0.975, dof) / dof)
+            stats["nees_cameras"] = len(terms)
+        frames = sum(d["settings"]["frames"] for d in steady.values())
+        alarms = sum(len(d.get("changes", [])) for d in steady.values())
+        stats["false_alarms"], stats["steady_frames"] = alarms, frames
+        knocked = {n: d for (n, k), d in docs.items() if k and n.startswith(preset + "-")}
+        if knocked:
+            delays = []
+            for d in knocked.values():
+                found = [c["detected"] - FRAMES // 2 for c in d.get("changes", []) if c["frame"] >= FRAMES // 2 - 4]
+                delays.append(min(found) if found else math.inf)
+            hit = sum(x <= DETECT_WITHIN for x in delays)
+            finite = [x for x in delays if math.isfinite(x)]
+            stats["knocks"] = {
+                "rigs": len(delays),
+                "detected_within": hit,
+                "interval": wilson(hit, len(delays)),
+                "delay_median": float(np.median(finite)) if finite else None,
+                "delay_p90": float(np.percentile(finite, 90)) if finite else None,
+                "false_alarms_before": sum(
+                    c["frame"] < FRAMES // 2 - 4 for d in knocked.values() for c in d.get("changes", [])
+                ),
+            }
+        out[preset] = stats
+    return out
+
+
+def table(summary: dict, mode: str) -> str:
+    lines = [f"mode {mode}: rigs within the targets (Wilson 95 %), errors median / p90, NEES per dof [band]"]
+    for preset, s in summary.items():
+        lo, hi = s["within_interval"]
+        line = f"  {preset:11s} {s['within']:2d}/{s['rigs']:2d} [{lo:.2f}, {hi:.2f}]"
+        for key, unit in (("rotation_error_deg", "deg"), ("translation_direction_error_deg", "deg"),
+                          ("translation_error_rel_baseline", "")):  # fmt: skip
+            q = s[key]
+            if q["median"] is not None:
+                line += f"  {q['median']:.3g}/{q['p90']:.3g}{unit}"
+        if "nees_per_dof" in s:
+            line += f"  NEES {s['nees_per_dof']:.2f} [{s['nees_band'][0]:.2f}, {s['nees_band'][1]:.2f}]"
+        line += f"  false alarms {s['false_alarms']} in {s['steady_frames']} frames"
+        if "knocks" in s:
+            k = s["knocks"]
+            line += f"  knocks {k['detected_within']}/{k['rigs']} within {DETECT_WITHIN} frames"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--root", default="data/eval", help="where the rigs are rendered and the runs kept")
+    p.add_argument("--split", choices=SPLITS, default="test")
+    p.add_argument("--presets", nargs="+", choices=COUNTS, default=list(COUNTS))
+    p.add_argument("--modes", nargs="+", choices=("online", "default"), default=["online"])
+    p.add_argument("--limit", type=int, help="run at most this many new rigs per mode (the rest next time)")
+    p.add_argument("--summary-only", action="store_true", help="no new runs: summarise those kept")
+    p.add_argument("--out", default=None, help="JSON (default bench/results/calibrate_SPLIT.json)")
+    args = p.parse_args()
+    root = Path(args.root)
+    doc = {"split": args.split, "targets": TARGETS, "frames": FRAMES, "modes": {}}
+    for mode in args.modes:
+        docs, new = {}, 0
+        for name, knocked in rigs(args.split, args.presets):
+            kept = (root / "runs" / mode / f"{name}{'-knocked' * knocked}.json").exists()
+            if not kept and (args.summary_only or (args.limit is not None and new >= args.limit)):
+                continue
+            new += not kept
+            print(f"{mode}: {name}{' (knocked)' * knocked}", flush=True)
+            docs[(name, knocked)] = run(root, name, knocked, mode)
+        summary = summarise(root, docs)
+        print(table(summary, mode))
+        doc["modes"][mode] = {"summary": summary, "rigs": sorted(f"{n}{'-knocked' * k}" for n, k in docs)}
+    write_json(args.out or f"bench/results/calibrate_{args.split}.json", doc)
+
+
+if __name__ == "__main__":
+    main()
