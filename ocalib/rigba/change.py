@@ -66,10 +66,10 @@ class ExtrinsicTrack:
         """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6)."""
         info_new = _information(covariance * self.overlap)
         if self.extrinsic is None:
-            self.extrinsic, self.covariance = extrinsic.copy(), covariance * self.overlap
+            self.extrinsic, self.covariance = extrinsic.copy(), _information(info_new, UNINFORMED)
             return
         info = _information(self.covariance) + info_new
-        cov = np.linalg.pinv(info, hermitian=True)
+        cov = _information(info, UNINFORMED)  # the inverse, as a covariance
         self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
         self.covariance = cov
 
@@ -210,6 +210,11 @@ def with_unobservable(covariance: np.ndarray, unobservable: np.ndarray) -> np.nd
     return out
 
 
-def _information(covariance: np.ndarray) -> np.ndarray:
-    """The information (6, 6) of ``covariance``."""
-    return np.linalg.pinv(covariance, hermitian=True, rcond=1e-12)
+def _information(covariance: np.ndarray, void: float = 0.0) -> np.ndarray:
+    """The inverse (6, 6) of the symmetric ``covariance`` on its positive eigen-directions; ``void`` on the others
+    (their variance broken by rounding, or none: not a measurement), so that no direction is ever claimed exact
+    (a pseudo-inverse gives a null direction of an information a variance of 0). Also the way back, information
+    to covariance with ``void`` = :data:`UNINFORMED`."""
+    lam, V = np.linalg.eigh((covariance + covariance.T) / 2)
+    positive = lam > 1e-12 * max(float(lam.max()), 1e-300)
+    return (V * np.where(positive, 1 / np.where(positive, lam, 1.0), void)) @ V.T

@@ -441,3 +441,25 @@ def test_a_step_reaches_the_least_change_by_its_rotation_or_its_translation():
     assert reaches(step(0.3, 0.0), least) and reaches(step(0.0, 0.12), least)
     assert not reaches(step(0.2, 0.08), least)
     assert not reaches(np.full(6, np.nan), least)
+
+
+def test_a_fused_covariance_stays_positive_and_claims_no_direction_exact():
+    """A window covariance broken by rounding (a negative variance) informs nothing along that direction, and a
+    direction no window informs keeps an uninformed variance: the fused covariance stays positive definite."""
+    rng = np.random.default_rng(0)
+    V = np.linalg.qr(rng.normal(size=(6, 6)))[0]
+    good = (V * np.array([1e-6, 2e-6, 3e-6, 1e-4, 2e-4, 3e-4])) @ V.T
+    broken = (V * np.array([1e-6, 2e-6, 3e-6, 1e-4, 2e-4, -5e-5])) @ V.T
+    track = ExtrinsicTrack()
+    track.fuse(np.eye(4), broken)
+    assert np.linalg.eigvalsh(track.covariance).min() > 0
+    track.fuse(np.eye(4), good)
+    lam = np.linalg.eigvalsh(track.covariance)
+    assert lam.min() > 0
+    # the direction the broken window left out is informed by the good one alone
+    np.testing.assert_allclose(V[:, 5] @ track.covariance @ V[:, 5], 3e-4, rtol=1e-6)
+    np.testing.assert_allclose(V[:, 0] @ track.covariance @ V[:, 0], 0.5e-6, rtol=1e-6)  # both windows inform it
+    lone = ExtrinsicTrack()
+    lone.fuse(np.eye(4), np.eye(6) * 1e-4)
+    lone.fuse(np.eye(4), broken)
+    assert np.linalg.eigvalsh(lone.covariance).min() > 0
