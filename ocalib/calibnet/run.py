@@ -54,6 +54,7 @@ if typing.TYPE_CHECKING:
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 SYNC_WARNING = 0.1  # frames: paired frames further apart than this (median) are warned about
+DETERMINED_ROTATION_DEG = 0.5  # a reported rotation's 1-sigma over this (deg, any axis): not determined (a target)
 
 
 @dataclass
@@ -134,7 +135,34 @@ class ImageCalibration:
         if errors is not None:
             doc["ground_truth_errors"] = finite_or_null(errors)
         doc["warnings"] = _replaced_said(doc["warnings"], doc["extrinsics"])
+        for entry in doc["extrinsics"]:
+            reason = _not_determined(entry)
+            entry["determined"] = reason is None
+            if reason is not None:
+                whose = SOURCES.get(entry.get("source"), "the on-line head")
+                doc["warnings"].append(
+                    f"{entry['camera']}: the extrinsic reported ({whose}'s) is not determined: {reason}"
+                )
         return doc
+
+
+def _not_determined(entry: dict) -> str | None:
+    """Why the reported extrinsic ``entry`` (an object of the JSON's ``extrinsics``) is not determined to the
+    targets' precision: no stated 1-sigma, a rotation 1-sigma over ``DETERMINED_ROTATION_DEG`` about an axis, or
+    fewer than two translation axes with a 1-sigma within ``WEAK_SHARE`` of the lever arm (a car's height is never
+    pinned; None: unobservable); None where it is determined."""
+    from ocalib.rigba.covariance import WEAK_SHARE
+
+    rotation, translation = entry.get("rotation_std_deg"), entry.get("translation_std")
+    if rotation is None or translation is None or None in rotation:
+        return "no 1-sigma stated"
+    if max(rotation) > DETERMINED_ROTATION_DEG:
+        return f"its rotation's 1-sigma is {max(rotation):.2f} deg (over {DETERMINED_ROTATION_DEG:g})"
+    lever_arm = float(np.linalg.norm(entry["translation"]))
+    pinned = [s for s in translation if s is not None and s <= WEAK_SHARE * lever_arm]
+    if len(pinned) < 2:
+        return f"fewer than two translation axes have a 1-sigma within {WEAK_SHARE:.0%} of the lever arm"
+    return None
 
 
 def _apart(sequence: Sequence) -> dict[int, float]:
