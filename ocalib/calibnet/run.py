@@ -136,7 +136,7 @@ class ImageCalibration:
             doc["ground_truth_errors"] = finite_or_null(errors)
         doc["warnings"] = _replaced_said(doc["warnings"], doc["extrinsics"])
         for entry in doc["extrinsics"]:
-            reason = _not_determined(entry)
+            reason = not_determined(entry)
             entry["determined"] = reason is None
             if reason is not None:
                 whose = SOURCES.get(entry.get("source"), "the on-line head")
@@ -146,7 +146,7 @@ class ImageCalibration:
         return doc
 
 
-def _not_determined(entry: dict) -> str | None:
+def not_determined(entry: dict) -> str | None:
     """Why the reported extrinsic ``entry`` (an object of the JSON's ``extrinsics``) is not determined to the
     targets' precision: no stated 1-sigma, a rotation 1-sigma over ``DETERMINED_ROTATION_DEG`` about an axis, or
     fewer than two translation axes with a 1-sigma within ``WEAK_SHARE`` of the lever arm (a car's height is never
