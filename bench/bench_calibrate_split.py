@@ -203,6 +203,7 @@ def main() -> None:
     p.add_argument("--split", choices=SPLITS, default="test")
     p.add_argument("--presets", nargs="+", choices=COUNTS, default=list(COUNTS))
     p.add_argument("--modes", nargs="+", choices=("online", "default"), default=["online"])
+    p.add_argument("--only", choices=("steady", "knocked"), help="run only these rigs (two sittings side by side)")
     p.add_argument("--limit", type=int, help="run at most this many new rigs per mode (the rest next time)")
     p.add_argument("--summary-only", action="store_true", help="no new runs: summarise those kept")
     p.add_argument("--out", default=None, help="JSON (default bench/results/calibrate_SPLIT.json)")
@@ -212,6 +213,8 @@ def main() -> None:
     for mode in args.modes:
         docs, new = {}, 0
         for name, knocked in rigs(args.split, args.presets):
+            if args.only and knocked != (args.only == "knocked"):
+                continue
             kept = (root / "runs" / mode / f"{name}{'-knocked' * knocked}.json").exists()
             if not kept and (args.summary_only or (args.limit is not None and new >= args.limit)):
                 continue
