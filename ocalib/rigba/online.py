@@ -94,7 +94,8 @@ class OnlineRigOptions:
 
 @dataclass
 class RigState:
-    """The estimate after one keyframe: the fused ``extrinsics`` (C, 4, 4) in metres, their 1-sigma ``std`` (C, 6)
+    """The estimate after one keyframe: the fused ``extrinsics`` (C, 4, 4) in metres (a NaN translation for a camera
+    still waiting since the start), their 1-sigma ``std`` (C, 6)
     (rotation rad, translation m; camera 0's axes; NaN where not yet known, inf where the data do not inform it), each
     camera's normalised change statistic ``chi2`` (C,), whether the
     keyframe ``registered`` (every camera resected from its matches), the ``changes`` (camera, change) it completed,
@@ -431,7 +432,8 @@ class OnlineRigEstimator:
                 extrinsics[k] = track.extrinsic
                 variance = np.clip(np.diag(track.covariance), 0, None)
                 std[k] = np.where(variance < UNINFORMED / 10, np.sqrt(variance), np.inf)
-            else:
+            else:  # waiting since the start: the head's rotation, no lever arm yet
                 extrinsics[k] = self.extrinsics[k]
+                extrinsics[k, :3, 3] = np.nan
         chi2 = np.array([t.chi2 for t in self.tracks])
         return RigState(frame, extrinsics, std, chi2, registered, changes, seconds)
