@@ -85,6 +85,9 @@ def _interrupted(args: argparse.Namespace, start: float, err: KeyboardInterrupt)
     written = written_since(args, start)
     what = str(err) or (f"written so far (incomplete): {', '.join(written)}" if written else "nothing written")
     print(f"\nocalib {args.command}: interrupted; {what}", file=sys.stderr)
+    # the loader's helper thread (multiprocessing's resource sharer, which reports through sys.excepthook) breaks as
+    # Ctrl-C winds the workers down: its error after this line is the interruption's echo, not news
+    sys.excepthook = lambda *exc_info: None
     return 130
 
 
