@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_calibnet_accuracy import ensure
-from bench_rig_online import ensure_knocked
+from bench_rig_online import TARGETS, ensure_knocked
 from common import write_json
 from scipy.stats import chi2, norm
 
@@ -36,7 +36,6 @@ from ocalib.calibnet.run import not_determined
 from ocalib.data.layout import open_sequence
 from ocalib.rigba.change import UNINFORMED, innovation
 
-TARGETS = {"car": (0.5, 5.0, 0.1), "handheld": (0.5, 10.0, 0.25)}  # rotation deg, direction deg, translation / baseline
 SPLITS = {"dev": 6001, "test": 7001}  # the first seed of each split
 COUNTS = {"handheld": 20, "front-left": 20, "surround": 10}  # rigs per preset
 KNOCKED = 10  # of the first presets' rigs, knocked too
