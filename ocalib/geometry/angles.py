@@ -52,3 +52,20 @@ def rpy_deg(q: np.ndarray) -> np.ndarray:
     pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1, 1))
     yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return np.rad2deg([roll, pitch, yaw])
+
+
+GIMBAL_LOCK = 1e-12  # |cos(pitch)| under this: roll and yaw turn about one axis, and yaw is taken as 0
+
+
+def rpy_radians(R: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw in radians (3,) of a rotation matrix (3, 3) with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (URDF's
+    fixed-axis rpy), pitch in [-pi/2, pi/2].
+
+    Accurate for every rotation, gimbal lock included: yaw is read first (0 at the lock, where only roll -+ yaw is
+    defined), then pitch and roll from ``Rz(yaw)^T R = Ry(pitch) Rx(roll)``, whose entries hold them at full precision.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    yaw = np.arctan2(R[1, 0], R[0, 0]) if np.hypot(R[0, 0], R[1, 0]) > GIMBAL_LOCK else 0.0
+    c, s = np.cos(yaw), np.sin(yaw)
+    M = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ R
+    return np.array([np.arctan2(-M[1, 2], M[1, 1]), np.arctan2(-M[2, 0], M[0, 0]), yaw])
