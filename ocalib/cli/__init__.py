@@ -27,6 +27,7 @@ COMMANDS = {
     "predict": "predict",
     "evaluate": "evaluate",
     "train": "train",
+    "export": "export",
 }
 
 
@@ -51,6 +52,7 @@ FILE_OUTPUTS = {
     "calibrate": ("out", "trace", "plot"),
     "calibrate-poses": ("out", "trace", "plot"),
     "evaluate": ("out",),
+    "export": ("out",),
 }
 
 

@@ -1,4 +1,5 @@
-"""The boundary to COLMAP: intrinsics, poses and rigs converted once, here.
+"""The boundary to COLMAP: intrinsics, poses and rigs converted once, here (a camera's model and parameters by
+:func:`ocalib.io.export.colmap_intrinsics`, which the COLMAP export shares).
 
 Convention: ocalib's K has integer pixel centres (kornia's and OpenCV's); COLMAP's camera models put them at +0.5,
 so their principal point is ``K[:2, 2] + 0.5`` (the lens's coefficients act on normalised coordinates, unchanged). COLMAP stores world-to-camera transforms (``cam_from_world``) and each
@@ -14,6 +15,7 @@ import numpy as np
 import pycolmap
 
 from ocalib.data.distortion import Distortion
+from ocalib.io.export import colmap_intrinsics
 
 QUIET = 2  # COLMAP's log level while ocalib runs it: errors only (its INFO log is thousands of lines a run)
 pycolmap.logging.minloglevel = QUIET
@@ -27,22 +29,15 @@ except ValueError:  # imported outside the main thread, where signals cannot be 
 
 def pinhole_params(K: np.ndarray) -> list[float]:
     """COLMAP PINHOLE parameters ``fx, fy, cx, cy`` of ocalib's K (3, 3) (pixel centres shifted by +0.5)."""
-    return [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5]
+    return colmap_intrinsics(K, None)[1]
 
 
 def colmap_camera(
     K: np.ndarray, size: tuple[int, int], distortion: Distortion | None, camera_id: int
 ) -> pycolmap.Camera:
-    """COLMAP's camera of ocalib's K (3, 3), image size (H, W) and lens (:mod:`ocalib.data.distortion`): PINHOLE
-    without one; ``opencv`` as OPENCV (``fx, fy, cx, cy, k1, k2, p1, p2``), or FULL_OPENCV (``..., k3, k4, k5, k6``
-    with k4 = k5 = k6 = 0) where k3 is not 0; ``fisheye`` as OPENCV_FISHEYE (``fx, fy, cx, cy, k1, k2, k3, k4``)."""
-    params, model = pinhole_params(K), "PINHOLE"
-    if distortion is not None and distortion.model == "fisheye":
-        params, model = params + list(distortion.coeffs), "OPENCV_FISHEYE"
-    elif distortion is not None:
-        k1, k2, p1, p2, k3 = distortion.coeffs
-        model = "OPENCV" if k3 == 0 else "FULL_OPENCV"
-        params = params + [k1, k2, p1, p2] + ([] if k3 == 0 else [k3, 0.0, 0.0, 0.0])
+    """COLMAP's camera of ocalib's K (3, 3), image size (H, W) and lens (:mod:`ocalib.data.distortion`), its model
+    and parameters :func:`~ocalib.io.export.colmap_intrinsics`'s (PINHOLE, OPENCV, FULL_OPENCV or OPENCV_FISHEYE)."""
+    model, params = colmap_intrinsics(K, distortion)
     height, width = size
     return pycolmap.Camera(model=model, width=int(width), height=int(height), params=params, camera_id=camera_id)
 
