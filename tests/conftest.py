@@ -54,6 +54,7 @@ SLOW = (
     "calib/test_translation.py::test_head_scale_against_frame0_batch",
     "calibnet/test_calibnet_cli.py",
     "calibnet/test_calibnet_kitti.py",
+    "calibnet/test_own_frames.py::test_calibrate_runs_to_the_end",
     "calibnet/test_unsynchronised.py",
     "cli/test_calibrate_poses.py::test_kitti_end_to_end",
     "cli/test_calibrate_poses.py::test_three_cameras_and_solvers",

@@ -93,7 +93,7 @@ class ImageCalibration:
                 if cam.time_offset is not None:  # the truth, where the layout knows it (rendered rigs)
                     entry["true_time_offset"] = cam.time_offset - (cameras[0].time_offset or 0.0)
             placed = self.rig is not None and self.rig.final is not None  # the estimator ran and has a result
-            doc["warnings"] = doc["warnings"] + _pairing_warnings(self.sequence, placed)
+            doc["warnings"] = doc["warnings"] + list(pairing.warnings) + _pairing_warnings(self.sequence, placed)
         online = doc["extrinsics"]
         errors = self.errors
         if self.bundle is not None or self.rig is not None:
@@ -240,7 +240,7 @@ def open_calibration_sequence(
     auto, estimates = [s == "auto" for s in specs], [None] * len(sequence.cameras)
     if any(auto):
         check_motion(sequence)
-        found, quality = _estimate_offsets(sequence, frontend.resolved(), device, frames)
+        found, quality = _estimate_offsets(sequence, frontend.resolved(), device, min(frames, sequence.common))
         specs = [f if a else s for f, s, a in zip(found, specs, auto)]
         estimates = [None] + [q if a else None for q, a in zip(quality, auto)]
     sequence = synchronise(sequence, [s or 0.0 for s in specs], frames, estimates)

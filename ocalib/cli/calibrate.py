@@ -122,7 +122,7 @@ def run(args) -> int:
     sequence = open_calibration_sequence(
         args.sequence, args.cameras, args.intrinsics, args.max_frames, args.time_offset, frontend, args.device
     )
-    metric, rig = _metric_trajectory(args, sequence)
+    sequence, metric, rig, said = _metric_trajectory(args, sequence)
     writer = None
     if args.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
@@ -156,6 +156,7 @@ def run(args) -> int:
         )
         refine_calibration(result, metric, options, args.bundle_adjust_every, args.colmap_workspace)
     doc = result.result_json()
+    doc["warnings"] = said + doc["warnings"]
     if args.out:
         with open(args.out, "w") as f:
             json.dump(doc, f, indent=2)
@@ -199,9 +200,10 @@ def _check_numbers(args) -> None:
 
 def _metric_trajectory(args, sequence):
     """The --metric-trajectory at the frames of ``sequence`` to calibrate, read before the on-line pass so that bad
-    input costs no work, and the on-line rig estimator that runs on it (None, None without it)."""
+    input costs no work -> (the sequence at the frames it meets, its poses there, the on-line rig estimator that runs
+    on it, warnings); (sequence, None, None, []) without it."""
     if not args.metric_trajectory:
-        return None, None
+        return sequence, None, None, []
     if not args.bundle_adjust and not args.online_rig:
         raise InputError(
             "--metric-trajectory is for the on-line rig estimator and the bundle adjustment: drop --no-online-rig "
@@ -212,12 +214,12 @@ def _metric_trajectory(args, sequence):
     from ocalib.rigba.stream import RigStream
 
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
-    metric = read_metric_trajectory(args.metric_trajectory, sequence, frames)
+    sequence, metric, said = read_metric_trajectory(args.metric_trajectory, sequence, frames)
     options = OnlineRigOptions(keyframe_step=args.keyframe_step)
     if args.metric_noise is not None:
         options = replace(options, metric_noise=args.metric_noise)
     rig = RigStream(sequence, metric, options) if args.online_rig else None
-    return metric, rig
+    return sequence, metric, rig, said
 
 
 def print_errors(result) -> None:

@@ -65,6 +65,10 @@ def open_inputs(args):
     if args.workers < 0:
         raise InputError(f"--workers must be >= 0, got {args.workers}")
     sequence = open_sequence(args.sequence, args.cameras, args.intrinsics)
+    if len({len(c) for c in sequence.cameras}) > 1:  # cameras with frames of their own: the model takes them paired
+        from ocalib.data.synchronise import synchronise
+
+        sequence = synchronise(sequence, [0.0] * len(sequence.cameras))
     return load_model(args.checkpoint), sequence
 
 

@@ -104,11 +104,12 @@ def _natural_key(path: Path):
     return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", path.name)]
 
 
-def list_frames(folder: str | Path, suffixes=IMAGE_SUFFIXES) -> list[Path]:
+def list_frames(folder: str | Path, suffixes=IMAGE_SUFFIXES, gaps: bool = False) -> list[Path]:
     """The image files of a folder in frame order.
 
-    When every name is a number (``000000.png``) the numbers must be consecutive: a gap is an
-    :class:`InputError` naming the missing file. Other names are sorted naturally (``img2`` < ``img10``).
+    When every name is a number (``000000.png``) the numbers must be consecutive unless ``gaps`` (a camera with
+    stamps of its own, that drops frames): a gap is an :class:`InputError` naming the missing file. Other names are
+    sorted naturally (``img2`` < ``img10``).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -121,7 +122,7 @@ def list_frames(folder: str | Path, suffixes=IMAGE_SUFFIXES) -> list[Path]:
         for prev, path, number in zip(files, files[1:], numbers[1:]):
             if number == int(prev.stem):
                 raise InputError(f"{path}: frame {prev.stem} is there twice ({prev.name}, {path.name})")
-            if number != int(prev.stem) + 1:
+            if number != int(prev.stem) + 1 and not gaps:
                 missing = str(int(prev.stem) + 1).zfill(len(prev.stem)) + prev.suffix
                 raise InputError(f"{folder / missing}: frame is missing (the folder has {prev.name}, then {path.name})")
     return files

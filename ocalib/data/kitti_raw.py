@@ -1,13 +1,19 @@
-"""Loader of a KITTI raw drive folder (``2011_09_26/2011_09_26_drive_0001_sync``).
+"""Loader of a KITTI raw drive folder (``2011_09_26/2011_09_26_drive_0001_sync``, or ``..._extract``).
 
 ```
 DRIVE/image_00..03/data/0000000000.png, DRIVE/image_0x/timestamps.txt
-DRIVE/oxts/data/0000000000.txt          # GPS/IMU packets -> ground-truth poses
+DRIVE/oxts/data/0000000000.txt          # GPS/IMU packets -> ground-truth poses (sync only)
 calib_cam_to_cam.txt                    # P_rect_0x, R_rect_00, S_rect_0x; in DRIVE or its date folder
+                                        # extract: S_0x, K_0x, D_0x (k1 k2 p1 p2 k3), R_0x, T_0x
 calib_velo_to_cam.txt, calib_imu_to_velo.txt   # optional: without them there are no camera poses
 ```
 
-Convention: cameras are the *rectified* ones; the first present (``image_00``, grey left) is the reference,
+The *extract* product (a drive folder named ``..._extract``) holds the cameras as they were: unrectified, distorted
+(OpenCV's model, ``D_0x``), each with the frames it kept and its own stamps (``image_0x/timestamps.txt``), paired in
+time by :func:`ocalib.data.synchronise.synchronise`; ``R_0x``, ``T_0x`` map camera 0's points into camera x's
+(``p_camx = R p_cam0 + T``). Its OXTS packets (100 Hz) are not read: no ground-truth poses.
+
+Convention: cameras of a sync drive are the *rectified* ones; the first present (``image_00``, grey left) is the reference,
 the others are translated from rectified camera 0 as their projection matrices say (``P_rect_0x = K [I | t]``). The world
 frame is the OXTS Mercator frame (x east, y north, z up) shifted to the first IMU position (as pykitti).
 Camera pose = IMU pose @ T_imu_cam, T_cam_imu = T_cami_cam0 R_rect_00 T_cam0_velo T_velo_imu.
@@ -20,10 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ocalib.data.distortion import Distortion
 from ocalib.data.image_io import image_size, list_frames, read_numbers
 from ocalib.data.intrinsics import intrinsics_from_projection
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.errors import InputError, read_text
+from ocalib.io.timing import increasing
 
 EARTH_RADIUS = 6378137.0  # metres, as the KITTI devkit
 
@@ -99,7 +107,7 @@ def _rot(angle: np.ndarray, axis: int) -> np.ndarray:
 def read_timestamps(path: Path) -> np.ndarray:
     """KITTI ``timestamps.txt`` (``2011-09-26 13:02:25.964389445``) -> (N,) float64 seconds since the epoch (UTC)."""
     times = []
-    for lineno, line in enumerate(read_text(path, "calibration file").splitlines(), 1):
+    for lineno, line in enumerate(read_text(path, "timestamps file").splitlines(), 1):
         if not line.strip():
             continue
         try:
@@ -140,6 +148,10 @@ def open_kitti_raw(path: str | Path) -> Sequence:
     folders = [drive / f"image_0{i}" for i in range(4) if (drive / f"image_0{i}" / "data").is_dir()]
     if not folders:
         raise InputError(f"{drive}: no image_00..image_03/data folders")
+    if drive.name.endswith("_extract"):
+        sequence = Sequence(drive.name, drive, "kitti_raw", [_extract_camera(f, cam_file, calib) for f in folders])
+        sequence.times = sequence.cameras[0].times
+        return sequence.select(sequence.names)  # extrinsics relative to the first camera present
     cameras = []
     for folder in folders:
         i = folder.name[-2:]
@@ -172,3 +184,22 @@ def open_kitti_raw(path: str | Path) -> Sequence:
         for cam in sequence.cameras:
             cam.poses = T_w_cam0 @ cam.T_cam0_cam
     return sequence.select(sequence.names)  # extrinsics relative to the first camera present
+
+
+def _extract_camera(folder: Path, cam_file: Path, calib: dict) -> Camera:
+    """Camera ``image_0x`` of an extract drive: its distorted frames (numbering gaps are dropped frames), their own
+    stamps, K_0x, D_0x and S_0x, and ``T_cam0_cam`` the inverse of ``[R_0x | T_0x]``."""
+    i = folder.name[-2:]
+    T_cam_cam0 = np.eye(4)
+    T_cam_cam0[:3, :3] = calib_matrix(cam_file, calib, f"R_{i}", (3, 3))
+    T_cam_cam0[:3, 3] = calib_matrix(cam_file, calib, f"T_{i}", (3,))
+    width, height = calib_matrix(cam_file, calib, f"S_{i}", (2,))
+    distortion = Distortion("opencv", tuple(float(d) for d in calib_matrix(cam_file, calib, f"D_{i}", (5,))))
+    images = list_frames(folder / "data", gaps=True)
+    stamps = folder / "timestamps.txt"
+    times = increasing(read_timestamps(stamps), str(stamps))
+    if len(times) != len(images):
+        raise InputError(f"{stamps}: {len(times)} timestamps for {len(images)} images in {folder / 'data'}")
+    K = calib_matrix(cam_file, calib, f"K_{i}", (3, 3))
+    size = (int(round(height)), int(round(width)))
+    return Camera(folder.name, images, K, size, np.linalg.inv(T_cam_cam0), distortion=distortion, times=times)

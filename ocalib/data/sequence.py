@@ -3,8 +3,8 @@
 Convention: poses are camera-to-world 4x4 float64 (one world frame per sequence); ``T_cam0_cam`` is the
 pose of a camera in the frame of the sequence's first camera (``p_cam0 = R p_cam + t``), the identity
 for that camera; K (3, 3) float64 in pixels (integer pixel centres) at the image size ``size`` (H, W).
-Frame t of every camera is the same instant, unless a camera has stamps of its own (``times``, on its own clock):
-:func:`ocalib.data.synchronise.synchronise` then pairs the frames. A camera's ``change`` (:class:`~ocalib.data.rig.ExtrinsicChange`)
+Frame t of every camera is the same instant, unless the cameras have stamps of their own (``times``, each on its own
+clock, each camera then with its own number of frames): :func:`ocalib.data.synchronise.synchronise` pairs the frames. A camera's ``change`` (:class:`~ocalib.data.rig.ExtrinsicChange`)
 is its true ``T_cam0_cam`` from frame ``change.frame`` on, where it was moved mid-sequence; ``T_cam0_cam``
 holds before that frame. A camera's ``distortion`` is its lens's (None: a pinhole); :meth:`Camera.read` gives its frames
 as the front ends see them, undistorted for K.
@@ -48,6 +48,28 @@ class Camera:
     def __len__(self) -> int:
         return len(self.images)
 
+    def at(self, frames: np.ndarray) -> Camera:
+        """The camera at its frames ``frames`` (M,) int, increasing: images, poses, depth, stamps and the frame of a
+        change re-indexed (a change before the first frame kept is the extrinsic, one after the last is dropped)."""
+        change, T = self.change, self.T_cam0_cam
+        if change is not None:
+            after = np.flatnonzero(frames >= change.frame)
+            if not len(after):  # moved after the last frame kept
+                change = None
+            elif after[0] == 0:  # moved before the first frame kept
+                change, T = None, change.T_cam0_cam
+            else:
+                change = ExtrinsicChange(int(after[0]), change.T_cam0_cam)
+        return replace(
+            self,
+            T_cam0_cam=T,
+            images=[self.images[j] for j in frames],
+            poses=None if self.poses is None else self.poses[frames],
+            depth=None if self.depth is None else [self.depth[j] for j in frames],
+            times=None if self.times is None else self.times[frames],
+            change=change,
+        )
+
     def read(self, t: int, out_size: tuple[int, int] | None = None) -> Tensor:
         """Frame t as the front ends see it -> (3, H, W) float32 in [0, 1]: the pinhole image of K (undistorted
         where the camera has a distortion, by a remap cached per camera), resized to ``out_size`` (H', W') if given."""
@@ -59,7 +81,8 @@ class Camera:
 
 @dataclass
 class Sequence:
-    """A recording: cameras with equal frame counts, optional timestamps (N,) in seconds."""
+    """A recording: cameras with equal frame counts (or each with its own stamps and count), optional timestamps (N,)
+    in seconds, camera 0's."""
 
     name: str
     path: Path
@@ -73,7 +96,7 @@ class Sequence:
             raise InputError(f"{self.path}: no cameras")
         first = self.cameras[0]
         for cam in self.cameras[1:]:
-            if len(cam) != len(first):
+            if len(cam) != len(first) and (cam.times is None or first.times is None):
                 raise InputError(_count_mismatch(first, cam))
         for cam in self.cameras:
             for what, items in (("poses", cam.poses), ("depth maps", cam.depth), ("timestamps", cam.times)):
@@ -83,11 +106,28 @@ class Sequence:
             raise InputError(f"{self.path}: {len(self.times)} timestamps for {len(first)} frames")
 
     def __len__(self) -> int:
+        """Camera 0's frame count (every camera's, but for cameras with stamps and counts of their own)."""
         return len(self.cameras[0])
+
+    @property
+    def common(self) -> int:
+        """The frames every camera has: frame t < common exists in each (each at its own time where they have
+        stamps of their own)."""
+        return min(len(c) for c in self.cameras)
 
     @property
     def names(self) -> list[str]:
         return [c.name for c in self.cameras]
+
+    def at(self, frames: np.ndarray) -> Sequence:
+        """The sequence at its frames ``frames`` (M,) int, increasing (of every camera: frames paired or triggered
+        together), its times and pairing with them."""
+        return replace(
+            self,
+            cameras=[c.at(frames) for c in self.cameras],
+            times=None if self.times is None else self.times[frames],
+            pairing=None if self.pairing is None else self.pairing.at(frames),
+        )
 
     def camera(self, name: str) -> Camera:
         for cam in self.cameras:

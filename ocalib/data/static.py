@@ -44,15 +44,16 @@ def check_motion(sequence: Sequence, samples: int = STATIC_SAMPLES) -> None:
     Compares grey thumbnails of up to ``samples`` evenly spaced frames with the first one; also refuses
     sequences of fewer than 2 frames.
     """
-    if len(sequence) < 2:
-        raise InputError(f"{sequence.path}: {len(sequence)} frame(s); ego-motion needs at least 2")
-    index = np.unique(np.linspace(0, len(sequence) - 1, min(samples, len(sequence))).round().astype(int))
+    frames = sequence.common  # cameras with their own frames: those every camera has
+    if frames < 2:
+        raise InputError(f"{sequence.path}: {frames} frame(s); ego-motion needs at least 2")
+    index = np.unique(np.linspace(0, frames - 1, min(samples, frames)).round().astype(int))
     for cam in sequence.cameras:
         thumbs = thumbnails([cam.images[i] for i in index])
         change = float((thumbs[1:] - thumbs[:1]).abs().mean((-2, -1)).max())
         if change < STATIC_THRESHOLD:
             raise InputError(
                 f"{cam.images[0].parent}: camera {cam.name} shows no motion (frames "
-                f"{', '.join(map(str, index))} of {len(sequence)} are identical, mean difference "
+                f"{', '.join(map(str, index))} of {frames} are identical, mean difference "
                 f"{change:.2g}); ego-motion cannot be estimated from a still camera"
             )

@@ -53,13 +53,14 @@ class Trajectory:
         return len(self.poses)
 
 
-def _read_rows(path: str | Path, columns: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _read_rows(path: str | Path, columns: int | None = None, what: str = "pose file") -> tuple[np.ndarray, np.ndarray]:
     """Numbers of a pose file -> rows (N, C) float64 and their 1-based lines (N,).
 
-    ``columns=None`` takes the count of the first data line, which must be 12 (KITTI) or 8 (TUM).
+    ``columns=None`` takes the count of the first data line, which must be 12 (KITTI) or 8 (TUM). ``what``: what
+    the messages call the file.
     """
     path = Path(path)
-    text = read_text(path, "pose file")
+    text = read_text(path, what)
     fast = _read_rows_fast(text, columns)
     if fast is not None:
         return fast
@@ -88,7 +89,8 @@ def _read_rows(path: str | Path, columns: int | None = None) -> tuple[np.ndarray
         rows.append(values)
         lines.append(lineno)
     if not rows:
-        raise InputError(f"{path}: no poses in the file (empty, or only comments)")
+        content = "poses" if what == "pose file" else "numbers"
+        raise InputError(f"{path}: no {content} in the file (empty, or only comments)")
     return np.asarray(rows, dtype=np.float64), np.asarray(lines)
 
 
@@ -147,11 +149,25 @@ def write_kitti(path: str | Path, poses) -> None:
 
 
 def read_times(path: str | Path) -> np.ndarray:
-    """Read a KITTI ``times.txt`` (one timestamp a line) -> (N,) float64, strictly increasing."""
+    """Read a ``times.txt`` (one timestamp a line) -> (N,) float64 seconds, strictly increasing.
+
+    Stamps are seconds, or nanoseconds (what ROS and most drivers write) where the first is over
+    :data:`NANOSECONDS`; every stamp of a file is in the same unit. Every problem is an InputError naming the file
+    and line (an empty file, a folder, a non-number, NaN or inf, a stamp not after the one before).
+    """
     path = Path(path)
-    rows, lines = _read_rows(path, 1)
-    _check_times(rows[:, 0], path, lines)
-    return rows[:, 0]
+    rows, lines = _read_rows(path, 1, "times file")
+    times = rows[:, 0]
+    nanoseconds = times[0] > NANOSECONDS
+    if np.isfinite(times).all() and ((times > NANOSECONDS) != nanoseconds).any():
+        i = int(np.argmax((times > NANOSECONDS) != nanoseconds))
+        units = ("nanoseconds", "seconds") if nanoseconds else ("seconds", "nanoseconds")
+        raise InputError(
+            f"{path}:{lines[i]}: stamp {float(times[i])!r} is in {units[1]}, the first ({float(times[0])!r}, line "
+            f"{lines[0]}) in {units[0]}: one unit a file (a stamp over {NANOSECONDS:.0e} is nanoseconds)"
+        )
+    _check_times(times, path, lines)
+    return times * 1e-9 if nanoseconds else times
 
 
 def read_tum(path: str | Path) -> Trajectory:

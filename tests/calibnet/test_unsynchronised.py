@@ -45,7 +45,7 @@ def test_the_offset_is_found_to_a_tenth_of_a_frame(late, tmp_path):
 
     given = open_calibration_sequence(late, time_offset=[0.3]).pairing  # three frames: camera 0's first three unpaired
     assert given.camera_json(1) | {"pair_residual_median_s": 0, "pair_residual_max_s": 0} == {
-        "time_offset": 0.3, "source": "given", "pairs": 97, "unpaired_frames": 3,
+        "time_offset": 0.3, "source": "given", "pairs": 97, "unpaired_frames": 3, "skipped_frames": 3,
         "pair_residual_median_s": 0, "pair_residual_max_s": 0,
     }  # fmt: skip
     assert given.camera_json(1)["pair_residual_max_s"] < 1e-9

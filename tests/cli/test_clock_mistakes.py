@@ -22,7 +22,8 @@ def layout(root, times=None, time_offset=None, frames=12):
         (root / "seq" / cam["name"] / "images").mkdir(parents=True)
         for i in range(frames):
             (root / "seq" / cam["name"] / "images" / f"{i:06d}.png").touch()
-    if times is not None:
+    if times is not None:  # every camera has its own stamps or none does: front's are good
+        (root / "seq" / "front" / "times.txt").write_text("".join(f"{t / 10}\n" for t in range(frames)))
         (root / "seq" / "side" / "times.txt").write_text("".join(f"{t}\n" for t in times))
     return root / "seq"
 
@@ -43,6 +44,45 @@ def test_a_bad_times_file_is_one_line(tmp_path, capsys, times, message):
     assert main(["calibrate", "--sequence", str(seq)]) == 2
     line = one_line(capsys)
     assert "side/times.txt" in line and message in line, line
+
+
+@pytest.mark.parametrize("lines, message", [
+    (["0.0", "0.1", "nan"], "side/times.txt:3: timestamp is nan"),
+    (["0.0", "inf"], "side/times.txt:2: timestamp is inf"),
+    (["0.0", "0.1", "0.1"], "side/times.txt:3: duplicate timestamp"),
+    (["# stamps", ""], "side/times.txt: no numbers in the file"),
+    (["1700000000000000000", "1700000000.1"], "side/times.txt:2: stamp 1700000000.1 is in seconds, the first"),
+    (["1700000000.0", "1700000000100000000"], "side/times.txt:2: stamp 1.7000000001e+18 is in nanoseconds"),
+])  # fmt: skip
+def test_a_malformed_times_file_names_its_line(tmp_path, capsys, lines, message):
+    seq = layout(tmp_path, times=np.arange(12) / 10)
+    (seq / "side" / "times.txt").write_text("\n".join(lines) + "\n")
+    assert main(["calibrate", "--sequence", str(seq)]) == 2
+    line = one_line(capsys)
+    assert message in line, line
+
+
+def test_a_folder_named_times_txt_is_refused(tmp_path, capsys):
+    seq = layout(tmp_path, times=np.arange(12) / 10)
+    (seq / "side" / "times.txt").unlink()
+    (seq / "side" / "times.txt").mkdir()
+    assert main(["calibrate", "--sequence", str(seq)]) == 2
+    assert "side/times.txt: a folder, not a times file" in one_line(capsys)
+
+
+def test_stamps_for_some_cameras_only_are_refused(tmp_path, capsys):
+    seq = layout(tmp_path, times=np.arange(12) / 10)
+    (seq / "side" / "times.txt").unlink()  # camera 0 alone has stamps: the others would be on no clock of theirs
+    assert main(["calibrate", "--sequence", str(seq)]) == 2
+    line = one_line(capsys)
+    assert "side/times.txt: missing, while front has its own stamps" in line and "every camera's times.txt" in line
+
+
+def test_a_dropped_frame_needs_the_cameras_stamps(tmp_path, capsys):
+    seq = layout(tmp_path)
+    (seq / "side" / "images" / "000005.png").unlink()
+    assert main(["calibrate", "--sequence", str(seq)]) == 2
+    assert "side/images/000005.png: frame is missing" in one_line(capsys)
 
 
 def test_a_bad_true_offset_in_rig_yaml_is_one_line(tmp_path, capsys):

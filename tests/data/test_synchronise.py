@@ -71,3 +71,29 @@ def test_no_frame_in_common_is_one_clear_error():
         cam.times = None
     with pytest.raises(InputError, match="no timestamps"):
         synchronise(seq, [0.1])
+
+
+def test_cameras_of_their_own_counts_and_rates_pair_around_drops_and_gaps():
+    t0 = np.delete(np.arange(30) / 10.0, [5])  # 10 Hz, frame 5 dropped
+    tk = np.delete(np.arange(60) / 20.0 + 0.002, np.r_[20:30])  # 20 Hz, 2 ms late, nothing from 1.0 to 1.5 s
+    seq = synchronise(Sequence("s", Path("s"), "rig", [camera("a", t0), camera("b", tk)]), [0.0])
+    unpartnered = (t0 > 1.05) & (t0 < 1.45)  # 1.1 .. 1.4 s: within 0.05 s of no frame of b (1.0 s pairs 0.952 s)
+    np.testing.assert_allclose(seq.times, t0[~unpartnered])
+    assert seq.pairing.skipped.tolist() == [0, 4] and seq.pairing.counts.tolist() == [29, 50]
+    assert seq.pairing.camera_json(1) | {"pair_residual_median_s": 0, "pair_residual_max_s": 0} == {
+        "time_offset": 0.0, "source": "given", "pairs": 25, "unpaired_frames": 25, "skipped_frames": 4,
+        "pair_residual_median_s": 0, "pair_residual_max_s": 0,
+    }  # fmt: skip
+    skipped, gap = seq.pairing.warnings  # camera a's one dropped frame is no gap (2 periods); b's 11 periods are
+    assert skipped == "a: 4 of its 29 frames skipped: no frame within half a frame period in every camera " \
+        "(frames without a partner: b 4)"  # fmt: skip
+    assert gap.startswith("b: no frame from t = 0.952000 s to 1.502000 s (0.550 s, 11.0 of its frame periods)")
+
+
+def test_a_camera_without_stamps_cannot_have_a_count_of_its_own():
+    t = np.arange(10) / 10.0
+    short = camera("b", t[:8])
+    short.times = None
+    with pytest.raises(InputError, match="frame is missing"):
+        Sequence("s", Path("s"), "rig", [camera("a", t), short])
+    assert Sequence("s", Path("s"), "rig", [camera("a", t), camera("b", t[:8])]).common == 8  # with stamps: fine

@@ -210,3 +210,13 @@ def test_headerless_nanosecond_files_need_a_format(tmp_path):
     np.testing.assert_allclose(read_poses(path, format="euroc").poses, poses, atol=1e-9)
     with pytest.raises(InputError, match=r"needs at least 8"):
         read_euroc(write(tmp_path, "1 2 3 4 5 6 7\n", "short.csv"))
+
+
+def test_times_in_nanoseconds_are_read_as_seconds(tmp_path):
+    ns = write(tmp_path, "1700000000000000000\n1700000000100000000\n1700000000250000000\n", "times.txt")
+    np.testing.assert_allclose(read_times(ns), [1.7e9, 1.7e9 + 0.1, 1.7e9 + 0.25], rtol=0, atol=1e-6)
+    seconds = write(tmp_path, "1700000000.0\n1700000000.1\n", "s.txt")
+    np.testing.assert_allclose(read_times(seconds), [1.7e9, 1.7e9 + 0.1], rtol=0, atol=1e-9)
+    mixed = write(tmp_path, "1700000000000000000\n1700000000.1\n", "m.txt")
+    with pytest.raises(InputError, match=rf"{mixed}:2: stamp 1700000000.1 is in seconds, the first .* nanoseconds"):
+        read_times(mixed)
