@@ -60,6 +60,8 @@ SLOW = (
     "cli/test_calibrate_poses.py::test_three_cameras_and_solvers",
     "cli/test_user_mistakes.py::test_a_rig_without_truth_is_compared_with_none",
     "cli/test_user_mistakes.py::test_ctrl_c_during_calibrate_and_demo",
+    "data/test_rosbag.py::test_a_bags_odometry_is_the_metric_trajectory_and_its_gap_said",
+    "data/test_rosbag.py::test_calibrating_a_bag_gives_the_folders_extrinsics",
     "eval/test_eval_predict.py",
     "frontend/test_frontend_registry.py::test_the_opencv_front_end_is_opencv_vo_per_camera",
     "frontend/test_opencv_vo.py",

@@ -25,8 +25,16 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "updates the calibration head. Prints the estimate (and its errors when the sequence has ground truth); "
         "writes the JSON of calibrate-poses, a per-frame trace, a plot and TensorBoard scalars.",
     )
-    p.add_argument("--sequence", required=True, metavar="DIR", help="the sequence folder")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--sequence", metavar="DIR", help="the sequence folder")
+    source.add_argument(
+        "--bag",
+        metavar="BAG",
+        help="a ROS bag instead (ROS 1 .bag, ROS 2 folder of .db3 or .mcap), with --topics: its images are extracted "
+        "once to a temporary rig folder (--bag-cache keeps it), each camera's K and lens from its camera_info",
+    )
     p.add_argument("--cameras", nargs="+", metavar="NAME", help="cameras to use, the reference first (default: all)")
+    add_bag_arguments(p)
     add_frontend_arguments(p)
     p.add_argument("--out", metavar="JSON", help="write the result JSON here")
     p.add_argument("--trace", metavar="CSV", help="write the per-frame estimates and observability here")
@@ -113,7 +121,69 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     return p
 
 
+def add_bag_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``--bag``."""
+    bag = p.add_argument_group("ROS bags (--bag)")
+    bag.add_argument(
+        "--topics",
+        nargs="+",
+        metavar="TOPIC",
+        help="the image topics (sensor_msgs/Image or CompressedImage), camera 0 first; each camera's CameraInfo is "
+        "read from the camera_info topic beside it",
+    )
+    bag.add_argument(
+        "--odometry",
+        metavar="TOPIC",
+        help="a nav_msgs/Odometry or geometry_msgs/PoseStamped topic in metres: camera 0's metric trajectory (as "
+        "--metric-trajectory), through /tf_static from its child_frame_id to camera 0's frame_id where it is there",
+    )
+    bag.add_argument(
+        "--odometry-to-cam0",
+        nargs=7,
+        type=float,
+        metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+        help="camera 0's pose in the odometry's frame (metres; ROS's quaternion order), where /tf_static lacks it "
+        "(default: the identity, said in a warning)",
+    )
+    bag.add_argument(
+        "--bag-cache", metavar="DIR", help="extract the bag's images into DIR (missing or empty) and keep them there"
+    )
+
+
 def run(args) -> int:
+    if args.bag is None:
+        for option in ("topics", "odometry", "odometry_to_cam0", "bag_cache"):
+            if getattr(args, option) is not None:
+                raise InputError(f"--{option.replace('_', '-')} is an option of --bag")
+        return _calibrate(args)
+    import tempfile
+    from pathlib import Path
+
+    from ocalib.data.rosbag import extract_bag, pose_matrix
+
+    if not args.topics or len(args.topics) < 2:
+        raise InputError(f"{args.bag}: --topics must name at least two image topics, camera 0's first")
+    if args.odometry and args.metric_trajectory:
+        raise InputError("--odometry and --metric-trajectory both give camera 0's trajectory: give one")
+    if args.odometry_to_cam0 is not None and not args.odometry:
+        raise InputError("--odometry-to-cam0 needs --odometry")
+    to_cam0 = args.odometry_to_cam0
+    to_cam0 = None if to_cam0 is None else pose_matrix(to_cam0[:3], to_cam0[3:])
+    with tempfile.TemporaryDirectory(prefix="ocalib-bag-") as tmp:
+        folder = Path(args.bag_cache) if args.bag_cache else Path(tmp) / "sequence"
+        extract = extract_bag(args.bag, args.topics, folder, args.odometry, to_cam0, args.intrinsics)
+        print(
+            "\n".join(extract.notes) + ("" if args.bag_cache else " (removed at the end; --bag-cache DIR keeps them)")
+        )
+        args = argparse.Namespace(**vars(args))
+        args.sequence = str(folder)
+        if extract.odometry is not None:
+            args.metric_trajectory, args.metric_shown = str(extract.odometry), f"{args.bag}: {args.odometry}"
+        return _calibrate(args, extract.warnings)
+
+
+def _calibrate(args, warnings: list[str] = ()) -> int:
+    """``calibrate`` on the sequence folder ``args.sequence``; ``warnings`` go first in the result's."""
     from ocalib.calib.poses.report import print_warnings, summary
     from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
 
@@ -156,7 +226,7 @@ def run(args) -> int:
         )
         refine_calibration(result, metric, options, args.bundle_adjust_every, args.colmap_workspace)
     doc = result.result_json()
-    doc["warnings"] = said + doc["warnings"]
+    doc["warnings"] = [*warnings, *said, *doc["warnings"]]
     if args.out:
         with open(args.out, "w") as f:
             json.dump(doc, f, indent=2)
@@ -214,7 +284,12 @@ def _metric_trajectory(args, sequence):
     from ocalib.rigba.stream import RigStream
 
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
-    sequence, metric, said = read_metric_trajectory(args.metric_trajectory, sequence, frames)
+    shown = getattr(args, "metric_shown", None)  # what the messages call the trajectory, where not its file's name
+    try:
+        sequence, metric, said = read_metric_trajectory(args.metric_trajectory, sequence, frames)
+    except InputError as err:
+        raise InputError(str(err).replace(args.metric_trajectory, shown or args.metric_trajectory)) from None
+    said = [line.replace(args.metric_trajectory, shown or args.metric_trajectory) for line in said]
     options = OnlineRigOptions(keyframe_step=args.keyframe_step)
     if args.metric_noise is not None:
         options = replace(options, metric_noise=args.metric_noise)
