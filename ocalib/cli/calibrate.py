@@ -171,7 +171,8 @@ def run(args) -> int:
     to_cam0 = None if to_cam0 is None else pose_matrix(to_cam0[:3], to_cam0[3:])
     with tempfile.TemporaryDirectory(prefix="ocalib-bag-") as tmp:
         folder = Path(args.bag_cache) if args.bag_cache else Path(tmp) / "sequence"
-        extract = extract_bag(args.bag, args.topics, folder, args.odometry, to_cam0, args.intrinsics)
+        frames = args.max_frames if args.time_offset is None else None  # other clocks: the whole bag
+        extract = extract_bag(args.bag, args.topics, folder, args.odometry, to_cam0, args.intrinsics, frames)
         print(
             "\n".join(extract.notes) + ("" if args.bag_cache else " (removed at the end; --bag-cache DIR keeps them)")
         )

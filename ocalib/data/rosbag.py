@@ -3,7 +3,8 @@
 
 The bag is read once, in its order (rosbags' ``AnyReader``), and each image is written as a PNG when it comes, so
 that one image at a time is in memory. The folder written is the native rig layout (:mod:`ocalib.data.rig_layout`),
-then opened like any other sequence, every check with it:
+then opened like any other sequence, every check with it (``calibrate --bag`` writes it to a temporary folder,
+removed when it ends, or to ``--bag-cache DIR``, kept):
 
 ```
 OUT/rig.yaml                  # a camera per image topic, in the order given: K and lens from its CameraInfo
@@ -43,6 +44,7 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 ODOMETRY_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 TF_STATIC = "/tf_static"
+AFTER_LAST_S = 2.0  # with a frame count: seconds of the bag read past camera 0's last frame (the others', odometry)
 # ROS's distortion_model -> ocalib's lens model (ocalib.data.distortion) and its number of coefficients
 LENS_MODELS = {"plumb_bob": ("opencv", 5), "rational_polynomial": ("opencv", 5), "equidistant": ("fisheye", 4)}
 # sensor_msgs/Image encodings read: pixel type, channels, the cv2 conversion to what cv2.imwrite takes (BGR or grey)
@@ -139,12 +141,9 @@ def select_connections(reader, bag, topics: list[str], odometry: str | None) -> 
         if by_topic[topic][0].msgtype not in types:
             kinds = " or ".join(t.replace("/msg/", "/") for t in types)
             raise InputError(f"{bag}: {topic} holds {by_topic[topic][0].msgtype.replace('/msg/', '/')}, not {kinds}")
-    read = [*topics, *[info_topic(t) for t in topics], *([odometry] if odometry else []), TF_STATIC]
-    return {
-        t: by_topic[t]
-        for t in read
-        if t in by_topic and (t != TF_STATIC or by_topic[t][0].msgtype.endswith("TFMessage"))
-    }
+    read = {t: None for t in [*topics, *([odometry] if odometry else [])]}
+    read |= {info_topic(t): INFO_TYPE for t in topics} | {TF_STATIC: "tf2_msgs/msg/TFMessage"}
+    return {t: by_topic[t] for t, kind in read.items() if t in by_topic and kind in (None, by_topic[t][0].msgtype)}
 
 
 def stamp(msg) -> float:
@@ -283,11 +282,13 @@ def extract_bag(
     odometry: str | None = None,
     odometry_to_cam0: np.ndarray | None = None,
     intrinsics: str | Path | None = None,
+    frames: int | None = None,
 ) -> BagExtract:
     """Extract the image ``topics`` of ``bag`` (the first is camera 0) and its ``odometry`` topic into the rig folder
     ``out`` (missing or empty), read once, in order. ``odometry_to_cam0``: camera 0's pose in the odometry's body frame
-    (4, 4), where /tf_static lacks it; ``intrinsics``: a K file for cameras without a CameraInfo. Every problem with
-    the bag is an :class:`InputError` naming it and the topic."""
+    (4, 4), where /tf_static lacks it; ``intrinsics``: a K file for cameras without a CameraInfo; ``frames``: camera
+    0's first frames only (the bag read to :data:`AFTER_LAST_S` past the last). Every problem with the bag is an
+    :class:`InputError` naming it and the topic."""
     out = Path(out)
     if len(set(topics)) < len(topics):
         raise InputError(f"{bag}: --topics names a topic twice: {' '.join(topics)}")
@@ -298,7 +299,7 @@ def extract_bag(
     reader = open_bag(bag)
     try:
         connections = select_connections(reader, bag, topics, odometry)
-        transforms = _stream(reader, bag, [c for cs in connections.values() for c in cs], cams, odo, out)
+        transforms = _stream(reader, bag, [c for cs in connections.values() for c in cs], cams, odo, out, frames)
     except _bag_errors() as err:
         raise InputError(f"{bag}: cannot read the bag ({type(err).__name__}: {err})") from None
     finally:
@@ -320,16 +321,22 @@ def extract_bag(
     return BagExtract(out, out / "odometry.txt", notes + said, warnings)
 
 
-def _stream(reader, bag, connections: list, cams: list[BagCamera], odo: BagOdometry | None, out: Path) -> dict:
-    """Read the ``connections``' messages once, in the bag's order: images written as they come, the first CameraInfo
-    and every odometry pose kept -> the /tf_static transforms (child -> (parent, T_parent_child))."""
+def _stream(reader, bag, connections: list, cams: list[BagCamera], odo: BagOdometry | None, out: Path, frames=None):
+    """Read the ``connections``' messages once, in the bag's order (to :data:`AFTER_LAST_S` past camera 0's frame
+    ``frames`` where given): images written as they come, the first CameraInfo and every odometry pose kept -> the
+    /tf_static transforms (child -> (parent, T_parent_child))."""
     images = {c.topic: c for c in cams}
     infos = {c.info_topic: c for c in cams}
     transforms: dict[str, tuple[str, np.ndarray]] = {}
-    for connection, _, raw in reader.messages(connections=connections):
+    end = None  # the bag time (ns) to read to, once camera 0 has its frames
+    for connection, t_ns, raw in reader.messages(connections=connections):
+        if end is not None and t_ns > end:
+            break
         msg, topic = reader.deserialize(raw, connection.msgtype), connection.topic
-        if topic in images:
+        if topic in images and (topic != cams[0].topic or end is None):
             _write_image(images[topic], msg, bag, out)
+            if frames is not None and len(cams[0].times) == frames and end is None:
+                end = t_ns + int(AFTER_LAST_S * 1e9)
         elif topic in infos and infos[topic].info is None:
             infos[topic].info = msg
         elif odo is not None and topic == odo.topic:

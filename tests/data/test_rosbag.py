@@ -11,7 +11,7 @@ import torch
 
 from ocalib.cli import main
 from ocalib.data.layout import open_sequence
-from ocalib.data.rosbag import camera_names, extract_bag, image_array, info_topic
+from ocalib.data.rosbag import camera_names, extract_bag, image_array, info_topic, pose_matrix
 from ocalib.io.poses import read_kitti, read_tum, write_tum
 from ocalib.synth import preset
 
@@ -143,6 +143,14 @@ def test_a_bag_opens_to_the_rendered_frames_K_stamps_and_odometry(rig, bags, whi
     np.testing.assert_allclose(odometry.poses, read_kitti(rig / "cam0" / "poses.txt")[skipped:], atol=1e-6)
 
 
+def test_a_frame_count_stops_reading_past_camera_0s_last(bags, tmp_path, monkeypatch):
+    monkeypatch.setattr("ocalib.data.rosbag.AFTER_LAST_S", 0.25)
+    extract = extract_bag(bags[0], ["/cam0/image_raw", "/cam1/image_raw"], tmp_path / "x", "/odom", frames=5)
+    seq = open_sequence(extract.folder)
+    assert [len(c) for c in seq.cameras] == [5, 7]  # camera 1 to 0.25 s past camera 0's frame 4: its frames 5, 6
+    assert len(read_tum(extract.odometry)) == 7
+
+
 def test_names_sibling_info_topics_and_image_encodings():
     assert camera_names(["/cam0/image_raw", "/cam1/image_raw/compressed"]) == ["cam0", "cam1"]
     assert camera_names(["/a/image", "/a/image2"]) == ["a_image", "a_image2"]  # one namespace: the whole topic
@@ -154,9 +162,9 @@ def test_names_sibling_info_topics_and_image_encodings():
     np.testing.assert_array_equal(image_array(msg, "here"), grey.astype(np.uint16))
 
 
-def small_bag(path, ts=ROS2, info=True, model="plumb_bob", D=(0.0,) * 5, odometry_ns=None):
+def small_bag(path, ts=ROS2, info=True, model="plumb_bob", D=(0.0,) * 5, odometry_ns=None, pose_stamped=False):
     """A bag of two 8x8 cameras, 3 frames: /cam0/image_raw and /cam1/image_raw (mono8), their CameraInfo (or none),
-    odometry on /odom at ``odometry_ns`` (camera 0's frame, identity poses) where given."""
+    odometry on /odom at ``odometry_ns`` (camera 0's frame, identity poses; or PoseStamped) where given."""
     m, records = Messages(ts), []
     K = [[8.0, 0, 3.5], [0, 8.0, 3.5], [0, 0, 1]]
     for name in ("cam0", "cam1"):
@@ -167,7 +175,8 @@ def small_bag(path, ts=ROS2, info=True, model="plumb_bob", D=(0.0,) * 5, odometr
             grey = np.full(64, 10 * i, np.uint8)
             records.append((t, f"/{name}/image_raw", m.Image(m.header(t, name), 8, 8, "mono8", 0, 8, grey)))
     for t in odometry_ns or ():
-        records.append((t, "/odom", m.odometry(t, "odom", "cam0", np.eye(4))))
+        msg = m.PoseStamped(m.header(t, "odom"), m.pose(np.eye(4))) if pose_stamped else m.odometry(t, "odom", "cam0", np.eye(4))  # fmt: skip
+        records.append((t, "/odom", msg))
     return write_bag(path, ts, records)
 
 
@@ -235,6 +244,20 @@ def test_lenses_and_given_intrinsics(tmp_path):
     assert len(read_tum(extract.odometry)) == 2  # frame 0 outside the odometry: left to the metric trajectory's reader
 
 
+def test_pose_stamped_odometry_is_taken_as_camera_0s_unless_a_pose_is_given(tmp_path):
+    bag = small_bag(tmp_path / "ps", odometry_ns=[EPOCH_NS, EPOCH_NS + 2 * PERIOD_NS], pose_stamped=True)
+    topics = ["/cam0/image_raw", "/cam1/image_raw"]
+    assert extract_bag(bag, topics, tmp_path / "a", "/odom").warnings == [
+        f"{bag}: /odom: no transform from its frame (none: a PoseStamped) to camera 0's frame cam0 (/tf_static or "
+        "--odometry-to-cam0): its poses are taken as camera 0's"
+    ]
+    T = pose_matrix((1.0, 2.0, 3.0), (0.0, 0.0, np.sin(0.3), np.cos(0.3)))  # 0.6 rad about z
+    np.testing.assert_allclose(T[:2, :2], [[np.cos(0.6), -np.sin(0.6)], [np.sin(0.6), np.cos(0.6)]], atol=1e-12)
+    extract = extract_bag(bag, topics, tmp_path / "b", "/odom", odometry_to_cam0=T)
+    assert extract.warnings == []
+    np.testing.assert_allclose(read_tum(extract.odometry).poses, [T, T], atol=1e-8)
+
+
 def calibrated(argv, out) -> dict:
     assert main([*argv, "--frontend", "opencv", "--no-bundle-adjust", "--out", str(out)]) == 0
     return json.loads(out.read_text())
@@ -248,7 +271,9 @@ def same_extrinsics(a: dict, b: dict) -> None:
 def test_calibrating_a_bag_gives_the_folders_extrinsics(rig, bags, tmp_path):
     folder = calibrated(["calibrate", "--sequence", str(rig)], tmp_path / "folder.json")
     topics = ["--topics", "/cam0/image_raw", "/cam1/image_raw"]
-    same_extrinsics(folder, calibrated(["calibrate", "--bag", str(bags[0]), *topics], tmp_path / "bag.json"))
+    cache = ["--bag-cache", str(tmp_path / "cache")]
+    same_extrinsics(folder, calibrated(["calibrate", "--bag", str(bags[0]), *topics, *cache], tmp_path / "bag.json"))
+    assert (tmp_path / "cache" / "rig.yaml").is_file()  # kept
 
 
 def test_a_bags_odometry_is_the_metric_trajectory_and_its_gap_said(rig, bags, tmp_path):
