@@ -151,6 +151,11 @@ def run(path: Path, frames: int, options: OnlineRigOptions, first: int = 0, traj
             "stays_within_targets_from_frame": settled,
             "true_change_frame": change,
             "changes": found,
+            "dismissed_candidates": [
+                {"frame": f, "split_statistic": x.statistic, "rotation_change_deg": x.rotation_deg}
+                for j, f, x in estimator.dismissed
+                if j == k
+            ],
         }
     return out
 

@@ -72,7 +72,7 @@ SLOW = (
     "rigba/test_rig_online.py::test_a_trajectory_off_as_a_real_one_is_needs_its_noise_stated",
     "rigba/test_rig_online.py::test_the_windows_solved_poses_take_the_metric_positions_as_priors",
     "rigba/test_rig_online.py::test_a_textureless_stretch_is_counted_not_fatal",
-    "rigba/test_rig_online.py::test_a_change_suggested_at_the_streams_end_is_reported_unjudged",
+    "rigba/test_rig_online.py::test_a_candidate_raised_at_the_streams_end_is_reported_unjudged",
     "sim/test_experiment.py::test_cli_end_to_end",
     "sim/test_readme_table.py",
     "synth/test_change.py::test_rendered_layout_holds_the_truth",

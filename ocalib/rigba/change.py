@@ -4,22 +4,20 @@ mounting told from noise.
 :meth:`ExtrinsicTrack.fuse` adds a window estimate ``E_w`` with its covariance ``P_w``: information-weighted, each
 window's information divided by ``overlap`` (the number of windows a keyframe appears in: overlapping windows
 share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement ``E_k`` of the extrinsic
-(camera k resected from its 2-D-3-D inliers, composed with the rig's pose) against the track, the best knowledge of
-the mounting (a single window of a car's side camera scatters by degrees where the track holds tenths): with ``d``
-the innovation from the track's ``E`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the
-statistic ``d^T (I_k^-1 + P)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an
-overdispersion (the points are estimates, shared by neighbouring keyframes) taken as the median of the recent
-steady statistics over the distribution's median, when above 1. Over the quantile at ``false_alarm`` on
-``persistence`` tested keyframes in a row, by a median step of at least ``min_change``, is a change: the track
-restarts from the keyframes' median rotation (:meth:`ExtrinsicTrack.tentative`); a run of smaller steps is the
-test's scale, and joins the steady statistics.
+(camera k resected from its 2-D-3-D inliers, composed with the rig's pose) against the window's: with ``d`` the
+innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the statistic
+``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
+points are estimates, shared by neighbouring keyframes) taken as the median of the recent steady statistics over
+the distribution's median, when above 1. Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
+in a row is a candidate change; the caller confirms it (:meth:`ExtrinsicTrack.accept`: the track restarts from the
+keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
 
-:meth:`ExtrinsicTrack.drifted` catches what the keyframes' test misses (too few keyframes tested, or a slow drift):
-each window estimate, before it is fused, against the track, ``d^T (P +
+:meth:`ExtrinsicTrack.drifted` catches what the keyframes' test misses where the window follows a change within a
+few keyframes (they then agree with it): each window estimate, before it is fused, against the track, ``d^T (P +
 P_w)^-1 d`` with ``d`` the innovation from the track's ``E`` to ``E_w``; the track holds the windows before it, so on a
 steady rig the statistic sits well under a chi-square with 6 degrees of freedom, and over its quantile at
-``DRIFT_FALSE_ALARM`` on ``DRIFT_PERSISTENCE`` windows in a row, by a step of at least ``min_change``, the track moves
-to the window's rotation, its lever arm kept.
+``DRIFT_FALSE_ALARM`` on ``persistence`` windows in a row, by a step of at least ``min_change``, the track moves
+to the window's estimate.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_ref`` with ``d`` =
 (rotation rad, translation) in camera 0's axes; rig poses camera-to-world (4, 4).
@@ -39,11 +37,10 @@ from ocalib.data.distortion import project
 from ocalib.geometry.pose import cross_matrix
 
 HISTORY = 30  # steady keyframes whose statistics give the overdispersion
-MIN_HISTORY = 3  # steady keyframes needed before the test runs (a knock soon after a release is tested too)
+MIN_HISTORY = 10  # steady keyframes needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 CHI2_MEDIAN = float(chi2_distribution.median(6))
 DRIFT_FALSE_ALARM = 1e-6  # drifted's level; steady rigs stay far below it (docs/results-rig-online.md)
-DRIFT_PERSISTENCE = 2  # windows in a row over it
 
 
 @dataclass
@@ -79,7 +76,7 @@ class ExtrinsicTrack:
     def drifted(self, frame: int, extrinsic: np.ndarray, covariance: np.ndarray) -> Change | None:
         """Test the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) at keyframe ``frame`` against the
         track, before it is fused -> the change it completes, if any, already accepted: the track then holds the
-        window's rotation and its own lever arm, uninformed. The change's frame is the first window of the run over the level (the change
+        window's estimate, uninformed. The change's frame is the first window of the run over the level (the change
         happened before it)."""
         if self.extrinsic is None:
             return None
@@ -92,11 +89,10 @@ class ExtrinsicTrack:
             self._drifting.clear()
             return None
         self._drifting.append(frame)
-        if len(self._drifting) < DRIFT_PERSISTENCE:
+        if len(self._drifting) < self.persistence:
             return None
         before = self.extrinsic
         self.candidate = extrinsic.copy()
-        self.candidate[:3, 3] = before[:3, 3]  # the window's rotation, the lever arm the track had (as tentative's)
         change = Change(self._drifting[0], frame, *step_size(before[:3, :3], before[:3, 3], extrinsic[:3, :3],
                                                              extrinsic[:3, 3]))  # fmt: skip
         self.accept(change)
@@ -104,29 +100,20 @@ class ExtrinsicTrack:
 
     @property
     def disagrees(self) -> bool:
-        """Whether the last tested keyframes disagree with the track, short of a change yet."""
+        """Whether the last keyframes disagree with the window, short of a change yet."""
         return bool(self._pending)
 
-    @property
-    def disagreeing_since(self) -> int | None:
-        """The frame of the first keyframe of the current run of disagreeing ones (None: none)."""
-        return self._pending[0][0] if self._pending else None
-
-    @property
-    def first_disagreeing(self) -> np.ndarray | None:
-        """The extrinsic (4, 4) the run's first disagreeing keyframe measured (None: no run): the one measured
-        against points placed before the run."""
-        return self._pending[0][1] if self._pending else None
-
-    def observe(self, frame: int, extrinsic: np.ndarray, info: np.ndarray) -> Change | None:
+    def observe(
+        self, frame: int, extrinsic: np.ndarray, info: np.ndarray, reference: tuple[np.ndarray, np.ndarray]
+    ) -> Change | None:
         """Test one keyframe's measurement ``extrinsic`` (4, 4) with its information ``info`` (6, 6)
-        (:func:`information`) against the track -> the change it completes, if any, already accepted
-        (:meth:`accept`)."""
+        (:func:`information`) against ``reference``, the window's ``(extrinsic (4, 4), covariance (6, 6))`` -> the
+        candidate change it completes, if any, to :meth:`accept` or :meth:`dismiss`."""
         if self.extrinsic is None or not np.isfinite(info).all():
             return None
-        d = innovation(self.extrinsic, extrinsic)
+        d = innovation(reference[0], extrinsic)
         try:
-            statistic = float(d @ np.linalg.solve(np.linalg.inv(info) + self.covariance, d))
+            statistic = float(d @ np.linalg.solve(np.linalg.inv(info) + reference[1], d))
         except np.linalg.LinAlgError:
             return None
         if len(self._history) < MIN_HISTORY:
@@ -138,39 +125,26 @@ class ExtrinsicTrack:
             self._pending.clear()
             self._history.append(statistic)
             return None
-        self._pending.append((frame, extrinsic, statistic))
+        self._pending.append((frame, extrinsic))
         if len(self._pending) < self.persistence:
             return None
-        change = self.tentative(frame)
-        if not reaches(self._step(), self.min_change):  # a run of small disagreements: the test's scale, not a move
-            self._history.extend(s for _, _, s in self._pending)
-            self._pending.clear()
-            return None
-        self.accept(change)
-        return change
-
-    def tentative(self, frame: int) -> Change | None:
-        """The change the current run of disagreeing keyframes would declare at ``frame`` (None: no run); sets
-        :attr:`candidate` to the extrinsic it would give: the keyframes' mean rotation, the track's translation (a
-        knock turns a camera more than it moves it, and a keyframe's resection places it poorly); the keyframes'
-        median, against one misled by its points."""
-        if not self._pending:
-            return None
-        step = self._step()
-        self.candidate = perturbed(self.extrinsic, np.r_[step[:3], 0.0, 0.0, 0.0])
-        moved = perturbed(self.extrinsic, step)
-        return Change(self._pending[0][0], frame, *step_size(self.extrinsic[:3, :3], self.extrinsic[:3, 3],
-                                                             moved[:3, :3], moved[:3, 3]))  # fmt: skip
-
-    def _step(self) -> np.ndarray:
-        """(6,) the disagreeing keyframes' median innovation from the track."""
-        return np.median([innovation(self.extrinsic, E) for _, E, _ in self._pending], axis=0)
+        step = np.mean([innovation(self.extrinsic, E) for _, E in self._pending], axis=0)
+        self.candidate = perturbed(self.extrinsic, step)
+        return Change(
+            self._pending[0][0],
+            frame,
+            *step_size(self.extrinsic[:3, :3], self.extrinsic[:3, 3], self.candidate[:3, :3], self.candidate[:3, 3]),
+        )
 
     def accept(self, change: Change) -> None:
         """The candidate ``change`` is real: record it and restart the track from its extrinsic, uninformed."""
         self.changes.append(change)
         self.extrinsic, self.covariance = self.candidate, np.eye(6) * UNINFORMED
         self._history.clear()
+        self.dismiss()
+
+    def dismiss(self) -> None:
+        """Forget the pending candidate: the keyframes that disagreed were wrong, not the window."""
         self._pending.clear()
         self._drifting.clear()
         self.candidate = None

@@ -12,17 +12,17 @@ camera's extrinsic. Every ``keyframe_step``-th frame, :meth:`OnlineRigEstimator.
 2. resects every camera from its 2-D-3-D matches (COLMAP's absolute pose), keeping the matches that agree: with the
    rig's pose (camera 0's own resection where the poses are solved), each gives that keyframe's own measurement of
    the camera's extrinsic, with its information;
-3. tests each measurement against the camera's track for a change (:mod:`ocalib.rigba.change`): ``persistence``
-   tested keyframes in a row disagreeing, by a median step of at least ``min_change_deg`` or ``min_change_m``, are a
-   change; the camera then restarts from their median rotation with the lever arm it had, its observations before the
-   change forgotten, and waits (below). While its keyframes disagree, the window holds the camera and leaves out its
-   observations since the first that disagreed (a window that moved it there would follow a knock without a word,
-   and one that held it would drop them as outliers);
+3. tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
 4. continues the tracks the matches extend and triangulates new points, each camera where the window puts it, or
-   where its own resection does while it disagrees (so that a knocked camera's new points are where it now looks);
+   where its own resection does while it disagrees with the window; a candidate change (``persistence``
+   keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN`` keyframes from the
+   candidate's frame on (the camera held meanwhile, its new points where its own resections put it), adjusted
+   with a second extrinsic for the camera from the candidate's frame on
+   (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move, nor is
+   a step under ``min_change_deg`` and ``min_change_m``;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
-   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held;
-   its track empty at the start, uninformed after a change), until the window determines it: the 1-sigma of its
+   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
+   its track empty) at the start and after a change, until the window determines it: the 1-sigma of its
    extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`), under
    ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two best-determined
    directions (a car's height is never pinned by planar motion): released sooner, a window over a short stretch of
@@ -39,10 +39,11 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pycolmap
+from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion, undistort_pixels
@@ -50,16 +51,19 @@ from ocalib.rigba.change import (
     UNINFORMED,
     ExtrinsicTrack,
     information,
+    reaches,
     relative_information,
     with_unobservable,
 )
 from ocalib.rigba.colmap import pinhole_params, to_matrix
 from ocalib.rigba.features import Features, SiftExtractor, match_features
 from ocalib.rigba.options import DEFAULT_METRIC_NOISE
-from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, adjust_window, shares_pose
+from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, SplitTest, adjust_window, shares_pose, split_statistic
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
+CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
 MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
+CONFIRM_SPAN = 4  # keyframes from a candidate change's frame on before the window's split test judges it
 
 
 @dataclass(frozen=True)
@@ -75,12 +79,12 @@ class OnlineRigOptions:
     min_test_inliers: int = 30  # 2-D-3-D inliers for a keyframe to be tested for a change
     min_angle_deg: float = 1.0  # a new point's least triangulation angle
     false_alarm: float = 1e-8  # a keyframe's chance to look like a change, were the test's ratio chi-square
-    persistence: int = 4  # tested keyframes in a row that must disagree with the track before a change is declared
+    persistence: int = 2  # keyframes in a row that must disagree before a change is declared
     # the trajectory's noise (m per axis): its positions are priors and the images solve the rig's poses; 0 or
     # None: held as given (an exact trajectory, e.g. a render's)
     metric_noise: float | None = DEFAULT_METRIC_NOISE
-    # the least mean step of the disagreeing keyframes that is a change (rotation deg, or translation m): real images
-    # hold what no model does (intrinsics, texture, moving things) and make smaller steps significant
+    # the least step the window's split test must find to confirm a change (rotation deg, or translation m): real
+    # images hold what no model does (intrinsics, texture, moving things) and make smaller steps significant
     min_change_deg: float = 0.25
     min_change_m: float = 0.1
     # a waiting camera is released once the window's 1-sigma of it is under these (see the module)
@@ -138,6 +142,10 @@ class OnlineRigEstimator:
         ]
         self.frames_seen = 0
         self.keyframes_unregistered = 0
+        self.dismissed: list[tuple[int, int, SplitTest]] = []  # candidates the window did not confirm: camera, frame
+        # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
+        # is never judged: the camera keeps the window's estimate, and RigStream reports it)
+        self.pending: dict[int, Change] = {}
         # per waiting camera (see the module), whether its rotation follows the head's (at the start, not after a change)
         self.waiting: dict[int, bool] = {k: True for k in range(1, C)}
         self.released: dict[int, int] = {}  # camera -> the keyframe it was last released at
@@ -172,18 +180,19 @@ class OnlineRigEstimator:
             self.keyframes_unregistered += len(measured) < len(features)
             self.tried += 1
             self.resected[list(measured)] += 1
-            changes = self._changes(frame, measured)
+            candidates = self._candidates(frame, measured)
             self._triangulate(kf, recent, matches, self._poses(kf, measured))
         else:
-            changes = []
+            candidates = []
         self.keyframes.append(kf)
         self._evict()
+        self.pending.update((k, self.pending.get(k, change)) for k, change in candidates)
+        changes = self._judged(frame)
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
-            hidden = self.disagreeing()
-            held = frozenset(self.waiting) | frozenset(hidden)  # waiting or suspect: the window does not move it
+            held = frozenset(self.waiting) | frozenset(self.pending)  # waiting or suspect: the window does not move it
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held,
-                                   self.options.metric_noise, hidden)  # fmt: skip
+                                   self.options.metric_noise)  # fmt: skip
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None and k in self.waiting and self._determines(u):
                     del self.waiting[k]  # released: the next window moves it
@@ -191,13 +200,11 @@ class OnlineRigEstimator:
                 elif u is not None and k not in held:
                     self.window_covariance[k] = with_unobservable(u.covariance, u.unobservable)
                     drift = self.tracks[k].drifted(frame, self.extrinsics[k], self.window_covariance[k])
-                    if drift is None:
-                        self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
-                    else:
+                    self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
+                    if drift is not None:
                         self._forget_before(k, drift.frame)
                         self.waiting[k] = False
                         changes.append((k, drift))
-                    self.extrinsics[k] = self.tracks[k].extrinsic.copy()  # the next window starts from the track
         registered = len(measured) == len(features)
         return self._state(frame, registered, changes, time.perf_counter() - start)
 
@@ -279,20 +286,18 @@ class OnlineRigEstimator:
         return bool(self.options.metric_noise) and shares_pose(kf)
 
     def _poses(self, kf: Keyframe, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-        """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or, while its
-        keyframes disagree with its track, where the first of them measured it (so that a knocked camera's new points
-        are where it now looks, and the next keyframes measure the new mounting instead of the old one their points
-        would give; each keyframe's own resection, on points two keyframes old, would wander)."""
+        """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or where its own
+        resection does while it disagrees with the window or a change of it is pending (so that a knocked camera's
+        new points are where it now looks, and the next keyframes measure the new mounting instead of the old one
+        their points would give)."""
         return [
-            np.linalg.inv(
-                kf.poses[k] @ (E if self.tracks[k].first_disagreeing is None else self.tracks[k].first_disagreeing)
-            )  # fmt: skip
+            np.linalg.inv(kf.poses[k] @ (measured[k][0] if k in measured and self._suspect(k) else E))
             for k, E in enumerate(self.extrinsics)
         ]
 
-    def disagreeing(self) -> dict[int, int]:
-        """Camera -> the frame of the first keyframe of its current run of keyframes that disagree with its track."""
-        return {k: t.disagreeing_since for k, t in enumerate(self.tracks) if t.disagreeing_since is not None}
+    def _suspect(self, k: int) -> bool:
+        """Whether camera k's keyframes disagree with the window, or a candidate change of it awaits judgement."""
+        return self.tracks[k].disagrees or k in self.pending
 
     def _triangulate(self, kf: Keyframe, recent: list[Keyframe], matches, poses: list[np.ndarray]) -> None:
         """Extend the tracks the new keyframe's matches with the ``recent`` keyframes continue (where the point
@@ -357,19 +362,58 @@ class OnlineRigEstimator:
         for pid in set(self.points) - seen:
             del self.points[pid]
 
-    def _changes(self, frame: int, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[tuple[int, Change]]:
-        """Test each camera's measured extrinsic against its track -> the changes completed. A changed camera takes
-        its track's new extrinsic (the keyframes' rotation, the lever arm it had), loses its observations from before
-        the change, and waits until the window determines it; its track then takes the next windows' estimates."""
-        changes = []
+    def _candidates(self, frame: int, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[tuple[int, Change]]:
+        """Test each camera's measured extrinsic against the window -> the candidate changes completed."""
+        candidates = []
         for k, (extrinsic, info) in measured.items():
-            change = self.tracks[k].observe(frame, extrinsic, info) if k > 0 else None
+            reference = self.extrinsics[k], self.window_covariance[k]
+            change = self.tracks[k].observe(frame, extrinsic, info, reference) if k > 0 else None
             if change is not None:
-                self.extrinsics[k] = self.tracks[k].extrinsic.copy()
-                self._forget_before(k, change.frame)
-                self.waiting[k] = False
-                changes.append((k, change))
+                candidates.append((k, change))
+        return candidates
+
+    def _judged(self, frame: int) -> list[tuple[int, Change]]:
+        """The pending candidates judged at keyframe ``frame`` by the window's split test, once ``CONFIRM_SPAN``
+        keyframes from the candidate's frame on are in the window (two keyframes misled by their matches, as on a
+        repeated texture, decide less among four) -> the changes confirmed (noticed at ``frame``)."""
+        changes = []
+        for k, change in list(self.pending.items()):
+            if sum(kf.frame >= change.frame for kf in self.keyframes) >= CONFIRM_SPAN:
+                del self.pending[k]
+                if self._confirmed(k, change):
+                    changes.append((k, replace(change, detected=frame)))
         return changes
+
+    def _confirmed(self, k: int, change: Change) -> bool:
+        """Whether the window confirms camera k's candidate ``change``; confirmed, the camera loses its observations
+        from before it, and it restarts from the candidate's rotation with the lever arm it had (a knock turns a
+        camera more than it moves it; two resections place it poorly), waiting until the window determines it; its
+        track then takes the next windows' estimates."""
+        track = self.tracks[k]
+        split = split_statistic(
+            list(self.keyframes),
+            self.points,
+            self.extrinsics,
+            self.K,
+            self.sizes,
+            k,
+            change.frame,
+            self.options.metric_noise,
+        )
+        if not (
+            split.statistic > chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6)
+            and reaches(split.step, track.min_change)
+        ):  # NaN: too little
+            track.dismiss()
+            self.dismissed.append((k, change.detected, split))
+            return False
+        lever_arm = self.extrinsics[k][:3, 3].copy()
+        track.accept(change)
+        self.extrinsics[k][:3, :3] = track.extrinsic[:3, :3]
+        self.extrinsics[k][:3, 3] = track.extrinsic[:3, 3] = lever_arm
+        self._forget_before(k, change.frame)
+        self.waiting[k] = False
+        return True
 
     def _forget_before(self, k: int, frame: int) -> None:
         """Drop camera k's observations before ``frame``: they saw the camera where it no longer is."""

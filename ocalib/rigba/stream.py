@@ -191,12 +191,9 @@ class RigStream:
         return out
 
     def unjudged(self) -> dict:
-        """Camera k -> the change (:class:`~ocalib.calib.drivers.change.Change`) its last keyframes suggest, too
-        close to the stream's end to be declared (fewer than ``persistence`` of them)."""
-        if self.estimator is None or not self.states:
-            return {}
-        tracks, last = self.estimator.tracks, self.states[-1].frame
-        return {k: tracks[k].tentative(last) for k in self.estimator.disagreeing()}
+        """Camera k -> the candidate change (:class:`~ocalib.calib.drivers.change.Change`) raised too close to the stream's
+        end for the window to judge it."""
+        return {} if self.estimator is None else dict(self.estimator.pending)
 
     def changes_json(self) -> list[dict]:
         """The changes found: camera name, first disagreeing frame, frame noticed, size of the step."""
@@ -215,7 +212,9 @@ class RigStream:
 
     def result_json(self) -> dict:
         """The estimator's final state and cost: per camera k >= 1 its extrinsic (metres) with 1-sigma and covariance, the
-        keyframes, the seconds per keyframe (median) and per frame, and the changes suggested too late to judge."""
+        keyframes, the seconds per keyframe (median) and per frame, the candidate changes the window dismissed
+        (the frame they were raised at, the split test's likelihood ratio and step) and those raised too late to
+        judge."""
         final, seconds = self.final, [s.seconds for s in self.states]
         doc = {
             "units": "metres",
@@ -237,6 +236,16 @@ class RigStream:
                 }
                 for k, c in sorted(self.unjudged().items())
             ],  # fmt: skip
+            "dismissed_changes": [
+                {
+                    "camera": self.sequence.names[k],
+                    "frame": frame,
+                    "split_statistic": _finite(split.statistic),
+                    "rotation_change_deg": _finite(split.rotation_deg),
+                    "translation_change": _finite(split.translation),
+                }
+                for k, frame, split in ([] if self.estimator is None else self.estimator.dismissed)
+            ],
             "extrinsics": [],
         }
         if final is None:

@@ -24,12 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 import pycolmap
 
+from ocalib.rigba.change import innovation
 from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
 from ocalib.rigba.covariance import ExtrinsicUncertainty, Observations, observations_uncertainty
 from ocalib.rigba.features import Features
 
 LOSS_SCALE_PX = 1.0  # the Cauchy loss's scale: residuals well above a pixel count less and less
 MAX_ERROR_PX = 4.0  # an observation reprojected farther than this after the adjustment is dropped
+MIN_SPLIT_OBSERVATIONS = 30  # of a camera before and after a split for :func:`split_statistic`
+SPLIT_TRUNCATION = 13.8  # the chi-square's 1e-3 quantile, 2 dof: a squared error counts up to this many variances
 MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts from the last window's solution)
 
 
@@ -59,12 +62,9 @@ class WindowResult:
     dropped: int
 
 
-def observations(
-    keyframes: list[Keyframe], points: dict[int, np.ndarray], hidden: dict[int, int] | None = None
-) -> dict[str, np.ndarray]:
+def observations(keyframes: list[Keyframe], points: dict[int, np.ndarray]) -> dict[str, np.ndarray]:
     """The window's observations of points seen at least twice, as arrays: ``camera``, ``frame`` (keyframe
-    index), ``keypoint``, ``point`` (index into ``ids``), ``xy`` (N, 2) pixels; ``ids`` (P,) the point ids. ``hidden``:
-    camera -> the frame from which its observations are left out."""
+    index), ``keypoint``, ``point`` (index into ``ids``), ``xy`` (N, 2) pixels; ``ids`` (P,) the point ids."""
     camera, frame, keypoint, pid = [], [], [], []
     for i, kf in enumerate(keyframes):
         for k, ids in enumerate(kf.point_ids):
@@ -74,9 +74,6 @@ def observations(
             keypoint.append(seen)
             pid.append(ids[seen])
     camera, frame, keypoint, pid = (np.concatenate(a).astype(np.int64) for a in (camera, frame, keypoint, pid))
-    frames = np.array([kf.frame for kf in keyframes])
-    for k, since in (hidden or {}).items():
-        pid[(camera == k) & (frames[frame] >= since)] = -1  # no point's id: left out below
     ids, point, counts = np.unique(pid, return_inverse=True, return_counts=True)
     keep = (counts[point] >= 2) & np.isin(pid, list(points))
     xy = np.concatenate([kf.features[k].keypoints for kf in keyframes for k in range(len(kf.features))])
@@ -108,18 +105,17 @@ def adjust_window(
     sizes: list[tuple[int, int]],
     held: frozenset[int] = frozenset(),
     prior_noise: float | None = None,
-    hidden: dict[int, int] | None = None,
 ) -> WindowResult:
     """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity;
     so do those of the cameras in ``held``). The keyframes' poses are held, or with ``prior_noise`` (metres per
     axis, > 0) solved too where every keyframe's cameras share one pose (:func:`solves_poses`). K (C, 3, 3) and
     ``sizes`` (C,) of (height, width) per camera. Outlying observations are dropped from the keyframes afterwards
-    (their ``point_ids`` set to -1); ``hidden`` (camera -> frame) observations are neither used nor dropped."""
-    obs = observations(keyframes, points, hidden)
+    (their ``point_ids`` set to -1)."""
+    obs = observations(keyframes, points)
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
-    xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, obs, held, prior_noise)
+    xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held, prior_noise)
     for pid, x in zip(obs["ids"], xyz):
         points[int(pid)] = x
     for kf, pose in zip(keyframes, poses):
@@ -134,6 +130,64 @@ def adjust_window(
     return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()))
 
 
+@dataclass
+class SplitTest:
+    """:func:`split_statistic`'s outcome: the likelihood ratio ``statistic`` and the ``step`` (6,) from the camera's
+    extrinsic before to after (rotation vector rad, translation; camera 0's axes; see
+    :func:`ocalib.rigba.change.innovation`)."""
+
+    statistic: float
+    step: np.ndarray
+
+    @property
+    def rotation_deg(self) -> float:
+        return float(np.degrees(np.linalg.norm(self.step[:3])))
+
+    @property
+    def translation(self) -> float:
+        return float(np.linalg.norm(self.step[3:]))
+
+
+def split_statistic(
+    keyframes: list[Keyframe],
+    points: dict[int, np.ndarray],
+    extrinsics: np.ndarray,
+    K: np.ndarray,
+    sizes: list[tuple[int, int]],
+    camera: int,
+    frame: int,
+    prior_noise: float | None = None,
+) -> SplitTest:
+    """The likelihood ratio of camera ``camera`` having moved at ``frame``: the window adjusted with one extrinsic
+    for the camera, then from that solution with a second one for its keyframes from ``frame`` on; the fall of the
+    truncated squared reprojection errors (``min(e^2, c^2)``, c^2 the chi-square's 1e-3 quantile with 2 degrees of
+    freedom over the variance per axis) over that variance. Near chi-square with 6 degrees of freedom where it has
+    not moved; the points (and, with ``prior_noise``, the rig's poses: see :func:`adjust_window`) are free in both,
+    so resections misled by a few of them, or a trajectory a little off, are not taken for a move. NaN where either
+    side has under ``MIN_SPLIT_OBSERVATIONS``. With it, the step from the first extrinsic to the second. Nothing
+    given is changed."""
+    obs = observations(keyframes, points)
+    C = len(extrinsics)
+    after = (obs["camera"] == camera) & (np.array([kf.frame for kf in keyframes])[obs["frame"]] >= frame)
+    before = (obs["camera"] == camera) & ~after
+    if min(after.sum(), before.sum()) < MIN_SPLIT_OBSERVATIONS:
+        return SplitTest(float("nan"), np.full(6, np.nan))
+    source = list(range(C)) + [camera]
+    split = dict(obs, camera=np.where(after, C, obs["camera"]))
+    errors, E, points = [], extrinsics.copy(), dict(points)
+    for o, sensors in ((obs, source[:C]), (split, source)):
+        E = np.concatenate([E, E[camera : camera + 1]]) if len(sensors) > len(E) else E
+        xyz, poses = _solve(keyframes, points, E, K[sensors], [sizes[k] for k in sensors], o, sensors,
+                            prior_noise=prior_noise)  # fmt: skip
+        points.update(zip(obs["ids"].tolist(), xyz))
+        poses = poses[obs["frame"], np.array(sensors)[o["camera"]]]  # the rig's at each observation
+        errors.append(reprojection_errors(o, poses, E, xyz, K[sensors]) ** 2)
+    variance = max(float(np.median(errors[1])) / (2 * np.log(2)), 1e-12)  # per axis: a chi-square's median, 2 dof
+    cap = SPLIT_TRUNCATION * variance
+    statistic = float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
+    return SplitTest(statistic, innovation(E[camera], E[C]))
+
+
 def solves_poses(keyframes: list[Keyframe], prior_noise: float | None) -> bool:
     """Whether the window solves the rig's poses: a trajectory noise is given (> 0), every keyframe has camera 0's
     metric position, and its cameras share one pose (a shared trigger; COLMAP's rig frame then holds them all)."""
@@ -145,13 +199,13 @@ def shares_pose(kf: Keyframe) -> bool:
     return bool((kf.poses == kf.poses[0]).all())
 
 
-def _solve(keyframes, points, extrinsics, K, sizes, obs, held=frozenset(), prior_noise=None):
-    """Adjust the window's points and rig sensors (robust loss; those in ``held``
+def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(), prior_noise=None):
+    """Adjust the window's points and rig sensors (robust loss; sensor k sees camera ``source[k]``; those in ``held``
     stay), the intrinsics held, the rig's poses held or solved (:func:`solves_poses`), camera 0's metric positions
     then priors of ``prior_noise`` metres: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of
     ``obs["ids"]`` and the keyframes' poses (F, C, 4, 4) after it."""
     shared = solves_poses(keyframes, prior_noise)
-    rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, shared)
+    rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared)
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.images:
         config.add_image(image_id)
@@ -208,10 +262,11 @@ def _prior_adjuster(rec, config, options, keyframes, noise: float):
     return pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec)
 
 
-def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, shared=False) -> pycolmap.Reconstruction:
+def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared=False) -> pycolmap.Reconstruction:
     """The window as a COLMAP reconstruction: camera k has id k + 1; keyframe i's image of sensor k has id
-    ``i C + k + 1``, in a frame of its own (same id) at the rig's pose when camera k captured it, or with
-    ``shared`` in keyframe i's one frame (id ``i C + 1``, at camera 0's pose); point p (of ``obs["ids"]``) id p + 1."""
+    ``i C + k + 1``, in a frame of its own (same id) at the rig's pose when camera ``source[k]`` captured it, or with
+    ``shared`` in keyframe i's one frame (id ``i C + 1``, at camera 0's pose); point p (of ``obs["ids"]``) id p + 1.
+    Sensor k sees camera ``source[k]``'s keypoints."""
     C = len(extrinsics)
     rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
@@ -229,14 +284,14 @@ def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, shared=False) 
         frames = [pycolmap.Frame(frame_id=i * C + k + 1, rig_id=1) for k in range(1 if shared else C)]
         for k in range(C):
             frame = frames[0 if shared else k]
-            frame.rig_from_world = to_rigid(np.linalg.inv(kf.poses[k]))
+            frame.rig_from_world = to_rigid(np.linalg.inv(kf.poses[source[k]]))
             frame.add_data_id(pycolmap.data_t(_sensor(k), i * C + k + 1))
         for frame in frames:
             rec.add_frame(frame)
         for k in range(C):
             image = pycolmap.Image(
                 name=f"c{k}/{kf.frame:06d}",
-                keypoints=kf.features[k].keypoints + 0.5,
+                keypoints=kf.features[source[k]].keypoints + 0.5,
                 camera_id=k + 1,
                 image_id=i * C + k + 1,
             )
