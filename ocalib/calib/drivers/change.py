@@ -27,6 +27,7 @@ from scipy.stats import chi2 as chi2_distribution
 from ocalib.geometry.pose import cross_matrix
 
 SEGMENT_HISTORIES = 10  # the frames a segment tests, in histories (a new reference each; segments overlap by a span)
+OUTLIER_LEVEL = 1e-4  # a frame's residuals beyond this chi-square level weigh less (:func:`_outlier_weights`)
 
 
 @dataclass
@@ -45,8 +46,10 @@ class ChangeTest:
     """The test's settings: the ``windows`` tested at every frame (windows of 100 and 300 frames notice small changes
     in much noise, but raise alarms over the slow drift of a long stream's residuals), the chance of a false alarm per
     frame, frames in a row over the threshold
-    (``persistence``), frames before the first test (``warmup``: the estimate settles), the frames before a window
-    that it is compared with (``history``, at least ``min_history``)."""
+    (``persistence``), frames before the first test (``warmup``: the estimate settles, and from then on until the
+    head's rotation 1-sigma is under ``settled_deg`` about every axis: its estimate is the residuals' reference, and
+    one degrees off breaks their first-order model), the frames before a window that it is compared with
+    (``history``, at least ``min_history``)."""
 
     windows: tuple[int, ...] = (30,)
     false_alarm: float = 1e-6
@@ -54,6 +57,7 @@ class ChangeTest:
     warmup: int = 60
     history: int = 300
     min_history: int = 120
+    settled_deg: float = 0.5
 
 
 def handeye_residuals(
@@ -81,31 +85,39 @@ def motions(poses: np.ndarray) -> np.ndarray:
 
 
 def first_change(
-    poses0: np.ndarray, posesk: np.ndarray, R: np.ndarray, t: np.ndarray, s: np.ndarray, test: ChangeTest = ChangeTest()
+    poses0: np.ndarray,
+    posesk: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    s: np.ndarray,
+    test: ChangeTest = ChangeTest(),
+    rotation_std: np.ndarray | None = None,
 ) -> Change | None:
     """The first change of camera k's extrinsic in a stream, or None.
 
     poses0, posesk: (T, 4, 4) camera-to-world poses of camera 0 and camera k (NaN where invalid).
-    R, t, s: (T, 3, 3), (T, 3), (T,) the head's estimate after each frame. The stream is tested in overlapping
-    segments; each segment's residuals are taken against the estimate after its first ``test.warmup`` frames (the
-    head's estimate moves, and the first-order model holds near its reference), and it tests the frames after a full
-    history, the first segment from ``test.warmup`` on.
+    R, t, s: (T, 3, 3), (T, 3), (T,) the head's estimate after each frame; ``rotation_std`` (T, 3) its rotation's
+    1-sigma (deg; None: settled from the start). The stream is tested in overlapping segments; each segment's
+    residuals are taken against the estimate after its first ``test.warmup`` frames, or the first one after them whose
+    rotation is settled (the head's estimate moves, and the first-order model holds near its reference), and it tests
+    the frames after a full history, the first segment from its reference on.
     """
+    settled = np.ones(len(R), bool) if rotation_std is None else (rotation_std <= test.settled_deg).all(1)
     span = test.warmup + test.history + max(test.windows)  # the frames before the first one a later segment tests
     stride = SEGMENT_HISTORIES * test.history
     for start in range(0, max(len(poses0) - span, 0) + 1, stride):
         part = slice(start, start + span + stride)
         first = 0 if start == 0 else span - test.persistence
-        found = _segment_change(poses0[part], posesk[part], R[part], t[part], s[part], test, first)
+        found = _segment_change(poses0[part], posesk[part], R[part], t[part], s[part], settled[part], test, first)
         if found is not None:
             return Change(found.frame + start, found.detected + start, found.rotation_change_deg,
                           found.translation_change)  # fmt: skip
     return None
 
 
-def _segment_change(poses0, posesk, R, t, s, test: ChangeTest, first: int) -> Change | None:
+def _segment_change(poses0, posesk, R, t, s, settled, test: ChangeTest, first: int) -> Change | None:
     """:func:`first_change` within one segment, counting only detections at frame ``first`` or later."""
-    frames, sums = _referenced_sums(poses0, posesk, R, t, s, test.warmup)
+    frames, sums = _referenced_sums(poses0, posesk, R, t, s, test.warmup, settled, test.min_history)
     p = np.ones((len(test.windows), len(frames) + 1))  # per window and end: the p-value (Bonferroni over windows)
     for i, W in enumerate(test.windows):
         ends = np.arange(W + test.min_history, len(frames) + 1)  # window [end - W, end), history before it
@@ -125,17 +137,42 @@ def _segment_change(poses0, posesk, R, t, s, test: ChangeTest, first: int) -> Ch
                   float(np.linalg.norm(step[best, 3:])))  # fmt: skip
 
 
-def _referenced_sums(poses0, posesk, R, t, s, warmup: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The frames (n,) tested, from ``warmup`` on, and the running sums of their residuals (:func:`_cumulative`),
-    all taken against the estimate of frame ``warmup - 1`` (a fixed reference: the head's estimate moves)."""
+def _referenced_sums(
+    poses0, posesk, R, t, s, warmup: int, settled, min_history: int
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The frames (n,) tested, from the reference on, and the running sums of their residuals (:func:`_cumulative`,
+    each frame weighed against glitches: :func:`_outlier_weights` from the first ``min_history``), all taken against
+    the estimate of the reference frame (a fixed one: the head's estimate moves): frame ``warmup - 1`` or the first
+    after it that is ``settled`` (T,) bool."""
     A, B = motions(poses0)[1:], motions(posesk)[1:]
-    ref = min(warmup, len(R)) - 1
+    candidates = np.flatnonzero(settled[min(warmup, len(R)) - 1 :]) + min(warmup, len(R)) - 1
+    ref = int(candidates[0]) if len(candidates) else len(R) - 1
     valid = np.isfinite(A).all((1, 2)) & np.isfinite(B).all((1, 2)) & (np.arange(len(A)) >= ref)
-    if not (np.isfinite(R[ref]).all() and np.isfinite(t[ref]).all() and np.isfinite(s[ref])):
+    if not (len(candidates) and np.isfinite(R[ref]).all() and np.isfinite(t[ref]).all() and np.isfinite(s[ref])):
         valid[:] = False
     reference = (np.broadcast_to(x[ref], (int(valid.sum()), *x.shape[1:])) for x in (R, t, s))
     r, J = handeye_residuals(A[valid], B[valid], *reference)
-    return np.flatnonzero(valid) + 1, _cumulative(r, J)
+    w = np.sqrt(_outlier_weights(r, min_history))[:, None]
+    return np.flatnonzero(valid) + 1, _cumulative(r * w, J * w[..., None])
+
+
+def _outlier_weights(r: np.ndarray, first: int) -> np.ndarray:
+    """Each frame's weight (n,) against a glitch of the pose source (a VIO relocalisation or jump: one frame's
+    motions off by far more than the noise): ``min(1, c^2 / m)`` with ``m`` the frame's residual ``r`` (n, 6) squared
+    in the metric of the ``first`` frames' second moment (itself without their own outliers), ``c^2`` the chi-square
+    quantile at ``OUTLIER_LEVEL`` with 6 degrees of freedom. One frame then adds at most ``c^2`` to a likelihood ratio,
+    under a test's threshold; a lasting step still adds up over the frames after it."""
+    c2 = chi2_distribution.isf(OUTLIER_LEVEL, 6)
+    head = r[:first]
+    if len(head) < 12:
+        return np.ones(len(r))
+    for _ in range(2):  # the second moment, then again without the frames it calls outliers
+        try:
+            m = np.einsum("ti,ij,tj->t", r, np.linalg.pinv(head.T @ head / len(head), hermitian=True), r)
+        except np.linalg.LinAlgError:
+            return np.ones(len(r))
+        head = r[:first][m[:first] <= c2]
+    return np.minimum(1.0, c2 / np.maximum(m, 1e-300))
 
 
 def _cumulative(r: np.ndarray, J: np.ndarray) -> dict[str, np.ndarray]:

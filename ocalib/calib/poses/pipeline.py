@@ -271,7 +271,8 @@ def _follow_changes(
     changes, trace["change_frame"] = [], np.full(trace["scale"].shape[:2], np.nan)
     for k in range(1, poses.shape[1]):
         start, found = 0, []
-        while change := first_change(poses[start:, 0], poses[start:, k], *_estimates(trace, k, start)):
+        while change := first_change(poses[start:, 0], poses[start:, k], *_estimates(trace, k, start),
+                                     rotation_std=trace["rotation_std_deg"][start:, k - 1]):  # fmt: skip
             onset, detected = start + change.frame, start + change.detected
             new_final, new_trace = _online(torch.from_numpy(rig.poses[onset:, [0, k]]), head, progress=False)
             for name, values in new_trace.items():

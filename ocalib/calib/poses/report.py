@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from ocalib.calib.drivers.absolute import ROTATION_GAP_MIN
+from ocalib.calib.drivers.change import ChangeTest
 from ocalib.calib.drivers.result import Calibration
 from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_MIN_SV, ROTATION_OBSERVABLE_SIGNIFICANCE
 from ocalib.geometry.angles import rotation_vector, rpy_deg
@@ -158,6 +159,21 @@ def progress_text(out: Calibration) -> str:
     return f"cam1 rot {angle:.2f}deg t=({t[0]:+.3f},{t[1]:+.3f},{t[2]:+.3f}) s={s:.3f}"
 
 
+def _untested(run: CalibrationRun) -> list[str]:
+    """A line per camera whose extrinsic the change test never tested: the on-line head's rotation 1-sigma never
+    under the test's ``settled_deg`` after its warm-up (its estimate is no reference for the residuals)."""
+    std = run.trace.get("rotation_std_deg")
+    test = ChangeTest()
+    if std is None or len(std) <= test.warmup:
+        return []
+    return [
+        f"{f}: a change of its extrinsic could not be tested: the on-line head's rotation 1-sigma never came under "
+        f"{test.settled_deg} deg (the change test's reference must be that close)"
+        for f, s in zip(run.rig.files[1:], np.moveaxis(std[test.warmup :], 1, 0))
+        if not (s <= test.settled_deg).all(1).any()
+    ]
+
+
 def run_warnings(run: CalibrationRun) -> list[str]:
     """Readable warnings about the input and the final estimate."""
     rig, e = run.rig, run.final
@@ -221,6 +237,7 @@ def run_warnings(run: CalibrationRun) -> list[str]:
                 f"{f}: {rejected} of {frames} frames rejected by the on-line head (an invalid pose of camera 0 or "
                 "this camera, or motions failing the screw-congruence gate)"
             )
+    out += _untested(run)
     for c in run.changes:
         out.append(
             f"{c['camera']}: its extrinsic changed at frame {c['frame']} (noticed at frame {c['detected']}): "
