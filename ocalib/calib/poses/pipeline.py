@@ -30,7 +30,14 @@ from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.calib.drivers.options import HeadOptions
 from ocalib.calib.drivers.result import Calibration
 from ocalib.calib.drivers.sequence import calibrate_sequence
-from ocalib.calib.poses.report import CalibrationRun, progress_text, run_warnings, stack_estimates, trace_rows
+from ocalib.calib.poses.report import (
+    CalibrationRun,
+    progress_text,
+    run_warnings,
+    stack_estimates,
+    trace_rows,
+    untested_warnings,
+)
 from ocalib.calib.stages.gating import Gates
 from ocalib.calib.stages.handeye import row_statistics
 from ocalib.calib.stages.planar import planar_axis
@@ -234,8 +241,9 @@ def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bo
     trace = {"frame": frames, "time": times} | {k: np.asarray(v, dtype=float) for k, v in trace.items()}
     settings = head.settings() | {"frames": len(poses), "max_dt": rig.max_dt, "pose_error": head.pose_error}
     run = CalibrationRun(rig, final, trace, settings, [])
-    run.changes = changes if head.motion != "absolute" and head.solver != "batch" else []
-    run.warnings = run_warnings(run)
+    tested = head.motion != "absolute" and head.solver != "batch"
+    run.changes = changes if tested else []
+    run.warnings = run_warnings(run) + (untested_warnings(run) if tested else [])
     return run
 
 

@@ -159,7 +159,7 @@ def progress_text(out: Calibration) -> str:
     return f"cam1 rot {angle:.2f}deg t=({t[0]:+.3f},{t[1]:+.3f},{t[2]:+.3f}) s={s:.3f}"
 
 
-def _untested(run: CalibrationRun) -> list[str]:
+def untested_warnings(run: CalibrationRun) -> list[str]:
     """A line per camera whose extrinsic the change test never tested: the on-line head's rotation 1-sigma never
     under the test's ``settled_deg`` after its warm-up (its estimate is no reference for the residuals)."""
     std = run.trace.get("rotation_std_deg")
@@ -237,7 +237,6 @@ def run_warnings(run: CalibrationRun) -> list[str]:
                 f"{f}: {rejected} of {frames} frames rejected by the on-line head (an invalid pose of camera 0 or "
                 "this camera, or motions failing the screw-congruence gate)"
             )
-    out += _untested(run)
     for c in run.changes:
         out.append(
             f"{c['camera']}: its extrinsic changed at frame {c['frame']} (noticed at frame {c['detected']}): "
