@@ -2,7 +2,7 @@
 
 ```
 DRIVE/image_00..03/data/0000000000.png, DRIVE/image_0x/timestamps.txt
-DRIVE/oxts/data/0000000000.txt          # GPS/IMU packets -> ground-truth poses (sync only)
+DRIVE/oxts/data/0000000000.txt          # GPS/IMU packets -> ground-truth poses (extract: oxts/timestamps.txt too)
 calib_cam_to_cam.txt                    # P_rect_0x, R_rect_00, S_rect_0x; in DRIVE or its date folder
                                         # extract: S_0x, K_0x, D_0x (k1 k2 p1 p2 k3), R_0x, T_0x
 calib_velo_to_cam.txt, calib_imu_to_velo.txt   # optional: without them there are no camera poses
@@ -11,12 +11,15 @@ calib_velo_to_cam.txt, calib_imu_to_velo.txt   # optional: without them there ar
 The *extract* product (a drive folder named ``..._extract``) holds the cameras as they were: unrectified, distorted
 (OpenCV's model, ``D_0x``), each with the frames it kept and its own stamps (``image_0x/timestamps.txt``), paired in
 time by :func:`ocalib.data.synchronise.synchronise`; ``R_0x``, ``T_0x`` map camera 0's points into camera x's
-(``p_camx = R p_cam0 + T``). Its OXTS packets (100 Hz) are not read: no ground-truth poses.
+(``p_camx = R p_cam0 + T``). Its OXTS packets (100 Hz, stamped, with gaps where the logger dropped some) give each
+camera's poses at its own stamps, interpolated between the packets around it (:func:`ocalib.io.timing.interpolate`,
+within ``INTERPOLATION_MAX_DT_PERIODS`` of their period); NaN where no packets are near.
 
 Convention: cameras of a sync drive are the *rectified* ones; the first present (``image_00``, grey left) is the reference,
 the others are translated from rectified camera 0 as their projection matrices say (``P_rect_0x = K [I | t]``). The world
 frame is the OXTS Mercator frame (x east, y north, z up) shifted to the first IMU position (as pykitti).
-Camera pose = IMU pose @ T_imu_cam, T_cam_imu = T_cami_cam0 R_rect_00 T_cam0_velo T_velo_imu.
+Camera pose = IMU pose @ T_imu_cam, T_cam_imu = T_cami_cam0 R_rect_00 T_cam0_velo T_velo_imu (extract: the unrectified
+camera 0, ``T_cam0_imu = T_cam0_velo T_velo_imu``, without R_rect_00).
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from ocalib.data.image_io import image_size, list_frames, read_numbers
 from ocalib.data.intrinsics import intrinsics_from_projection
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.errors import InputError, read_text
-from ocalib.io.timing import increasing
+from ocalib.io.timing import INTERPOLATION_MAX_DT_PERIODS, increasing, interpolate
 
 EARTH_RADIUS = 6378137.0  # metres, as the KITTI devkit
 
@@ -151,6 +154,7 @@ def open_kitti_raw(path: str | Path) -> Sequence:
     if drive.name.endswith("_extract"):
         sequence = Sequence(drive.name, drive, "kitti_raw", [_extract_camera(f, cam_file, calib) for f in folders])
         sequence.times = sequence.cameras[0].times
+        _extract_poses(drive, sequence)
         return sequence.select(sequence.names)  # extrinsics relative to the first camera present
     cameras = []
     for folder in folders:
@@ -203,3 +207,26 @@ def _extract_camera(folder: Path, cam_file: Path, calib: dict) -> Camera:
     K = calib_matrix(cam_file, calib, f"K_{i}", (3, 3))
     size = (int(round(height)), int(round(width)))
     return Camera(folder.name, images, K, size, np.linalg.inv(T_cam_cam0), distortion=distortion, times=times)
+
+
+def _extract_poses(drive: Path, sequence: Sequence) -> None:
+    """Set every camera's poses (N_k, 4, 4) of an extract drive at its own stamps from the OXTS packets (where the
+    drive has them, their stamps and the velodyne and IMU calibrations); NaN where the packets do not reach.
+    Convention: ``T_cam0_imu = T_cam0_velo T_velo_imu``, camera 0 unrectified; camera k at ``T_w_cam0 T_cam0_camk``."""
+    velo_file, imu_file = _calib_path(drive, "calib_velo_to_cam.txt"), _calib_path(drive, "calib_imu_to_velo.txt")
+    oxts, stamps = drive / "oxts" / "data", drive / "oxts" / "timestamps.txt"
+    if not (oxts.is_dir() and stamps.is_file() and velo_file and imu_file):
+        return
+    files = list_frames(oxts, (".txt",), gaps=True)
+    times = increasing(read_timestamps(stamps), str(stamps))
+    if len(times) != len(files):
+        raise InputError(f"{stamps}: {len(times)} timestamps for {len(files)} packets in {oxts}")
+    T_w_cam0 = oxts_to_poses(np.stack([_read_packet(f) for f in files])) @ np.linalg.inv(
+        _rigid(velo_file) @ _rigid(imu_file)
+    )
+    max_dt = INTERPOLATION_MAX_DT_PERIODS * float(np.median(np.diff(times)))
+    for cam in sequence.cameras:
+        poses = np.full((len(cam), 4, 4), np.nan)
+        kept, at, _ = interpolate(cam.times, times, T_w_cam0, max_dt, names=(cam.name, str(stamps)))
+        poses[kept] = at @ cam.T_cam0_cam
+        cam.poses = poses

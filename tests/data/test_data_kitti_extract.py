@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from data_fixtures import H, W, kv, noise_image, pose, rot, write_png
+from data_fixtures import T_CAM0_VELO, T_VELO_IMU, H, W, kv, noise_image, oxts_packets, pose, rot, write_oxts, write_png
 
 from ocalib.data import open_sequence
 from ocalib.data.synchronise import synchronise
@@ -55,3 +55,34 @@ def test_an_extract_stamp_count_other_than_the_images_is_one_line(tmp_path):
     stamps.write_text(stamps.read_text() + stamp(0.95) + "\n")
     with pytest.raises(InputError, match=f"{stamps}: 8 timestamps for 7 images"):
         open_sequence(drive)
+
+
+def _motion(t: np.ndarray) -> np.ndarray:
+    """Camera 0's pose (T, 4, 4) at times ``t`` (s): a constant turn about y and a constant velocity, which
+    interpolation between any two samples reproduces exactly."""
+    out = np.tile(np.eye(4), (len(t), 1, 1))
+    out[:, :3, :3] = [rot(1, 0.05 * s) for s in t]
+    out[:, :3, 3] = np.outer(t, [0.3, 0.0, 8.0])
+    return out
+
+
+def test_an_extract_drive_has_each_cameras_poses_at_its_own_stamps_from_the_oxts_packets(tmp_path):
+    """OXTS at 100 Hz from 0.05 s before the first frame, packets 0.38-0.44 s missing (a logger gap of 7 periods):
+    each camera's poses at its own stamps are the motion's, camera 1's through its extrinsic; frames in the gap NaN."""
+    drive = write_extract(tmp_path)
+    (drive.parent / "calib_velo_to_cam.txt").write_text(kv(R=T_CAM0_VELO[:3, :3], T=T_CAM0_VELO[:3, 3]))
+    (drive.parent / "calib_imu_to_velo.txt").write_text(kv(R=T_VELO_IMU[:3, :3], T=T_VELO_IMU[:3, 3]))
+    t = np.round(np.arange(-0.05, 0.8, 0.01), 6)
+    t = t[(t < 0.375) | (t > 0.445)]
+    write_oxts(drive, oxts_packets(_motion(t) @ T_CAM0_VELO @ T_VELO_IMU))
+    (drive / "oxts" / "timestamps.txt").write_text("".join(f"{stamp(s)}\n" for s in t))
+    cam0, cam1 = open_sequence(drive).cameras
+    gap = (cam0.times - cam0.times[0] > 0.375) & (cam0.times - cam0.times[0] < 0.445)
+    assert gap.sum() == 1 and np.isnan(cam0.poses[gap]).all()
+    shift = np.eye(4)  # the packets' world: the Mercator frame moved to the first IMU position (-0.05 s)
+    shift[:3, 3] = -(_motion(t[:1]) @ T_CAM0_VELO @ T_VELO_IMU)[0, :3, 3]
+    for cam in (cam0, cam1):
+        expected = shift @ _motion(cam.times - cam0.times[0]) @ cam.T_cam0_cam
+        ok = np.isfinite(cam.poses).all((1, 2))
+        assert ok.sum() >= len(cam) - 1
+        np.testing.assert_allclose(cam.poses[ok][:, :3], expected[ok][:, :3], atol=1e-6)
