@@ -34,6 +34,8 @@ TUM_COLUMNS = 8
 EUROC_COLUMNS = 8  # at least: timestamp, position, quaternion (w first)
 NANOSECONDS = 1e12  # a first timestamp above this is in nanoseconds (in seconds it would be the year 33,658)
 FORMATS = ("auto", "kitti", "tum", "euroc")
+# how to name an EuRoC file where it cannot be told (calibrate's --metric-trajectory has no --format)
+EUROC_HINT = "start the file with EuRoC's header (#timestamp [ns],p_RS_R_x [m],...,q_RS_w [],...), or give calibrate-poses --format euroc"
 
 
 @dataclass
@@ -78,7 +80,7 @@ def _read_rows(path: str | Path, columns: int | None = None, what: str = "pose f
                 raise InputError(
                     f"{path}:{lineno}: cannot tell the pose format: {len(values)} numbers on the line, expected "
                     f"{KITTI_COLUMNS} (KITTI: row-major 3x4 pose) or {TUM_COLUMNS} (TUM: t tx ty tz qx qy qz qw); "
-                    "for EuRoC / ASL CSV (t[ns] px py pz qw qx qy qz ...) give --format euroc"
+                    f"for EuRoC / ASL CSV (t[ns] px py pz qw qx qy qz ...) {EUROC_HINT}"
                 )
             columns = len(values)
         elif len(values) != columns:
@@ -247,7 +249,8 @@ def read_poses(path: str | Path, format: str = "auto", times: str | Path | None 
     if format == "auto" and rows.shape[1] == TUM_COLUMNS and rows[0, 0] > NANOSECONDS:
         raise InputError(
             f"{path}:{lines[0]}: 8 numbers a line with a timestamp in nanoseconds ({rows[0, 0]:.6g}): TUM "
-            "(t tx ty tz qx qy qz qw, seconds) or EuRoC / ASL (t[ns] px py pz qw qx qy qz)? Give --format tum or euroc"
+            f"(t tx ty tz qx qy qz qw, seconds) or EuRoC / ASL (t[ns] px py pz qw qx qy qz)? For EuRoC {EUROC_HINT}; "
+            "for TUM, calibrate-poses takes --format tum"
         )
     if rows.shape[1] == TUM_COLUMNS:
         if times is not None:

@@ -96,7 +96,7 @@ def test_a_bad_true_offset_in_rig_yaml_is_one_line(tmp_path, capsys):
     (["soon"], "expected seconds or 'auto'"),
     (["nan"], "expected seconds or 'auto', got nan"),
     (["0.1", "inf"], "expected seconds or 'auto', got 0.1 inf"),
-    (["0.1", "0.2"], "2 values for 1 cameras"),
+    (["0.1", "0.2"], "2 values for 1 camera besides the reference"),
 ])  # fmt: skip
 def test_a_bad_time_offset_option_is_one_line(tmp_path, capsys, values, message):
     seq = layout(tmp_path)

@@ -201,7 +201,10 @@ def test_euroc_is_detected_from_its_header(tmp_path, header, extra):
 
 def test_headerless_nanosecond_files_need_a_format(tmp_path):
     path, poses, _ = euroc_file(tmp_path, "vio.csv", None, extra=0)
-    with pytest.raises(InputError, match=rf"{path}:1: .*nanoseconds.*--format tum or euroc"):
+    with pytest.raises(
+        InputError,
+        match=rf"{path}:1: .*nanoseconds.*For EuRoC start the file with EuRoC.s header.*--format euroc.*--format tum",
+    ):
         read_poses(path)
     np.testing.assert_allclose(read_poses(path, format="euroc").poses, poses, atol=1e-9)
     path, poses, _ = euroc_file(tmp_path, "vio17.csv", None, extra=9)

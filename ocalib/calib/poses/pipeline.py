@@ -164,7 +164,10 @@ def offset_specs(time_offset, cameras: int) -> list[float | str | None]:
     if len(values) == 1:
         return values * cameras
     if len(values) != cameras:
-        raise InputError(f"--time-offset: {len(values)} values for {cameras} cameras; give one, or one per camera")
+        raise InputError(
+            f"--time-offset: {len(values)} values for {cameras} camera{'s' * (cameras != 1)} besides the reference "
+            "(camera 0, whose clock the others are put on); give one, or one per camera after it"
+        )
     return values
 
 
