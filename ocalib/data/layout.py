@@ -65,9 +65,15 @@ def open_sequence(path: str | Path, cameras: list[str] | None = None, intrinsics
     if layout is None:
         if path.is_dir() and not any(path.iterdir()):
             raise InputError(f"{path}: the folder is empty")
+        cameras = path.is_dir() and any(_holds_images(p) or _holds_images(p / "images") for p in path.iterdir())
         raise InputError(
             f"{path}: not a sequence folder of a known layout ({', '.join(LAYOUTS)}); "
-            "a plain image folder needs an intrinsics file (intrinsics.yaml, K.txt, cam.txt)"
+            + (
+                f"a rig (a folder of images per camera) needs {path / 'rig.yaml'} with each camera's K and size "
+                "(README: calibrating your own rig)"
+                if cameras
+                else "a plain image folder needs an intrinsics file (intrinsics.yaml, K.txt, cam.txt)"
+            )
         )
     if layout == "folder":
         sequence = open_folder(path, intrinsics)
@@ -96,3 +102,8 @@ def find_sequences(path: str | Path) -> list[Path]:
     if not found:
         raise InputError(f"{path}: no sequences found (no folder of a known layout: {', '.join(LAYOUTS)})")
     return found
+
+
+def _holds_images(folder: Path) -> bool:
+    """Whether ``folder`` is a folder with image files in it."""
+    return folder.is_dir() and any(f.suffix.lower() in IMAGE_SUFFIXES for f in folder.iterdir())

@@ -74,13 +74,14 @@ def load_model(path=None) -> EgoMotionModel:
         raise InputError(f"{path}: no such checkpoint file")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        raise InputError(f"{path}: not a readable torch checkpoint (a corrupt file or another kind of file)") from None
     except Exception as err:  # noqa: BLE001 - torch raises many kinds for a foreign or corrupt file
-        raise InputError(
-            f"{path}: not a readable torch checkpoint ({type(err).__name__}: "
-            f"{str(err).splitlines()[0] if str(err) else 'corrupt'})"
-        ) from None
+        if _is_text(path):
+            kind = "a text file"
+        elif isinstance(err, pickle.UnpicklingError):
+            kind = "a corrupt file or another kind of file"
+        else:
+            kind = f"{type(err).__name__}: {(str(err).splitlines() or ['corrupt'])[0]}"
+        raise InputError(f"{path}: not a readable torch checkpoint ({kind})") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: a torch file holding a {type(data).__name__}, not an ocalib ego-motion model")
     if data.get("kind") == KIND:
@@ -98,3 +99,14 @@ def load_model(path=None) -> EgoMotionModel:
         raise InputError(f"{path}: a Lightning checkpoint of another model, not an ocalib ego-motion checkpoint")
     what = f"kind {data['kind']!r}" if "kind" in data else f"keys {', '.join(sorted(map(str, data))[:6]) or 'none'}"
     raise InputError(f"{path}: a torch file of another kind ({what}), not an ocalib ego-motion model")
+
+
+def _is_text(path: Path) -> bool:
+    """Whether the file starts as text (UTF-8 without NUL bytes in its first KiB): a config or a note given where a
+    checkpoint was expected."""
+    head = path.read_bytes()[:1024]
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return b"\0" not in head

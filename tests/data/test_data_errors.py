@@ -153,6 +153,13 @@ def test_unknown_layout_and_missing_path(tmp_path):
     raises_naming(tmp_path / "nope", open_sequence, tmp_path / "nope")
 
 
+def test_a_rig_without_rig_yaml_is_told_to_write_one(tmp_path):
+    for cam in ("cam0", "cam1"):
+        write_png(tmp_path / "rig" / cam / "images" / "000000.png", noise_image(0))
+    message = raises_naming(tmp_path / "rig", open_sequence, tmp_path / "rig")
+    assert f"needs {tmp_path / 'rig' / 'rig.yaml'}" in message and "intrinsics file" not in message
+
+
 def test_duplicate_frame_number(tmp_path):
     write_rig(tmp_path, n=3)
     write_png(tmp_path / "cam0" / "images" / "000001.jpg", noise_image(0))

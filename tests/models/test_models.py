@@ -88,7 +88,10 @@ def test_load_errors_name_the_file(tmp_path, monkeypatch):
         load_model(tmp_path / "missing.pt")
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(b"not a torch file")
-    with pytest.raises(InputError, match="corrupt.pt: not a readable torch checkpoint"):
+    with pytest.raises(InputError, match=r"corrupt.pt: not a readable torch checkpoint \(a text file\)"):
+        load_model(corrupt)
+    corrupt.write_bytes(b"\x80\x02not a torch file\x00\xff")
+    with pytest.raises(InputError, match=r"corrupt.pt: not a readable torch checkpoint \((?!a text file)"):
         load_model(corrupt)
     other = tmp_path / "other.pt"
     torch.save({"kind": "something-else", "state_dict": {}}, other)
