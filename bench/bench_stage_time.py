@@ -1,0 +1,93 @@
+"""Where ``ocalib calibrate``'s on-line path spends its time, stage by stage, at the resolution cameras record and at
+the renders' 128x416: one run in this process under :mod:`cProfile`, the cumulative seconds of each stage's entry
+point divided by the frames.
+
+Stages: the image loader, the front end (its ego-motion per frame), the on-line head, and the on-line rig
+estimator's parts (feature extraction, matching, resection with its information, triangulation, the window's
+adjustment with its covariance). A stage's time includes what it calls; the profiler's own overhead inflates the
+many small calls (the head's) more than the few large ones (SIFT, the adjustment).
+
+    python bench/bench_stage_time.py --sequence data/kitti/dataset/sequences/01 \
+        --metric-trajectory data/kitti/dataset/poses/01.txt [--frames 51] [--label kitti-01-1241x376]
+
+Writes ``bench/results/stage_time.json`` (one entry per ``--label``, kept across runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import cProfile
+import io
+import json
+import pstats
+import tempfile
+import time
+from pathlib import Path
+
+from common import write_json
+
+from ocalib.cli import main as ocalib_main
+
+# stage -> its entry points (file suffix, function name), as the profiler names them
+STAGES = {
+    "images (loader)": [("data/stream.py", "__getitem__")],
+    "front end": [("frontend/network.py", "forward"), ("frontend/opencv.py", "forward")],
+    "on-line head": [("calib/drivers/online.py", "forward")],
+    "rig estimator (all)": [("rigba/online.py", "update")],
+    "  features (SIFT)": [("rigba/online.py", "_features")],
+    "  matching": [("rigba/features.py", "match_features")],
+    "  resection + information": [("rigba/online.py", "_resect")],
+    "  triangulation": [("rigba/online.py", "_triangulate")],
+    "  window adjustment + covariance": [("rigba/window.py", "adjust_window")],
+}
+
+
+def stage_seconds(stats: pstats.Stats) -> dict[str, float]:
+    """Cumulative seconds of each stage's entry point (0 where it never ran)."""
+    out = dict.fromkeys(STAGES, 0.0)
+    for (file, _, name), (_, _, _, cumulative, _) in stats.stats.items():
+        for stage, entries in STAGES.items():
+            if any(name == function and file.replace("\\", "/").endswith(suffix) for suffix, function in entries):
+                out[stage] += cumulative
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--sequence", required=True)
+    p.add_argument("--metric-trajectory", required=True)
+    p.add_argument("--frames", type=int, default=51)
+    p.add_argument("--label", required=True, help="the name of this case in the JSON")
+    p.add_argument("--out", default="bench/results/stage_time.json")
+    args = p.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        argv = ["calibrate", "--sequence", args.sequence, "--metric-trajectory", args.metric_trajectory,
+                "--no-bundle-adjust", "--max-frames", str(args.frames), "--out", str(Path(tmp) / "out.json")]  # fmt: skip
+        profile = cProfile.Profile()
+        start = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):
+            code = profile.runcall(ocalib_main, argv)
+        wall = time.perf_counter() - start
+        result = json.loads((Path(tmp) / "out.json").read_text()) if code == 0 else {}
+    if code != 0:
+        raise SystemExit(f"ocalib calibrate failed ({code})")
+    seconds = stage_seconds(pstats.Stats(profile))
+    frames = result.get("settings", {}).get("frames", args.frames)
+    print(f"{args.label}: {frames} frames, {wall:.1f} s under the profiler ({wall / frames * 1000:.0f} ms a frame)")
+    for stage, s in seconds.items():
+        print(f"  {stage:34} {s / frames * 1000:8.1f} ms a frame")
+    path = Path(args.out)
+    doc = json.loads(path.read_text()) if path.exists() else {"cases": {}}
+    doc["cases"][args.label] = {
+        "sequence": args.sequence,
+        "frames": frames,
+        "wall_seconds_profiled": wall,
+        "ms_per_frame": {stage: s / frames * 1000 for stage, s in seconds.items()},
+        "frontend": result.get("settings", {}).get("frontend"),
+    }
+    write_json(path, doc)
+
+
+if __name__ == "__main__":
+    main()
