@@ -25,14 +25,7 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "updates the calibration head. Prints the estimate (and its errors when the sequence has ground truth); "
         "writes the JSON of calibrate-poses, a per-frame trace, a plot and TensorBoard scalars.",
     )
-    source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--sequence", metavar="DIR", help="the sequence folder")
-    source.add_argument(
-        "--bag",
-        metavar="BAG",
-        help="a ROS bag instead (ROS 1 .bag, ROS 2 folder of .db3 or .mcap), with --topics: its images are extracted "
-        "once to a temporary rig folder (--bag-cache keeps it), each camera's K and lens from its camera_info",
-    )
+    add_source_arguments(p)
     p.add_argument("--cameras", nargs="+", metavar="NAME", help="cameras to use, the reference first (default: all)")
     add_bag_arguments(p)
     add_frontend_arguments(p)
@@ -119,6 +112,18 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
         "metres every keyframe, and a camera that moves mid-run noticed); default on",
     )
     return p
+
+
+def add_source_arguments(p: argparse.ArgumentParser) -> None:
+    """Where the images come from: ``--sequence`` or ``--bag``."""
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--sequence", metavar="DIR", help="the sequence folder")
+    source.add_argument(
+        "--bag",
+        metavar="BAG",
+        help="a ROS bag instead (ROS 1 .bag, ROS 2 folder of .db3 or .mcap), with --topics: its images are extracted "
+        "once to a temporary rig folder (--bag-cache keeps it), each camera's K and lens from its camera_info",
+    )
 
 
 def add_bag_arguments(p: argparse.ArgumentParser) -> None:
