@@ -8,7 +8,7 @@ adjustment with its covariance). A stage's time includes what it calls; the prof
 many small calls (the head's) more than the few large ones (SIFT, the adjustment).
 
     python bench/bench_stage_time.py --sequence data/kitti/dataset/sequences/01 \
-        --metric-trajectory data/kitti/dataset/poses/01.txt [--frames 51] [--label kitti-01-1241x376]
+        --metric-trajectory data/kitti/dataset/poses/01.txt [--frames 51] [--frontend auto] --label kitti-01-1241x376
 
 Writes ``bench/results/stage_time.json`` (one entry per ``--label``, kept across runs).
 """
@@ -58,12 +58,14 @@ def main() -> None:
     p.add_argument("--sequence", required=True)
     p.add_argument("--metric-trajectory", required=True)
     p.add_argument("--frames", type=int, default=51)
+    p.add_argument("--frontend", default="auto", help="calibrate's --frontend (default auto)")
     p.add_argument("--label", required=True, help="the name of this case in the JSON")
     p.add_argument("--out", default="bench/results/stage_time.json")
     args = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         argv = ["calibrate", "--sequence", args.sequence, "--metric-trajectory", args.metric_trajectory,
-                "--no-bundle-adjust", "--max-frames", str(args.frames), "--out", str(Path(tmp) / "out.json")]  # fmt: skip
+                "--no-bundle-adjust", "--max-frames", str(args.frames), "--frontend", args.frontend,
+                "--out", str(Path(tmp) / "out.json")]  # fmt: skip
         profile = cProfile.Profile()
         start = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):
