@@ -82,10 +82,10 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     ba.add_argument("--mapper", choices=MAPPERS, default="global", help="COLMAP mapper (default global)")
     ba.add_argument(
         "--metric-trajectory",
-        metavar="FILE",
+        metavar="FILE|sequence",
         help="camera 0's trajectory in metres (KITTI: one pose a frame; TUM or EuRoC: met at the "
-        "sequence's timestamps), e.g. wheel odometry, GNSS or the rig layout's poses.txt: the "
-        "translation is then in metres",
+        "sequence's timestamps), e.g. wheel odometry or GNSS: the translation is then in metres; 'sequence': the "
+        "sequence's own (KITTI raw's OXTS packets, KITTI odometry's poses, a rig folder's <camera>/poses.txt)",
     )
     ba.add_argument(
         "--metric-noise",

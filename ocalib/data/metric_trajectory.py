@@ -13,6 +13,7 @@ from ocalib.io.poses import describe_invalid, pose_validity, read_poses
 from ocalib.io.timing import interpolate
 
 INTERPOLATE_GAP = 1.25  # frame periods of the metric trajectory bridged by interpolation (as calibrate-poses)
+OWN = "sequence"  # the value naming the sequence's own camera-0 trajectory instead of a file
 
 
 def read_metric_trajectory(path, sequence: Sequence, frames: int) -> tuple[Sequence, np.ndarray, list[str]]:
@@ -22,8 +23,12 @@ def read_metric_trajectory(path, sequence: Sequence, frames: int) -> tuple[Seque
     From a KITTI file (one pose a frame of camera 0, before any pairing in time: every frame met) or a timestamped
     file (TUM, EuRoC: interpolated at the sequence's timestamps, as ``calibrate-poses`` does, between samples at most
     ``2 INTERPOLATE_GAP`` of its periods apart). Frames outside the trajectory or in its gaps are left out and said in
-    a warning. Every problem (no frame met, an invalid pose) is an :class:`InputError` naming the file.
+    a warning. Every problem (no frame met, an invalid pose) is an :class:`InputError` naming the file. ``path``
+    :data:`OWN`: the sequence's own camera-0 poses (KITTI raw's OXTS packets, KITTI odometry's poses, a rig folder's
+    ``<camera>/poses.txt``), frames without one left out.
     """
+    if path == OWN:
+        return _own_trajectory(sequence, frames)
     trajectory = read_poses(path)
     keep = np.arange(frames)
     if trajectory.times is None:
@@ -53,6 +58,21 @@ def read_metric_trajectory(path, sequence: Sequence, frames: int) -> tuple[Seque
     return (sequence if len(keep) == frames else sequence.at(keep)), poses, warnings
 
 
+def _own_trajectory(sequence: Sequence, frames: int) -> tuple[Sequence, np.ndarray, list[str]]:
+    """:func:`read_metric_trajectory` of the sequence's own camera-0 poses."""
+    poses = sequence.cameras[0].poses
+    if poses is None:
+        raise InputError(
+            f"{sequence.path}: --metric-trajectory {OWN}: the sequence has no trajectory of its own (KITTI raw's OXTS "
+            "packets, KITTI odometry's poses, a rig folder's <camera>/poses.txt); give the trajectory's file"
+        )
+    keep = np.flatnonzero(np.isfinite(poses[:frames]).all((1, 2)))
+    if len(keep) < 2:
+        raise InputError(f"{sequence.path}: its own trajectory has a pose at {len(keep)} of the {frames} frames")
+    warnings = _unmet_warning(f"{sequence.path}'s own trajectory", sequence.times, frames, keep)
+    return (sequence if len(keep) == frames else sequence.at(keep)), poses[keep], warnings
+
+
 def _unmet_warning(path, times: np.ndarray | None, frames: int, keep: np.ndarray) -> list[str]:
     """The line saying which of the first ``frames`` frames (stamped ``times``, seconds) the trajectory ``path`` did
     not meet (all but ``keep``, (M,) int), and where."""
@@ -60,7 +80,12 @@ def _unmet_warning(path, times: np.ndarray | None, frames: int, keep: np.ndarray
         return []
     missing = np.setdiff1d(np.arange(frames), keep)
     spans = np.split(missing, np.flatnonzero(np.diff(missing) > 1) + 1)
-    where = ", ".join(f"t = {times[s[0]]:.3f}-{times[s[-1]]:.3f} s" for s in spans[:3]) + (", ..." * (len(spans) > 3))
+    span = (
+        (lambda s: f"frames {s[0]}-{s[-1]}")
+        if times is None
+        else (lambda s: f"t = {times[s[0]]:.3f}-{times[s[-1]]:.3f} s")
+    )
+    where = ", ".join(span(s) for s in spans[:3]) + (", ..." * (len(spans) > 3))
     return [
         f"{path}: no pose at {len(missing)} of the {frames} frames ({where}: outside the trajectory or in its gaps); "
         "those frames are left out"

@@ -11,7 +11,8 @@ import torch
 
 from ocalib.calibnet.run import open_calibration_sequence
 from ocalib.cli import main
-from ocalib.data.metric_trajectory import read_metric_trajectory
+from ocalib.data.metric_trajectory import OWN, read_metric_trajectory
+from ocalib.errors import InputError
 from ocalib.io.poses import read_kitti, write_kitti, write_tum
 from ocalib.synth import preset
 
@@ -79,6 +80,23 @@ def test_the_metric_trajectory_is_met_by_time_and_its_gap_said(own_frames, tmp_p
     assert met.pairing.frames.tolist() == seq.pairing.frames[met_at].tolist()
     (line,) = warnings
     assert line.startswith(f"{tmp_path / 'metric.txt'}: no pose at 3 of the {len(seq)} frames (t = ")
+
+
+def test_the_sequences_own_trajectory_is_the_metric_trajectory_where_named(own_frames):
+    """``--metric-trajectory sequence``: camera 0's own poses (here its poses.txt), as from the file; a frame without
+    one left out and said; a sequence without poses one line naming it."""
+    seq = open_calibration_sequence(own_frames)
+    own, poses, warnings = read_metric_trajectory(OWN, seq, len(seq))
+    _, from_file, _ = read_metric_trajectory(own_frames / "cam0" / "poses.txt", seq, len(seq))
+    assert len(own) == len(seq) and warnings == []
+    np.testing.assert_allclose(poses, from_file, atol=1e-12)
+    seq.cameras[0].poses[5] = np.nan  # as an extract drive's frame in a gap of its OXTS packets
+    own, poses, (line,) = read_metric_trajectory(OWN, seq, len(seq))
+    assert len(own) == len(seq) - 1 and np.isfinite(poses).all()
+    assert line.startswith(f"{own_frames}'s own trajectory: no pose at 1 of the {len(seq)} frames")
+    seq.cameras[0].poses = None
+    with pytest.raises(InputError, match=f"{own_frames}: --metric-trajectory sequence: the sequence has no trajectory"):
+        read_metric_trajectory(OWN, seq, len(seq))
 
 
 def test_calibrate_runs_to_the_end(own_frames, tmp_path):
