@@ -98,6 +98,24 @@ def oxts_to_poses(packets: np.ndarray) -> np.ndarray:
     return poses
 
 
+def poses_to_oxts(imu_poses: np.ndarray, lat0: float = 49.0) -> np.ndarray:
+    """IMU poses (N, 4, 4) in a Mercator frame about latitude ``lat0`` (deg) -> OXTS packets (N, 30) (lat, lon, alt,
+    roll, pitch, yaw; the rest zero): the inverse of :func:`oxts_to_poses` up to its shift to the first position, for
+    writing a drive in KITTI's layout."""
+    scale = np.cos(np.deg2rad(lat0))
+    y0 = scale * EARTH_RADIUS * np.log(np.tan(np.deg2rad(90 + lat0) / 2))
+    x, y, z = (imu_poses[:, :3, 3] + [0.0, y0, 0.0]).T
+    R = imu_poses[:, :3, :3]
+    packets = np.zeros((len(imu_poses), 30))
+    packets[:, 0] = np.rad2deg(2 * np.arctan(np.exp(y / (scale * EARTH_RADIUS)))) - 90
+    packets[:, 1] = np.rad2deg(x / (scale * EARTH_RADIUS))
+    packets[:, 2] = z
+    packets[:, 3:6] = np.stack(
+        [np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(R[:, 2, 0]), np.arctan2(R[:, 1, 0], R[:, 0, 0])], 1
+    )
+    return packets
+
+
 def _rot(angle: np.ndarray, axis: int) -> np.ndarray:
     """Rotations (N, 3, 3) by ``angle`` (N,) about coordinate axis 0, 1 or 2."""
     c, s = np.cos(angle), np.sin(angle)

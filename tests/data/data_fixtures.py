@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ocalib.data.kitti_raw import poses_to_oxts
 from ocalib.data.rig import CameraSpec, RigSpec, write_rig_yaml
 from ocalib.io.poses import write_kitti
 
@@ -77,19 +78,7 @@ def projection(cam: int) -> np.ndarray:
     return K @ np.hstack([np.eye(3), -np.array([[BASELINES[cam]], [0], [0]])])
 
 
-def oxts_packets(imu_poses: np.ndarray, lat0: float = 49.0) -> np.ndarray:
-    """Inverse of the devkit's conversion: IMU poses in the Mercator frame -> (n, 30) packets."""
-    scale = np.cos(np.deg2rad(lat0))
-    y0 = scale * EARTH_RADIUS * np.log(np.tan(np.deg2rad(90 + lat0) / 2))
-    packets = np.zeros((len(imu_poses), 30))
-    for i, T in enumerate(imu_poses):
-        x, y, z = T[:3, 3] + [0, y0, 0]
-        R = T[:3, :3]
-        packets[i, 0] = np.rad2deg(2 * np.arctan(np.exp(y / (scale * EARTH_RADIUS)))) - 90
-        packets[i, 1] = np.rad2deg(x / (scale * EARTH_RADIUS))
-        packets[i, 2] = z
-        packets[i, 3:6] = np.arctan2(R[2, 1], R[2, 2]), -np.arcsin(R[2, 0]), np.arctan2(R[1, 0], R[0, 0])
-    return packets
+oxts_packets = poses_to_oxts  # IMU poses in the Mercator frame -> (n, 30) packets
 
 
 def write_oxts(drive: Path, packets: np.ndarray) -> None:
