@@ -5,7 +5,8 @@ for the trace, the plot, TensorBoard and the JSON.
 
 Cameras on clocks of their own (a sequence paired in time) are placed at the rig's pose when each captured its image,
 the metric trajectory interpolated there (:func:`capture_poses`), so a pair's residual offset does not bias the lever
-arm by the rig's motion in between.
+arm by the rig's motion in between; where the rig moves less than a fifth of the trajectory's noise between their
+captures, they share camera 0's poses, which the window then solves.
 
 Convention: ``metric`` (T, 4, 4) is camera 0's camera-to-world trajectory in metres, re-referenced to its first
 frame; extrinsics ``T_cam0_camk`` (``p_cam0 = R p_camk + t``) in metres.
@@ -34,6 +35,10 @@ START_FRAME = 10  # the frame the estimator starts at: the head's rotation needs
 # the share of a camera's keyframes since its release that, unregistered, withholds its estimate (a car's side camera
 # at 128x416 misses 30-50 % of its resections with its estimate within the targets: its covariance tells the rest)
 UNREGISTERED = 0.75
+# a camera whose capture poses lie within this share of the trajectory's noise and NEGLIGIBLE_DEG of camera 0's shares
+# them (capture_poses): 1 cm of the default 5 cm
+NEGLIGIBLE_SHARE = 0.2
+NEGLIGIBLE_DEG = 0.05  # a fifth of a pixel at the renders' 240 px focal length
 HELD_HINT = (  # after a change found with the trajectory's poses held: where they are not exact, that is a suspect
     " (the metric trajectory's poses are held as exact: if they are not, their rotation error reads as a move; "
     "give its noise with --metric-noise)"
@@ -45,7 +50,7 @@ class RigStream:
 
     def __init__(self, sequence: Sequence, metric: np.ndarray, options: OnlineRigOptions = OnlineRigOptions()):
         self.sequence, self.metric, self.options = sequence, np.linalg.inv(metric[:1]) @ metric, options
-        self.capture = capture_poses(sequence, self.metric)
+        self.capture = capture_poses(sequence, self.metric, (options.metric_noise or 0.0) * NEGLIGIBLE_SHARE)
         self.estimator: OnlineRigEstimator | None = None
         self.start: int | None = None
         self.states: list[RigState] = []
@@ -303,11 +308,13 @@ class RigStream:
         return out
 
 
-def capture_poses(sequence: Sequence, metric: np.ndarray) -> np.ndarray:
+def capture_poses(sequence: Sequence, metric: np.ndarray, negligible_m: float = 0.0) -> np.ndarray:
     """(T, C, 4, 4) the rig's metric pose when each camera captured its frame t: camera 0's ``metric`` (T, 4, 4) at
     frame t; for a camera on a clock of its own (``sequence.pairing``), ``metric`` interpolated at its capture time
     ``t0 - residual`` (SLERP and linear, between camera 0's neighbouring frames; where that time lies outside them,
-    camera 0's pose at frame t)."""
+    camera 0's pose at frame t), unless the rig moves less than ``negligible_m`` metres and ``NEGLIGIBLE_DEG``
+    between the two capture times at every frame: that camera then shares camera 0's poses (stamps a few
+    milliseconds apart, an offset under the trajectory's own noise, are no reason to give up solving the rig's poses)."""
     T, C = len(metric), len(sequence.cameras)
     out = np.repeat(metric[:, None], C, axis=1)
     pairing = sequence.pairing
@@ -324,8 +331,17 @@ def capture_poses(sequence: Sequence, metric: np.ndarray) -> np.ndarray:
         except InputError:  # capture times out of order or outside camera 0's: its poses as they are
             continue
         good = np.isfinite(poses).all(axis=(1, 2))
-        out[kept[good], k] = poses[good]
+        if _apart(poses[good], metric[kept[good]], negligible_m):
+            out[kept[good], k] = poses[good]
     return out
+
+
+def _apart(a: np.ndarray, b: np.ndarray, metres: float) -> bool:
+    """Whether poses ``a`` and ``b`` (N, 4, 4) differ somewhere by ``metres`` or more, or by ``NEGLIGIBLE_DEG``."""
+    moved = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
+    cosine = (np.einsum("nij,nij->n", a[:, :3, :3], b[:, :3, :3]) - 1) / 2
+    turned = np.degrees(np.arccos(np.clip(cosine, -1, 1)))
+    return bool(np.any(moved >= metres) or np.any(turned >= NEGLIGIBLE_DEG))
 
 
 def _quaternions(E: np.ndarray) -> np.ndarray:

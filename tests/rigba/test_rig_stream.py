@@ -38,6 +38,20 @@ def test_a_late_camera_is_placed_at_the_rigs_pose_when_it_captured():
     assert not stream.solves_poses  # each camera at its own capture pose: only held poses allow it
 
 
+def test_cameras_a_millisecond_apart_share_the_rigs_pose_and_the_window_solves_it():
+    """Camera 1 capturing 1 ms after camera 0 (the rig moves 8 mm and turns 0.02 deg in between: under a fifth of the
+    trajectory's 5 cm noise): its poses are camera 0's and the window solves the rig's poses; 5 ms apart (4 cm), each
+    camera at its own capture pose, held."""
+    times = np.arange(20) / 10.0
+    for late, shared in ((0.001, True), (0.005, False)):
+        pairing = Pairing(np.array([0.0, late]), np.tile(np.arange(20)[:, None], (1, 2)),
+                          np.c_[np.zeros(20), np.full(20, -late)], np.array([20, 20]))  # fmt: skip
+        sequence = SimpleNamespace(cameras=[None, None], names=["cam0", "cam1"], times=times, pairing=pairing)
+        stream = RigStream(sequence, _trajectory(times))
+        assert stream.solves_poses == shared and (stream.capture[:, 1] == stream.capture[:, 0]).all() == shared
+        assert (capture_poses(sequence, _trajectory(times))[:-1, 1] != _trajectory(times)[:-1]).any()  # no noise given
+
+
 def test_synchronised_cameras_share_the_rigs_pose():
     times = np.arange(5) / 10.0
     sequence = SimpleNamespace(cameras=[None, None, None], names=["a", "b", "c"], times=times, pairing=None)
