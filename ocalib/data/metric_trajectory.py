@@ -5,6 +5,8 @@ Convention: poses camera-to-world (4, 4), in metres; stamps in seconds on camera
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ocalib.data.sequence import Sequence
@@ -25,9 +27,9 @@ def read_metric_trajectory(path, sequence: Sequence, frames: int) -> tuple[Seque
     ``2 INTERPOLATE_GAP`` of its periods apart). Frames outside the trajectory or in its gaps are left out and said in
     a warning. Every problem (no frame met, an invalid pose) is an :class:`InputError` naming the file. ``path``
     :data:`OWN`: the sequence's own camera-0 poses (KITTI raw's OXTS packets, KITTI odometry's poses, a rig folder's
-    ``<camera>/poses.txt``), frames without one left out.
+    ``<camera>/poses.txt``), frames without one left out, unless a file has that name.
     """
-    if path == OWN:
+    if str(path) == OWN and not Path(path).exists():  # a file of that name is a file
         return _own_trajectory(sequence, frames)
     trajectory = read_poses(path)
     keep = np.arange(frames)

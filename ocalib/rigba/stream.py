@@ -339,8 +339,7 @@ def capture_poses(sequence: Sequence, metric: np.ndarray, negligible_m: float = 
 def _apart(a: np.ndarray, b: np.ndarray, metres: float) -> bool:
     """Whether poses ``a`` and ``b`` (N, 4, 4) differ somewhere by ``metres`` or more, or by ``NEGLIGIBLE_DEG``."""
     moved = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
-    cosine = (np.einsum("nij,nij->n", a[:, :3, :3], b[:, :3, :3]) - 1) / 2
-    turned = np.degrees(np.arccos(np.clip(cosine, -1, 1)))
+    turned = rotation_angle_deg(a[:, :3, :3].transpose(0, 2, 1) @ b[:, :3, :3])
     return bool(np.any(moved >= metres) or np.any(turned >= NEGLIGIBLE_DEG))
 
 
