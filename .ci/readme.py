@@ -3,7 +3,8 @@
     python .ci/readme.py install   the install commands, one a line, as CI runs them
     python .ci/readme.py test      the test command
     python .ci/readme.py demo OUT  check every line the README quotes from the demo against OUT (its stdout)
-    python .ci/readme.py figures   check the README's figures from benchmarks against bench/results/*.json
+    python .ci/readme.py figures   check the figures that README.md and docs/**/*.md quote from benchmarks against
+                                   bench/results/*.json
 
 The README marks each block with a comment line before it: ``<!-- ci: install -->``, ``<!-- ci: test -->``,
 ``<!-- ci: demo output -->``. CI installs torch itself (the pinned version: here the CPU build; PyTorch's CPU
@@ -16,8 +17,8 @@ ill-conditioned); every other character must be as printed, but for a parenthesi
 and the quote leaves out. A figure is digits, so a printed ``nan`` never matches. The quoted lines are found in the
 printed ones in their order.
 
-A figure the README quotes from a benchmark is declared in a comment after the paragraph or table that quotes it,
-one figure a line (tests/test_readme_figures.py runs the check)::
+A figure the README or a page of docs/ quotes from a benchmark is declared in a comment after the paragraph or
+table that quotes it, one figure a line (tests/test_readme_figures.py runs the check on every such page)::
 
     <!-- figures from bench/results/online.json
     48 = summary/one_rig_us
@@ -38,7 +39,8 @@ import statistics
 import sys
 from pathlib import Path
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
 TORCH_LINE = "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
 
 
@@ -118,8 +120,13 @@ def _values(node, keys: list[str], exclude: set[str]) -> list:
     return _values(node[int(key)] if isinstance(node, list) else node[key], rest, exclude)
 
 
+def documents() -> list[Path]:
+    """The pages that may quote benchmarks' figures: the README and every Markdown page under docs/."""
+    return [README, *sorted((ROOT / "docs").rglob("*.md"))]
+
+
 def figure_problems(text: str, folder: Path) -> tuple[list[str], int]:
-    """Check every figure declared in a ``<!-- figures from FILE.json`` comment of the README ``text`` against the
+    """Check every figure declared in a ``<!-- figures from FILE.json`` comment of the Markdown ``text`` against the
     JSON files of ``folder`` -> (problems, how many figures were checked)."""
     problems, checked = [], 0
     for marker in FIGURES.finditer(text):
@@ -176,10 +183,14 @@ def main() -> None:
             sys.exit("README: the demo's figures are off what the README quotes:\n  " + "\n  ".join(problems))
         print(f"README: the demo's {len(quoted)} quoted lines hold, each figure within its tolerance")
     elif what == "figures":
-        problems, checked = figure_problems(README.read_text(), README.parent / "bench" / "results")
+        problems, checked = [], 0
+        for page in documents():
+            found, count = figure_problems(page.read_text(), ROOT / "bench" / "results")
+            problems += [f"{page.relative_to(ROOT)}: {problem}" for problem in found]
+            checked += count
         if problems:
-            sys.exit("README: figures off what the benchmarks wrote:\n  " + "\n  ".join(problems))
-        print(f"README: {checked} figures from bench/results hold, each within its tolerance")
+            sys.exit("figures off what the benchmarks wrote:\n  " + "\n  ".join(problems))
+        print(f"{checked} figures from bench/results hold, each within its tolerance")
     else:
         sys.exit(__doc__)
 

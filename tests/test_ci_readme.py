@@ -62,14 +62,15 @@ def test_the_readme_installs_with_the_constraints_and_they_pin_every_dependency_
     from packaging.requirements import Requirement
     from packaging.utils import canonicalize_name
 
-    assert readme.block("install")[1:] == ['pip install -e ".[dev]" -c constraints.txt']
+    assert readme.block("install")[1:] == ['pip install -e ".[dev,docs]" -c constraints.txt']
     pins = {}
     for line in (ROOT / "constraints.txt").read_text().splitlines():
         if line.strip() and not line.startswith("#"):
             name, version = line.split("==")
             pins[canonicalize_name(name)] = version
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    for spec in project["dependencies"] + project["optional-dependencies"]["dev"]:
+    extras = project["optional-dependencies"]
+    for spec in project["dependencies"] + extras["dev"] + extras["docs"]:
         requirement = Requirement(spec)
         pinned = pins.get(canonicalize_name(requirement.name))
         assert pinned is not None, f"{requirement.name} is not pinned in constraints.txt"
