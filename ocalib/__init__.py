@@ -16,7 +16,10 @@ The public API, each name loaded on first use (``import ocalib`` stays light):
 * :func:`calibrate_images`: ``ocalib calibrate``'s on-line pass on an image sequence; :func:`refine_calibration`
   adds the rig bundle adjustment to its result.
 * :class:`OnlineRigEstimator`: the whole extrinsic on-line from images and a metric trajectory.
-* :func:`open_sequence`: an image sequence on disk (rig layout, KITTI, EuRoC, TUM).
+* :func:`open_sequence`: an image sequence on disk in any of its layouts (:data:`ocalib.data.layout.LAYOUTS`:
+  ocalib's rig layout, KITTI raw, KITTI odometry, SfMLearner, a plain image folder with an intrinsics file).
+
+The README has a runnable example of each; the guide, the method, the architecture and the references are in docs/.
 """
 
 from importlib import import_module

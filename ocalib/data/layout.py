@@ -70,7 +70,7 @@ def open_sequence(path: str | Path, cameras: list[str] | None = None, intrinsics
             f"{path}: not a sequence folder of a known layout ({', '.join(LAYOUTS)}); "
             + (
                 f"a rig (a folder of images per camera) needs {path / 'rig.yaml'} with each camera's K and size "
-                "(README: calibrating your own rig)"
+                "(docs/guide.md: from images)"
                 if cameras
                 else "a plain image folder needs an intrinsics file (intrinsics.yaml, K.txt, cam.txt)"
             )

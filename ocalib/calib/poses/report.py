@@ -36,7 +36,7 @@ TRANSLATION_RESIDUAL_WARNING = 0.15
 UNPAIRED_WARNING = 0.1  # camera-0 stamps left without a camera-k pose inside its span, as a share of the frames kept
 # Whose estimate an extrinsic of the result JSON is, by its "source" (none: the on-line head's)
 SOURCES = {"bundle_adjustment": "the rig bundle adjustment", "rig_estimator": "the on-line rig estimator"}
-# The per-camera keys of the result JSON, in their documented order (README).
+# The per-camera keys of the result JSON, in their documented order (docs/guide.md: the result).
 CAMERA_KEYS = (
     "camera", "rotation", "quaternion_wxyz", "translation", "scale", "time_offset", "frames_used",
     "frames_rejected", "rotation_std_deg", "translation_std", "scale_std", "observability",
@@ -60,7 +60,7 @@ class CalibrationRun:
     changes: list[dict] = field(default_factory=list)
 
     def result_json(self) -> dict:
-        """The result JSON (README), plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
+        """The result JSON (docs/guide.md: the result), plus ``settings``, ``time_offset_estimates`` and ``warnings``."""
         extrinsics = []
         for k, f in enumerate(self.rig.files[1:]):
             cam = self.final.camera_json(0, k)
