@@ -12,8 +12,9 @@ METHODS = {"paper RLS": "paper-rls", "paper RLS + 60-frame delay": "paper-rls-de
 
 def readme_table() -> dict[str, dict[float, float]]:
     """The table under ``<!-- ci: simulate table -->``: method -> noise -> median relative translation error."""
-    text = PAGE.read_text().split("<!-- ci: simulate table -->", 1)[1]
-    rows = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()[1:] if line.startswith("|")]
+    text = PAGE.read_text().split("<!-- ci: simulate table -->", 1)[1].strip("\n")
+    table = text.split("\n\n", 1)[0].splitlines()  # the table right after the marker, to its first blank line
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in table if line.startswith("|")]
     header, body = rows[0], [r for r in rows[2:] if re.fullmatch(r"[\d.]+", r[0])]
     return {METHODS[name]: {float(r[0]): float(r[i]) for r in body} for i, name in enumerate(header) if i}
 
