@@ -275,6 +275,8 @@ def summary(doc: dict) -> str:
         tried = ", ".join(f"{name} " + ("n/a" if r is None else f"{r:.3f}") for name, r in residuals)
         lines.append(f"front end: {s['frontend']}, chosen on the first {s['frontend_choice']['frames']} frames by "
                      f"the rig's rotation angles (congruence residual {tried}; 0: every camera turns alike)")  # fmt: skip
+    elif "frontend" in s:  # calibrate --frontend NAME: the one given
+        lines.append(f"front end: {s['frontend']} (--frontend {s['frontend']})")
     for e in doc["extrinsics"]:
         obs = e["observability"]
         if None in e["quaternion_wxyz"]:  # absolute poses, rotation unobservable: no estimate
