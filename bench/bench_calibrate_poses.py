@@ -5,15 +5,16 @@ poses. Both run in the same process on the same simulated rig (the paper's linea
 0.001 on every pose, camera 1 in units of scale 2). The pose files are written to a temporary folder
 first (not timed); then timed: the pipeline in-process (read + associate, stream every frame through
 the on-line head, result JSON and trace CSV written), and the whole command as a subprocess (adds the
-Python start and the torch import).
+Python start and the torch import). Side by side: the streaming stage (``calibrate_rig``) with the head's change test
+and without it (``change_test=None``), alternating, ``--repeats`` times each; medians, and their ratio.
 
 Mapping to OpenCV (as ``bench_opencv_accuracy.py``). Convention: OpenCV's gripper is camera 0 and its
 camera is camera 1, so ``X = T_cam2gripper = T_cam0_cam1``: ``T_gripper2base`` = camera 0's
 camera-to-world poses, ``T_target2cam`` = the inverse of camera 1's (in camera-0 units: OpenCV has no
 scale). The first 1,000 frames of the same trajectory.
 
-Usage: ``python bench/bench_calibrate_poses.py [--frames N] [--opencv-poses N]`` -- prints a table and
-writes ``bench/results/calibrate_poses.json``.
+Usage: ``python bench/bench_calibrate_poses.py [--frames N] [--opencv-poses N] [--repeats N]`` -- prints a table
+and writes ``bench/results/calibrate_poses.json``.
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ import numpy as np
 import torch
 from common import write_json
 
-from ocalib.calib.poses.pipeline import calibrate_rig, load_rig
+from ocalib.calib.drivers.change import ChangeTest
+from ocalib.calib.poses.pipeline import RigPoses, calibrate_rig, load_rig
 from ocalib.io.poses import write_kitti
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 
@@ -70,6 +72,26 @@ def run_pipeline(files: list[str], out_dir: Path) -> tuple[dict, dict]:
     return {"read": t1 - t0, "stream": t2 - t1, "write": t3 - t2, "total": t3 - t0}, doc
 
 
+def change_test_cost(rig: RigPoses, repeats: int) -> dict:
+    """The streaming stage with the change test and without it, alternating ``repeats`` times -> seconds (each run),
+    their medians per frame (us) and the ratio of the medians."""
+    seconds = {"on": [], "off": []}
+    for _ in range(repeats):
+        for case, test in (("on", ChangeTest()), ("off", None)):
+            t = time.perf_counter()
+            calibrate_rig(rig, change_test=test)
+            seconds[case].append(time.perf_counter() - t)
+    us = {case: float(np.median(v)) / len(rig.poses) * 1e6 for case, v in seconds.items()}
+    return {
+        "repeats": repeats,
+        "stream_seconds": seconds,
+        "stream_us_per_frame_on": us["on"],
+        "stream_us_per_frame_off": us["off"],
+        "on_over_off": us["on"] / us["off"],
+        "change_test_us_per_frame": us["on"] - us["off"],
+    }
+
+
 def run_cli(files: list[str], out_dir: Path) -> float:
     """Time ``python -m ocalib calibrate-poses`` as a user runs it (JSON and trace written)."""
     cmd = [sys.executable, "-m", "ocalib", "calibrate-poses", *files,
@@ -104,6 +126,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20_000)
     parser.add_argument("--opencv-poses", type=int, default=1_000)
+    parser.add_argument("--repeats", type=int, default=5, help="runs of each side of the change test's side by side")
     args = parser.parse_args()
 
     poses, X = simulate(max(args.frames, args.opencv_poses))
@@ -114,6 +137,7 @@ def main() -> None:
             write_kitti(f, poses[: args.frames, c])
         stages, doc = run_pipeline(files, tmp)
         cli = run_cli(files, tmp)
+        change = change_test_cost(load_rig(files), args.repeats)
     cam = doc["extrinsics"][0]
     rot, trans = errors(np.array(cam["rotation"]), np.array(cam["translation"]), X)
     opencv = run_opencv(poses[: args.opencv_poses], X)
@@ -132,6 +156,11 @@ def main() -> None:
         f"({stages['stream'] / args.frames * 1e6:.0f} us/frame), write {stages['write']:.2f} s; "
         f"scale {cam['scale']:.5f} (true {SCALE})"
     )
+    print(
+        f"stream, medians of {args.repeats}: with the change test {change['stream_us_per_frame_on']:.1f} us/frame, "
+        f"without {change['stream_us_per_frame_off']:.1f} us/frame; ratio {change['on_over_off']:.2f} "
+        f"(the test {change['change_test_us_per_frame']:.1f} us/frame)"
+    )
 
     result = {
         "frames": args.frames,
@@ -144,6 +173,7 @@ def main() -> None:
         "opencv": opencv,
         "pipeline_over_fastest_opencv": stages["total"] / fastest,
         "cli_over_fastest_opencv": cli / fastest,
+        "change_test": change,
     }
     write_json(ROOT / "bench" / "results" / "calibrate_poses.json", result)
 

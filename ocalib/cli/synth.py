@@ -55,9 +55,12 @@ def run(args) -> int:
     from ocalib.synth.sequence import camera_poses
     from ocalib.synth.trajectory import STRAIGHT_DEG, turned_deg
 
-    cfg = load_config(args.config) if args.config else preset(args.preset or "front-rear")
-    cfg = cfg.with_overrides(
-        frames=args.frames, seed=args.seed, height=args.height, width=args.width, photometric=args.photometric
+    given = dict(frames=args.frames, seed=args.seed, height=args.height, width=args.width, photometric=args.photometric)
+    # the overrides go in before the checks, whose errors then name them as given here
+    cfg = (
+        load_config(args.config, **given)
+        if args.config
+        else preset(args.preset or "front-rear").with_overrides(**given)
     )
     out = Path(args.out) if args.out else Path("data") / "synth" / cfg.name
     turned = turned_deg(camera_poses(cfg)[0])

@@ -8,7 +8,12 @@ LightningCLI's own, which lists every option of the trainer, the model and the d
 from __future__ import annotations
 
 import argparse
+import re
 
+from ocalib.errors import InputError
+
+# The data modules' options that take a list of folders (jsonargparse's own message for a bare folder is a paragraph)
+LIST_OPTIONS = re.compile(r"--data\.(init_args\.)?(val_)?sequences")
 # The LightningCLI's sub-commands (LightningCLI.subcommands(); a test keeps the two the same).
 SUBCOMMANDS = {
     "fit": "train, validating as it goes; resume with --ckpt_path runs/NAME/version_N/checkpoints/last.ckpt",
@@ -49,6 +54,7 @@ def run(args) -> int:
     if args.args in ([], ["-h"], ["--help"]):  # without a sub-command: the overview (1, as ocalib alone)
         print(help_text())
         return 0 if args.args else 1
+    check_lists(args.args)
     import sys
 
     from ocalib.train.cli import main
@@ -59,3 +65,15 @@ def run(args) -> int:
     finally:
         sys.argv = argv
     return 0
+
+
+def check_lists(argv: list[str]) -> None:
+    """An :class:`InputError` (one line) where a list option of :data:`LIST_OPTIONS` is given one folder without the
+    brackets of a list (``--data.sequences=DIR``, ``--data.sequences DIR``), before Lightning is imported."""
+    for option, following in zip(argv, [*argv[1:], None]):
+        name, equals, value = option.partition("=")
+        if not LIST_OPTIONS.fullmatch(name):
+            continue
+        value = value if equals else following
+        if value is not None and not value.strip().startswith("[") and value.strip() not in ("null", "None"):
+            raise InputError(f"{name} takes a list: {name} '[{value}]' (several: '[DIR1, DIR2]')")

@@ -105,9 +105,10 @@ class SynthConfig:
     photometric: bool = False
 
     def with_overrides(self, **kw) -> SynthConfig:
-        """A copy with the given fields replaced (``None`` values are ignored), validated."""
+        """A copy with the given fields replaced (``None`` values are ignored), validated; errors name the
+        overrides as the command line gives them (``front-rear with --frames 0``)."""
         cfg = dataclasses.replace(self, **{k: v for k, v in kw.items() if v is not None})
-        return validate(cfg, f"{self.name} (with overrides)")
+        return validate(cfg, overridden(self.name, kw))
 
     def to_dict(self) -> dict:
         """As a config file holds it (:func:`config_from_dict` reads it back)."""
@@ -251,8 +252,15 @@ def config_from_dict(data, where: str = "config") -> SynthConfig:
     return cfg
 
 
-def load_config(path: str | Path) -> SynthConfig:
-    """Read a YAML config file (errors name the file)."""
+def overridden(where: str, overrides: dict) -> str:
+    """``where`` and the ``overrides`` given (not None) as ``ocalib synth`` options: ``cfg.yaml with --frames 100``."""
+    given = [f"--{k}" if v is True else f"--{k} {v}" for k, v in overrides.items() if v is not None]
+    return f"{where} with {' '.join(given)}" if given else where
+
+
+def load_config(path: str | Path, **overrides) -> SynthConfig:
+    """Read a YAML config file with fields replaced by ``overrides`` (``None`` values are ignored) before it is
+    checked, so that its checks see the values that will render (errors name the file and the overrides)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such config file")
@@ -260,4 +268,6 @@ def load_config(path: str | Path) -> SynthConfig:
         data = yaml.safe_load(read_text(path, "YAML config"))
     except yaml.YAMLError as err:
         raise InputError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
-    return config_from_dict(data, str(path))
+    if isinstance(data, dict):
+        data = data | {k: v for k, v in overrides.items() if v is not None}
+    return config_from_dict(data, overridden(str(path), overrides))

@@ -261,3 +261,34 @@ def test_training_without_a_config_says_to_give_one(capsys):
     assert (
         error_line(capsys, "train") == "ocalib train: error: fit: give a config, e.g. --config configs/train/quick.yaml"
     )
+
+
+def test_calibrate_says_which_front_end_ran_when_it_was_given(rig, capsys):
+    seq, _, _ = rig
+    assert main(["calibrate", "--sequence", str(seq), "--frontend", "opencv", "--no-bundle-adjust"]) == 0
+    assert "front end: opencv (--frontend opencv)" in capsys.readouterr().out.splitlines()
+
+
+@pytest.mark.parametrize("args", [["--data.sequences=data/my-video"], ["--data.sequences", "data/my-video"]])
+def test_a_list_option_of_train_given_one_folder_is_one_line(args, capsys):
+    """Caught before Lightning is imported (jsonargparse's own message is a paragraph about Union subtypes)."""
+    assert main(["train", "fit", "--config", str(ROOT / "configs/train/folder.yaml"), *args]) == 2
+    assert error_line(capsys, "train") == (
+        "ocalib train: error: --data.sequences takes a list: --data.sequences '[data/my-video]' "
+        "(several: '[DIR1, DIR2]')"
+    )
+
+
+def test_a_synth_error_names_the_command_lines_override(tmp_path, capsys):
+    """The overrides go in before the config's checks: --frames 100 below a change at frame 150 is the error, named
+    as given; --frames 300 over a file of 100 frames makes that change valid."""
+    config = tmp_path / "knock.yaml"
+    cameras = "cameras:\n- {name: a}\n- {name: b, position: [0.5, 0, 0], change: {frame: 150, rotation_deg: [0, 1, 0], position: [0, 0, 0]}}\n"
+    config.write_text(f"name: knock\nframes: 200\n{cameras}")
+    assert main(["synth", "--config", str(config), "--frames", "100", "--out", str(tmp_path / "s")]) == 2
+    line = error_line(capsys, "synth")
+    assert f"{config} with --frames 100: camera b: change: frame must be an integer in [1, 99] (frames: 100)" in line
+    config.write_text(f"name: knock\nframes: 100\n{cameras}")
+    from ocalib.synth import load_config
+
+    assert load_config(config, frames=300).frames == 300

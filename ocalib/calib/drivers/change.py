@@ -22,12 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2 as chi2_distribution
+from scipy.special import chdtrc, chdtri, gammaincinv
 
 from ocalib.geometry.pose import cross_matrix
 
 SEGMENT_HISTORIES = 10  # the frames a segment tests, in histories (a new reference each; segments overlap by a span)
 OUTLIER_LEVEL = 1e-4  # a frame's residuals beyond this chi-square level weigh less (:func:`_outlier_weights`)
+SPLIT_CHUNK = 256  # tests :func:`_split_ratio` computes together (their arrays stay in the processor's cache)
 
 
 @dataclass
@@ -66,15 +67,34 @@ def handeye_residuals(
     """The residuals (T, 6) of motions ``A``, ``B`` (T, 4, 4) under extrinsics ``R`` (T, 3, 3), ``t`` (T, 3) and
     scales ``s`` (T,), and their Jacobians (T, 6, 7) with respect to a step of the
     extrinsic and the scale (see the module)."""
-    RA, tA = A[:, :3, :3], A[:, :3, 3]
-    rotation = Rotation.from_matrix(RA @ R @ B[:, :3, :3].mT @ R.mT).as_rotvec()
-    moved = np.einsum("tij,tj->ti", R, B[:, :3, 3])  # camera k's translation in camera 0's axes
-    translation = np.einsum("tij,tj->ti", RA - np.eye(3), t) + tA - s[:, None] * moved
+    r, turn, moved = _residuals(A, B, R, t, s)
     J = np.zeros((len(A), 6, 7))
-    J[:, :3, :3] = J[:, 3:, 3:6] = np.eye(3) - RA
+    J[:, :3, :3] = J[:, 3:, 3:6] = turn
     J[:, 3:, :3] = -s[:, None, None] * cross_matrix(moved)
     J[:, 3:, 6] = moved
-    return np.concatenate([rotation, translation], 1), J
+    return r, J
+
+
+def _residuals(A, B, R, t, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`handeye_residuals`' residuals (T, 6) and the two factors of its Jacobians: ``I - R_A`` (T, 3, 3) and
+    ``R t_B`` (T, 3), camera k's translation in camera 0's axes."""
+    RA, tA = A[:, :3, :3], A[:, :3, 3]
+    rotation = Rotation.from_matrix(RA @ R @ B[:, :3, :3].mT @ R.mT).as_rotvec()
+    moved = np.einsum("tij,tj->ti", R, B[:, :3, 3])
+    translation = np.einsum("tij,tj->ti", RA - np.eye(3), t) + tA - s[:, None] * moved
+    return np.concatenate([rotation, translation], 1), np.eye(3) - RA, moved
+
+
+def jacobian_basis(s: float) -> np.ndarray:
+    """The basis (12, 6, 7) in which :func:`handeye_residuals`' Jacobian at one scale ``s`` has 12 coefficients:
+    ``J = sum_k q_k basis[k]`` with ``q = (I - R_A`` row-major (9), ``R t_B`` (3)): the running sums of
+    :func:`_cumulative` then hold 18 x 18 numbers a frame instead of J's 42 x 42 and more."""
+    basis = np.zeros((12, 6, 7))
+    for k, (i, j) in enumerate(np.ndindex(3, 3)):
+        basis[k, i, j] = basis[k, 3 + i, 3 + j] = 1.0
+    basis[9:, 3:, :3] = -s * cross_matrix(np.eye(3))
+    basis[9:, 3:, 6] = np.eye(3)
+    return basis
 
 
 def motions(poses: np.ndarray) -> np.ndarray:
@@ -123,8 +143,8 @@ def _segment_change(poses0, posesk, R, t, s, settled, test: ChangeTest, first: i
         ends = np.arange(W + test.min_history, len(frames) + 1)  # window [end - W, end), history before it
         if len(ends):
             ratio, dof, _ = _split_ratio(sums, np.maximum(ends - W - test.history, 0), ends - W, ends)
-            ratio = ratio / _dispersion(ratio / chi2_distribution.median(dof), W)
-            p[i, ends] = np.minimum(chi2_distribution.sf(ratio, dof) * len(test.windows), 1)
+            ratio = ratio / _dispersion(ratio / chi2_median(dof), W)
+            p[i, ends] = np.minimum(chi2_sf(ratio, dof) * len(test.windows), 1)
     over = np.convolve(p.min(0) < test.false_alarm, np.ones(test.persistence), "valid")
     hits = [h + test.persistence - 1 for h in np.flatnonzero(over >= test.persistence)]
     end = next((e for e in hits if frames[e - 1] >= first), None)
@@ -151,9 +171,10 @@ def _referenced_sums(
     if not (len(candidates) and np.isfinite(R[ref]).all() and np.isfinite(t[ref]).all() and np.isfinite(s[ref])):
         valid[:] = False
     reference = (np.broadcast_to(x[ref], (int(valid.sum()), *x.shape[1:])) for x in (R, t, s))
-    r, J = handeye_residuals(A[valid], B[valid], *reference)
+    r, turn, moved = _residuals(A[valid], B[valid], *reference)
     w = np.sqrt(_outlier_weights(r, min_history))[:, None]
-    return np.flatnonzero(valid) + 1, _cumulative(r * w, J * w[..., None])
+    coefficients = np.concatenate([turn.reshape(-1, 9), moved], 1)  # the Jacobians in jacobian_basis(s[ref])
+    return np.flatnonzero(valid) + 1, _cumulative(r * w, coefficients * w, jacobian_basis(float(s[ref])))
 
 
 def _outlier_weights(r: np.ndarray, first: int) -> np.ndarray:
@@ -162,7 +183,7 @@ def _outlier_weights(r: np.ndarray, first: int) -> np.ndarray:
     in the metric of the ``first`` frames' second moment (itself without their own outliers), ``c^2`` the chi-square
     quantile at ``OUTLIER_LEVEL`` with 6 degrees of freedom. One frame then adds at most ``c^2`` to a likelihood ratio,
     under a test's threshold; a lasting step still adds up over the frames after it."""
-    c2 = chi2_distribution.isf(OUTLIER_LEVEL, 6)
+    c2 = float(chdtri(6, OUTLIER_LEVEL))  # the chi-square's upper OUTLIER_LEVEL quantile
     head = r[:first]
     if len(head) < 12:
         return np.ones(len(r))
@@ -175,36 +196,87 @@ def _outlier_weights(r: np.ndarray, first: int) -> np.ndarray:
     return np.minimum(1.0, c2 / np.maximum(m, 1e-300))
 
 
-def _cumulative(r: np.ndarray, J: np.ndarray) -> dict[str, np.ndarray]:
-    """Running sums (n + 1, ...) over the frames' residuals r (n, 6) and Jacobians J (n, 6, 7): ``JJ`` (6, 7, 6, 7)
-    of J_ai J_bj, ``rJ`` (6, 6, 7) of r_a J_bj, ``rr`` (6, 6) of r_a r_b, and the count ``n``."""
-    terms = {
-        "JJ": np.einsum("nai,nbj->naibj", J, J),
-        "rJ": np.einsum("na,nbj->nabj", r, J),
-        "rr": np.einsum("na,nb->nab", r, r),
-        "n": np.ones(len(r)),
-    }
-    return {k: np.concatenate([np.zeros((1, *v.shape[1:])), np.cumsum(v, 0)]) for k, v in terms.items()}
+def _cumulative(r: np.ndarray, J: np.ndarray, basis: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Running sums (n + 1, ...) over the frames' residuals r (n, 6) and Jacobians J (n, 6, 7), or with ``basis``
+    (d, 6, 7) J's coefficients (n, d) in it (``J_t = sum_k J[t, k] basis[k]``, :func:`jacobian_basis`): ``uu``
+    (n + 1, d + 6, d + 6) of ``u u^T`` with ``u = (coefficients, r)`` (every product of two Jacobian entries, of an
+    entry and a residual, and of two residuals, in O(d^2) a frame), the count ``n``; and ``basis`` (without one: the
+    42 entries of J)."""
+    if basis is None:
+        basis, J = np.eye(42).reshape(42, 6, 7), J.reshape(len(J), 42)
+    u = np.concatenate([J, r], 1)
+    uu = np.zeros((len(u) + 1, u.shape[1], u.shape[1]))
+    np.cumsum(u[:, :, None] * u[:, None, :], 0, out=uu[1:])
+    return {"uu": uu, "n": np.arange(len(u) + 1, dtype=float), "basis": basis}
 
 
 def _split_ratio(sums: dict, a: np.ndarray, b: np.ndarray, c: np.ndarray):
     """The likelihood ratio (E,) that frames [b, c) take another step of the extrinsic than frames [a, b), with its
     degrees of freedom (E,) and the step (E, 7) between the two; the rows weighed by the inverse covariance of
-    [a, b)'s residuals once its own step is taken out (which absorbs a lasting error of the head's estimate)."""
-    part = lambda key, i, j: sums[key][j] - sums[key][i]  # noqa: E731
-    JJ, rJ, rr, n = part("JJ", a, b), part("rJ", a, b), part("rr", a, b), part("n", a, b)
-    fit = _solve(np.einsum("eaiaj->eij", JJ), np.einsum("eaai->ei", rJ))  # least squares, unweighted
-    Jfit = np.einsum("eaibj,ej->eaib", JJ, fit)
-    cross = np.einsum("eabj,ej->eab", rJ, fit)
-    covariance = (rr - cross - cross.mT + np.einsum("eaib,ei->eab", Jfit, fit)) / n[:, None, None]
-    weight = np.linalg.pinv(covariance, rcond=1e-10, hermitian=True)
-    info = lambda i, j: np.einsum("eab,eaibj->eij", weight, part("JJ", i, j))  # noqa: E731
-    grad = lambda i, j: np.einsum("eab,ebaj->ej", weight, part("rJ", i, j))  # noqa: E731
-    H0, g0, H1, g1 = info(a, b), grad(a, b), info(b, c), grad(b, c)
-    step0, step1, both = _solve(H0, g0), _solve(H1, g1), _solve(H0 + H1, g0 + g1)
+    [a, b)'s residuals once its own step is taken out (which absorbs a lasting error of the head's estimate). From
+    :func:`_cumulative`'s sums, O(1) per test whatever the lengths of the two parts; ``SPLIT_CHUNK`` tests at a time."""
+    if len(a) > SPLIT_CHUNK:
+        parts = [
+            _split_ratio(sums, *(x[i : i + SPLIT_CHUNK] for x in (a, b, c))) for i in range(0, len(a), SPLIT_CHUNK)
+        ]
+        return tuple(np.concatenate(x) for x in zip(*parts))
+    basis = sums["basis"]
+    d, E = len(basis), len(a)
+    flat = basis.reshape(d * 6, 7)  # rows (k, a): J_ai = sum_k q_k basis[k, a, i]
+    before, after = sums["uu"][b] - sums["uu"][a], sums["uu"][c] - sums["uu"][b]
+    n = sums["n"][b] - sums["n"][a]
+    Q, P, rr = before[:, :d, :d], before[:, :d, d:], before[:, d:, d:]  # sums of q q^T, q r^T, r r^T
+    Qt = np.ascontiguousarray(Q.reshape(E, d * d).T)
+    rows, columns = _pairing(basis, 0), _pairing(basis, 1)
+    H = _contract(Qt, np.eye(6).reshape(36, 1), rows).T.reshape(E, 7, 7)  # sum of J^T J
+    fit = _solve(H, P.reshape(E, d * 6) @ flat)[0]  # least squares, unweighted
+    fitted = (fit @ flat.T).reshape(E, d, 6)  # basis[k] fit: J fit = sum_k q_k fitted[k]
+    cross = np.einsum("eka,ekb->eab", P, fitted)  # sum of r (J fit)^T
+    outer = (fit[:, :, None] * fit[:, None, :]).reshape(E, 49).T
+    covariance = (rr - cross - cross.mT + _contract(Qt, outer, columns).T.reshape(E, 6, 6)) / n[:, None, None]
+    weight = _pinv(covariance, 1e-10)[0]
+    Wt = np.ascontiguousarray(weight.reshape(E, 36).T)
+
+    def info(block):  # sum of J^T W J and J^T W r over a block of sums
+        Qt = np.ascontiguousarray(block[:, :d, :d].reshape(E, d * d).T)
+        g = np.einsum("eka,eab,kbi->ei", block[:, :d, d:], weight, basis, optimize=True)
+        return _contract(Qt, Wt, rows).T.reshape(E, 7, 7), g
+
+    (H0, g0), (H1, g1) = info(before), info(after)
+    (step0, _), (step1, full), (both, _) = _solve(H0, g0), _solve(H1, g1), _solve(H0 + H1, g0 + g1)
     ratio = (g0 * step0).sum(1) + (g1 * step1).sum(1) - ((g0 + g1) * both).sum(1)
-    dof = np.linalg.matrix_rank(H1, rtol=1e-8, hermitian=True)
+    dof = np.full(E, 7)
+    if not full.all():
+        dof[~full] = np.linalg.matrix_rank(H1[~full], rtol=1e-8, hermitian=True)
     return ratio, np.maximum(dof, 1), step1 - step0
+
+
+def _pairing(basis: np.ndarray, over: int) -> tuple:
+    """Every pair of nonzero entries ``basis[k, x, y]``, ``basis[l, x', y']`` of a Jacobian basis (d, 6, 7), to sum
+    ``sum_kl S_kl basis[k]^T X basis[l]`` (``over`` 0: X (6, 6) between the rows x, x', out (7, 7) by the columns) or
+    ``sum_kl S_kl basis[k] X basis[l]^T`` (``over`` 1: X (7, 7) between the columns, out (6, 6)): per pair, the index
+    of ``S_kl`` and of the entry of X, the product of the two entries, sorted by the entry of the output they go to;
+    then the outputs that have pairs, where each starts, and the size of the output (:func:`_contract`)."""
+    k, x, y = np.nonzero(basis)
+    v = basis[k, x, y]
+    p, q = (z.ravel() for z in np.meshgrid(np.arange(len(k)), np.arange(len(k)), indexing="ij"))
+    axes = (x, y) if over == 0 else (y, x)
+    inner, outer = basis.shape[1 + over], basis.shape[2 - over]
+    into = axes[1][p] * outer + axes[1][q]
+    order = np.argsort(into, kind="stable")
+    bins, starts = np.unique(into[order], return_index=True)
+    X = axes[0][p] * inner + axes[0][q]
+    return (k[p] * len(basis) + k[q])[order], X[order], (v[p] * v[q])[order, None], bins, starts, outer * outer
+
+
+def _contract(St: np.ndarray, Xt: np.ndarray, pairing: tuple) -> np.ndarray:
+    """``sum_kl S_kl basis[k]^T X basis[l]`` or its transpose twin (:func:`_pairing`), for sums ``St`` (d * d, E) and
+    ``Xt`` (size of X, E or 1), columns the tests: -> (size of the output, E). A sum over the basis's nonzero pairs
+    (27 x 27 for :func:`jacobian_basis`), not its dense (d, 6, 7) entries."""
+    s, x, v, bins, starts, size = pairing
+    out = np.zeros((size, St.shape[1]))
+    out[bins] = np.add.reduceat(St[s] * Xt[x] * v, starts, 0)
+    return out
 
 
 def _dispersion(relative: np.ndarray, lag: int) -> np.ndarray:
@@ -217,9 +289,45 @@ def _dispersion(relative: np.ndarray, lag: int) -> np.ndarray:
     return out
 
 
-def _solve(H: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """Least-squares steps (E, 7) of normal equations H (E, 7, 7), g (E, 7), where H may be singular."""
-    return np.einsum("eij,ej->ei", np.linalg.pinv(H, rcond=1e-8, hermitian=True), g)
+def _solve(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares steps (E, 7) of normal equations H (E, 7, 7), g (E, 7), where H may be singular (the
+    pseudo-inverse's, eigenvalues under 1e-8 of the largest cut), and where none is cut (E,) bool (:func:`_pinv`)."""
+    inverse, full = _pinv(H, 1e-8)
+    return np.einsum("eij,ej->ei", inverse, g), full
+
+
+def _pinv(H: np.ndarray, rcond: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudo-inverses (E, n, n) of symmetric positive semi-definite H (E, n, n), eigenvalues under ``rcond`` times
+    the largest cut (``np.linalg.pinv(H, rcond, hermitian=True)``), and where none is cut (E,) bool. By Cholesky
+    where that is the same matrix: H positive definite with ``trace(H) trace(H^-1) < 1 / (2 rcond)``, a bound on its
+    condition number (about six times faster); elsewhere by the eigen-decomposition."""
+    E, size = H.shape[:2]
+    L, Linv, full = np.zeros_like(H), np.zeros_like(H), np.ones(E, bool)
+    with np.errstate(all="ignore"):  # where a pivot is not positive (that matrix by its eigen-decomposition)
+        for j in range(size):  # Cholesky, H = L L^T, one column at a time over the batch
+            d = H[:, j, j] - (L[:, j, :j] ** 2).sum(1)
+            full &= d > 0
+            L[:, j, j] = np.sqrt(np.where(full, d, 1.0))
+            L[:, j + 1 :, j] = (H[:, j + 1 :, j] - (L[:, j + 1 :, :j] @ L[:, j, :j, None])[..., 0]) / L[:, j, j, None]
+        for i in range(size):  # L^-1 by forward substitution
+            Linv[:, i, i] = 1 / L[:, i, i]
+            Linv[:, i, :i] = -(L[:, i, None, :i] @ Linv[:, :i, :i])[:, 0] / L[:, i, i, None]
+        inverse = Linv.mT @ Linv
+        full &= np.trace(H, axis1=1, axis2=2) * (Linv**2).sum((1, 2)) * rcond < 0.5
+    if not full.all():
+        inverse[~full] = np.linalg.pinv(H[~full], rcond=rcond, hermitian=True)
+    return inverse, full
+
+
+def chi2_median(dof: np.ndarray) -> np.ndarray:
+    """The chi-square distribution's median with ``dof`` degrees of freedom (scipy.stats' ``chi2.median``, without
+    importing scipy.stats)."""
+    return 2 * gammaincinv(np.asarray(dof) / 2, 0.5)
+
+
+def chi2_sf(x: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """The chi-square distribution's survival function (scipy.stats' ``chi2.sf``: 1 at x <= 0)."""
+    return chdtrc(dof, np.maximum(x, 0.0))
 
 
 def step_size(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray) -> tuple[float, float]:

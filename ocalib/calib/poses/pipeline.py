@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import math
 from dataclasses import dataclass, field, fields, replace
-from functools import reduce
+from functools import cached_property, reduce
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from ocalib.calib.drivers.absolute import AbsoluteCalibrator
 from ocalib.calib.drivers.batch import batch_calibrate
-from ocalib.calib.drivers.change import first_change, step_size
+from ocalib.calib.drivers.change import ChangeTest, first_change, step_size
 from ocalib.calib.drivers.clock import find_time_offset
 from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.calib.drivers.options import HeadOptions
@@ -79,9 +79,9 @@ class RigPoses:
     max_dt: float | None = None
     unpaired: list[int] = field(default_factory=list)
 
-    @property
+    @cached_property
     def valid(self) -> np.ndarray:
-        """(T, C) bool: finite pose with an orthonormal rotation."""
+        """(T, C) bool: finite pose with an orthonormal rotation (computed once: the poses are not changed)."""
         return np.stack([pose_validity(self.poses[:, c], POSE_TOLERANCE) for c in range(len(self.files))], 1)
 
 
@@ -213,7 +213,12 @@ def _associate(files, trajs, offsets, max_dt, sync) -> RigPoses:
     )
 
 
-def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bool | None = False) -> CalibrationRun:
+def calibrate_rig(
+    rig: RigPoses,
+    head: HeadOptions = HeadOptions(),
+    progress: bool | None = False,
+    change_test: ChangeTest | None = ChangeTest(),
+) -> CalibrationRun:
     """Calibrate cameras 1..K of ``rig`` against camera 0 with the head's options ``head``.
 
     motion: the head's motion pairing, or ``absolute``: every pose on its own, for poses with independent errors
@@ -223,7 +228,9 @@ def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bo
     whole-sequence path of :mod:`ocalib.calib.drivers.sequence`, which equals streaming the frames; ``rls`` streams
     them); ``batch`` solves all frames with every pose valid at once (one estimate). refine: the head's (see
     :class:`OnlineCalibrator`; the batch solver refines only with True, and only where rotation is
-    observable). progress: a tqdm bar (None: only on a terminal).
+    observable). progress: a tqdm bar (None: only on a terminal). change_test: the on-line head's test for a change
+    of each camera's extrinsic (:class:`~ocalib.calib.drivers.change.ChangeTest`; None: none, the stream taken as one
+    rig, e.g. to time the test).
     """
     head = head.checked()
     poses = torch.from_numpy(rig.poses)
@@ -238,15 +245,15 @@ def calibrate_rig(rig: RigPoses, head: HeadOptions = HeadOptions(), progress: bo
     else:
         final, trace = _online(poses, head, progress)
         trace = {k: v.double().numpy() for k, v in trace.items()}
-        final, trace, changes = _follow_changes(rig, head, final, trace)
+        final, trace, changes = _follow_changes(rig, head, final, trace, change_test)
         frames = np.arange(len(poses))
     times = rig.times[frames] if rig.times is not None else np.full(len(frames), np.nan)
     trace = {"frame": frames, "time": times} | {k: np.asarray(v, dtype=float) for k, v in trace.items()}
     settings = head.settings() | {"frames": len(poses), "max_dt": rig.max_dt, "pose_error": head.pose_error}
     run = CalibrationRun(rig, final, trace, settings, [])
-    tested = head.motion != "absolute" and head.solver != "batch"
+    tested = head.motion != "absolute" and head.solver != "batch" and change_test is not None
     run.changes = changes if tested else []
-    run.warnings = run_warnings(run) + (untested_warnings(run) if tested else [])
+    run.warnings = run_warnings(run) + (untested_warnings(run, change_test) if tested else [])
     return run
 
 
@@ -270,20 +277,22 @@ def _online(poses: torch.Tensor, head: HeadOptions, progress: bool | None) -> tu
 
 
 def _follow_changes(
-    rig: RigPoses, head: HeadOptions, final: Calibration, trace: dict[str, np.ndarray]
+    rig: RigPoses, head: HeadOptions, final: Calibration, trace: dict[str, np.ndarray], test: ChangeTest | None
 ) -> tuple[Calibration, dict[str, np.ndarray], list[dict]]:
     """Each camera's extrinsic tested for changes over the stream (:func:`~ocalib.calib.drivers.change.first_change`);
     where one is found, camera k's head restarts at its first frame (on camera 0 and camera k alone) and its estimates
     replace the old from the frame it was detected. Returns the final estimate, the trace (camera k's columns
     spliced; ``change_frame`` (F, K): at the frame a change was detected, its first frame, else NaN) and the changes:
     camera file, first frame, frame detected, the step from the estimate before to the one that followed (degrees,
-    camera-0 units)."""
-    poses = np.where(rig.valid[..., None, None], rig.poses, np.nan)
+    camera-0 units). ``test`` None: none tested (``change_frame`` all NaN)."""
     changes, trace["change_frame"] = [], np.full(trace["scale"].shape[:2], np.nan)
+    if test is None:
+        return final, trace, changes
+    poses = np.where(rig.valid[..., None, None], rig.poses, np.nan)
     for k in range(1, poses.shape[1]):
         start, found = 0, []
         while change := first_change(poses[start:, 0], poses[start:, k], *_estimates(trace, k, start),
-                                     rotation_std=trace["rotation_std_deg"][start:, k - 1]):  # fmt: skip
+                                     test, trace["rotation_std_deg"][start:, k - 1]):  # fmt: skip
             onset, detected = start + change.frame, start + change.detected
             new_final, new_trace = _online(torch.from_numpy(rig.poses[onset:, [0, k]]), head, progress=False)
             for name, values in new_trace.items():

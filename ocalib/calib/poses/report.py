@@ -24,7 +24,7 @@ from ocalib.calib.drivers.change import ChangeTest
 from ocalib.calib.drivers.result import Calibration
 from ocalib.calib.stages.rotation import ROTATION_OBSERVABLE_MIN_SV, ROTATION_OBSERVABLE_SIGNIFICANCE
 from ocalib.geometry.angles import rotation_vector, rpy_deg
-from ocalib.io.poses import POSE_TOLERANCE, describe_invalid, pose_validity
+from ocalib.io.poses import describe_invalid
 
 if TYPE_CHECKING:
     from ocalib.calib.poses.pipeline import RigPoses
@@ -159,11 +159,10 @@ def progress_text(out: Calibration) -> str:
     return f"cam1 rot {angle:.2f}deg t=({t[0]:+.3f},{t[1]:+.3f},{t[2]:+.3f}) s={s:.3f}"
 
 
-def untested_warnings(run: CalibrationRun) -> list[str]:
-    """A line per camera whose extrinsic the change test never tested: the on-line head's rotation 1-sigma never
+def untested_warnings(run: CalibrationRun, test: ChangeTest = ChangeTest()) -> list[str]:
+    """A line per camera whose extrinsic the change ``test`` never tested: the on-line head's rotation 1-sigma never
     under the test's ``settled_deg`` after its warm-up (its estimate is no reference for the residuals)."""
     std = run.trace.get("rotation_std_deg")
-    test = ChangeTest()
     if std is None or len(std) <= test.warmup:
         return []
     return [
@@ -177,11 +176,7 @@ def untested_warnings(run: CalibrationRun) -> list[str]:
 def run_warnings(run: CalibrationRun) -> list[str]:
     """Readable warnings about the input and the final estimate."""
     rig, e = run.rig, run.final
-    out = [
-        msg
-        for c, f in enumerate(rig.files)
-        if (msg := describe_invalid(f, pose_validity(rig.poses[:, c], POSE_TOLERANCE), rig.lines[:, c]))
-    ]
+    out = [msg for c, f in enumerate(rig.files) if (msg := describe_invalid(f, rig.valid[:, c], rig.lines[:, c]))]
     frames = len(rig.poses)
     for f, missing in zip(rig.files[1:], rig.unpaired):
         if missing > UNPAIRED_WARNING * frames:
@@ -280,6 +275,8 @@ def summary(doc: dict) -> str:
         tried = ", ".join(f"{name} " + ("n/a" if r is None else f"{r:.3f}") for name, r in residuals)
         lines.append(f"front end: {s['frontend']}, chosen on the first {s['frontend_choice']['frames']} frames by "
                      f"the rig's rotation angles (congruence residual {tried}; 0: every camera turns alike)")  # fmt: skip
+    elif "frontend" in s:  # calibrate --frontend NAME: the one given
+        lines.append(f"front end: {s['frontend']} (--frontend {s['frontend']})")
     for e in doc["extrinsics"]:
         obs = e["observability"]
         if None in e["quaternion_wxyz"]:  # absolute poses, rotation unobservable: no estimate
