@@ -8,7 +8,8 @@ share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measu
 innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the statistic
 ``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
 points are estimates, shared by neighbouring keyframes) taken as the median of the recent steady statistics over
-the distribution's median, when above 1. Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
+the distribution's median, when above 1 (and 1 until ``MIN_HISTORY`` steady statistics are known: the test runs
+from the camera's first tested keyframe, a knock then found by the caller's stricter confirmation). Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
 in a row is a candidate change; the caller confirms it (:meth:`ExtrinsicTrack.accept`: the track restarts from the
 keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
 
@@ -37,7 +38,7 @@ from ocalib.data.distortion import project
 from ocalib.geometry.pose import cross_matrix
 
 HISTORY = 30  # steady keyframes whose statistics give the overdispersion
-MIN_HISTORY = 10  # steady keyframes needed before the test runs
+MIN_HISTORY = 10  # steady keyframes needed before their overdispersion is used
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 CHI2_MEDIAN = float(chi2_distribution.median(6))
 DRIFT_FALSE_ALARM = 1e-6  # drifted's level; steady rigs stay far below it (docs/results-rig-online.md)
@@ -58,20 +59,23 @@ class ExtrinsicTrack:
     chi2: float = float("nan")
     changes: list[Change] = field(default_factory=list)
     candidate: np.ndarray | None = None
+    # (extrinsic (4, 4), covariance (6, 6)) fused from the windows whose keyframes have all left the window: the
+    # prior the next window starts from (what a sliding-window filter's marginalisation leaves); None before
+    marginal: tuple[np.ndarray, np.ndarray] | None = None
+    _recent: deque = field(default_factory=deque)
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     _pending: list = field(default_factory=list)
     _drifting: list = field(default_factory=list)
 
     def fuse(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
-        """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6)."""
+        """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6). Its share of information leaves
+        the windows ``overlap`` windows later, with its keyframes: it then joins :attr:`marginal`."""
         info_new = _information(covariance * self.overlap)
-        if self.extrinsic is None:
-            self.extrinsic, self.covariance = extrinsic.copy(), _information(info_new, UNINFORMED)
-            return
-        info = _information(self.covariance) + info_new
-        cov = _information(info, UNINFORMED)  # the inverse, as a covariance
-        self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
-        self.covariance = cov
+        self.extrinsic, self.covariance = _fused(self.extrinsic, self.covariance, extrinsic, info_new)
+        self._recent.append((extrinsic.copy(), info_new))
+        if len(self._recent) > max(round(self.overlap), 1):
+            old, info_old = self._recent.popleft()
+            self.marginal = _fused(*(self.marginal or (None, None)), old, info_old)
 
     def drifted(self, frame: int, extrinsic: np.ndarray, covariance: np.ndarray) -> Change | None:
         """Test the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) at keyframe ``frame`` against the
@@ -116,10 +120,8 @@ class ExtrinsicTrack:
             statistic = float(d @ np.linalg.solve(np.linalg.inv(info) + reference[1], d))
         except np.linalg.LinAlgError:
             return None
-        if len(self._history) < MIN_HISTORY:
-            self._history.append(statistic)
-            return None
-        overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0)
+        known = len(self._history) >= MIN_HISTORY
+        overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0) if known else 1.0
         self.chi2 = statistic / overdispersion
         if self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 6):
             self._pending.clear()
@@ -140,6 +142,8 @@ class ExtrinsicTrack:
         """The candidate ``change`` is real: record it and restart the track from its extrinsic, uninformed."""
         self.changes.append(change)
         self.extrinsic, self.covariance = self.candidate, np.eye(6) * UNINFORMED
+        self.marginal = None
+        self._recent.clear()
         self._history.clear()
         self.dismiss()
 
@@ -148,6 +152,16 @@ class ExtrinsicTrack:
         self._pending.clear()
         self._drifting.clear()
         self.candidate = None
+
+
+def _fused(extrinsic, covariance, new: np.ndarray, info_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) (None: none yet) and an estimate ``new`` (4, 4)
+    of information ``info_new`` (6, 6), fused by their information -> (extrinsic, covariance)."""
+    if extrinsic is None:
+        return new.copy(), _information(info_new, UNINFORMED)
+    info = _information(covariance) + info_new
+    cov = _information(info, UNINFORMED)  # the inverse, as a covariance
+    return perturbed(extrinsic, cov @ info_new @ innovation(extrinsic, new)), cov
 
 
 def information(xy: np.ndarray, xyz: np.ndarray, K: np.ndarray, pose: np.ndarray, extrinsic: np.ndarray) -> np.ndarray:

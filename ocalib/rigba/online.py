@@ -17,11 +17,14 @@ camera's extrinsic. Every ``keyframe_step``-th frame, :meth:`OnlineRigEstimator.
    where its own resection does while it disagrees with the window; a candidate change (``persistence``
    keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN`` keyframes from the
    candidate's frame on (the camera held meanwhile, its new points where its own resections put it), adjusted
-   with a second extrinsic for the camera from the candidate's frame on
-   (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move, nor is
-   a step under ``min_change_deg`` and ``min_change_m``;
+   with a second extrinsic for the camera from the candidate's frame, or one of the ``SPLIT_SEARCH`` keyframes
+   before it (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a
+   move, nor is a step under ``min_change_deg`` and ``min_change_m``;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
-   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
+   (:mod:`ocalib.rigba.window`), each released camera's extrinsic with a prior: what the keyframes that have left
+   the window said of it (the track's windows from before them, fused: a sliding-window filter's marginalisation,
+   approximated), so that a window over little motion does not wander from what the stream has established; and
+   fuses the window's estimate into each camera's track. A camera *waits* (held,
    its track empty) at the start and after a change, until the window determines it: the 1-sigma of its
    extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`), under
    ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two best-determined
@@ -64,6 +67,7 @@ MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
 CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
 MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
 CONFIRM_SPAN = 4  # keyframes from a candidate change's frame on before the window's split test judges it
+SPLIT_SEARCH = 3  # keyframes before a candidate's at which the split test also looks for the move
 
 
 @dataclass(frozen=True)
@@ -191,8 +195,9 @@ class OnlineRigEstimator:
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
             held = frozenset(self.waiting) | frozenset(self.pending)  # waiting or suspect: the window does not move it
+            priors = {k: t.marginal for k, t in enumerate(self.tracks) if t.marginal is not None and k not in held}
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held,
-                                   self.options.metric_noise)  # fmt: skip
+                                   self.options.metric_noise, priors)  # fmt: skip
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None and k in self.waiting and self._determines(u):
                     del self.waiting[k]  # released: the next window moves it
@@ -380,40 +385,45 @@ class OnlineRigEstimator:
         for k, change in list(self.pending.items()):
             if sum(kf.frame >= change.frame for kf in self.keyframes) >= CONFIRM_SPAN:
                 del self.pending[k]
-                if self._confirmed(k, change):
-                    changes.append((k, replace(change, detected=frame)))
+                confirmed = self._confirmed(k, change)
+                if confirmed is not None:
+                    changes.append((k, replace(confirmed, detected=frame)))
         return changes
 
-    def _confirmed(self, k: int, change: Change) -> bool:
-        """Whether the window confirms camera k's candidate ``change``; confirmed, the camera loses its observations
-        from before it, and it restarts from the candidate's rotation with the lever arm it had (a knock turns a
-        camera more than it moves it; two resections place it poorly), waiting until the window determines it; its
-        track then takes the next windows' estimates."""
+    def _confirmed(self, k: int, change: Change) -> Change | None:
+        """Whether the window confirms camera k's candidate ``change``: the window's split test at the keyframe
+        among the candidate's and the ``SPLIT_SEARCH`` before it where it is largest among the steps of at least
+        the least change (the keyframes' test starts a run a keyframe or two after the move, and a split after the
+        move keeps moved keyframes on its first side), over its level at ``CONFIRM_FALSE_ALARM`` shared among those splits. Confirmed, the change is dated at that
+        keyframe, the camera loses its observations from before it, and it restarts from the candidate's rotation
+        (the disagreeing keyframes' mean measurement) with the lever arm it had (a knock turns a camera more than it
+        moves it), waiting until the window determines it; its track then takes the next windows' estimates. -> the change
+        confirmed, or None."""
         track = self.tracks[k]
-        split = split_statistic(
-            list(self.keyframes),
-            self.points,
-            self.extrinsics,
-            self.K,
-            self.sizes,
-            k,
-            change.frame,
-            self.options.metric_noise,
+        frames = [kf.frame for kf in self.keyframes]
+        at = frames.index(change.frame) if change.frame in frames else 0
+        tests = [(self._split(k, f), f) for f in frames[max(at - SPLIT_SEARCH, 0) : at + 1]]
+        level = chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM / len(tests), 6)
+        split, split_frame = max(
+            tests, key=lambda t: (reaches(t[0].step, track.min_change), np.nan_to_num(t[0].statistic, nan=-np.inf))
         )
-        if not (
-            split.statistic > chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6)
-            and reaches(split.step, track.min_change)
-        ):  # NaN: too little
+        if not (split.statistic > level and reaches(split.step, track.min_change)):  # NaN: too little
             track.dismiss()
             self.dismissed.append((k, change.detected, split))
-            return False
+            return None
+        change = replace(change, frame=split_frame)
         lever_arm = self.extrinsics[k][:3, 3].copy()
         track.accept(change)
         self.extrinsics[k][:3, :3] = track.extrinsic[:3, :3]
         self.extrinsics[k][:3, 3] = track.extrinsic[:3, 3] = lever_arm
         self._forget_before(k, change.frame)
         self.waiting[k] = False
-        return True
+        return change
+
+    def _split(self, k: int, frame: int) -> SplitTest:
+        """The window's split test of camera k moving at keyframe ``frame`` (:func:`split_statistic`)."""
+        keyframes, noise = list(self.keyframes), self.options.metric_noise
+        return split_statistic(keyframes, self.points, self.extrinsics, self.K, self.sizes, k, frame, noise)
 
     def _forget_before(self, k: int, frame: int) -> None:
         """Drop camera k's observations before ``frame``: they saw the camera where it no longer is."""

@@ -251,6 +251,7 @@ def test_the_change_test_gives_no_alarm_on_a_steady_camera_and_finds_a_step(seed
         change = track.observe(t, extrinsic, information(xy, xyz, K, pose, extrinsic), window)
         if change is not None:
             track.accept(change)
+            window = track.extrinsic, window[1]  # the estimator's window restarts from the change
         changes.append(change)
     assert not any(changes[:150]), "a false alarm"
     found = [c for c in changes if c is not None]
@@ -385,7 +386,7 @@ def test_a_candidate_waits_for_four_keyframes_and_its_camera_is_held_meanwhile()
     assert estimator._suspect(1) and not estimator.tracks[1].disagrees  # held, whatever the keyframes say
     calls = []
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(estimator, "_confirmed", lambda k, change: calls.append((k, change.frame)) or False)
+        patch.setattr(estimator, "_confirmed", lambda k, change: calls.append((k, change.frame)) or None)
         estimator.keyframes.append(Keyframe(16, np.tile(np.eye(4), (2, 1, 1)), [], []))
         assert estimator._judged(16) == []  # judged: the split test did not confirm it
     assert calls == [(1, 10)] and not estimator.pending and not estimator._suspect(1)
@@ -485,3 +486,46 @@ def test_a_short_stream_is_released_when_the_window_determines_it_and_states_its
     error = innovation(truth[1], E)
     assert np.degrees(np.linalg.norm(error[:3])) < 0.8  # from 0.98 at the start
     assert np.all(np.abs(error) < 3 * state.std[1]), (error, state.std[1])
+
+
+def test_the_split_test_leaves_out_points_first_seen_after_the_split():
+    """Points the camera first sees after the split are triangulated wherever its second extrinsic puts them and
+    would absorb the move: the split test is the same with or without them (here placed as the old mounting would
+    triangulate them), and still finds the 1 deg turn."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    moved = _mounting([0, 121, 0], [0.12, 0.0, -0.05])
+    Ks, sizes = np.stack([K, K]), [(128, 416)] * 2
+    keyframes, points = _window(np.random.default_rng(0), truth, moved)
+    adjust_window(keyframes, points, truth.copy(), Ks, sizes)
+    plain = split_statistic(keyframes, points, truth.copy(), Ks, sizes, 1, 8)
+    rng = np.random.default_rng(1)
+    for n in range(40):  # new points, seen by camera 1 from keyframe 8 on, where the old mounting puts them
+        pid, cam = 10_000 + n, keyframes[8].poses[1] @ truth[1]
+        X = cam[:3, :3] @ (np.linalg.inv(K) @ [*rng.uniform([0, 0], [416, 128]), 1.0]) * rng.uniform(3, 8)
+        points[pid] = X + cam[:3, 3]
+        for kf in keyframes[8:]:
+            T = np.linalg.inv(kf.poses[1] @ moved)
+            uv = K @ (T[:3, :3] @ points[pid] + T[:3, 3])
+            kf.features[1] = Features(np.r_[kf.features[1].keypoints, [uv[:2] / uv[2]]],
+                                      np.r_[kf.features[1].descriptors, np.zeros((1, 128), np.float32)])  # fmt: skip
+            kf.point_ids[1] = np.r_[kf.point_ids[1], pid]
+    with_new = split_statistic(keyframes, points, truth.copy(), Ks, sizes, 1, 8)
+    assert plain.statistic > 1000 and np.isclose(with_new.statistic, plain.statistic, rtol=1e-9), (plain, with_new)
+
+
+def test_a_candidate_raised_late_is_dated_at_the_move():
+    """The keyframes' test starts its run a keyframe or two after a move: the split test also looks at the
+    ``SPLIT_SEARCH`` keyframes before the candidate's and dates the change where the move is (keyframe 8 here, for
+    a candidate raised at 10)."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    moved = _mounting([0, 121, 0], [0.12, 0.0, -0.05])
+    keyframes, points = _window(np.random.default_rng(0), truth, moved)
+    estimator = OnlineRigEstimator(np.stack([K, K]), [(128, 416)] * 2, truth, EXACT)
+    estimator.extrinsics = truth.copy()
+    estimator.keyframes.extend(keyframes)
+    estimator.points = points
+    adjust_window(keyframes, points, estimator.extrinsics, estimator.K, estimator.sizes)
+    assert estimator._split(1, 8).statistic > estimator._split(1, 10).statistic
+    estimator.tracks[1].extrinsic, estimator.tracks[1].candidate = truth[1], moved
+    change = estimator._confirmed(1, Change(10, 12, 1.0, 0.0))
+    assert change is not None and change.frame == 8, change
