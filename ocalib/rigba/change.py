@@ -59,23 +59,20 @@ class ExtrinsicTrack:
     chi2: float = float("nan")
     changes: list[Change] = field(default_factory=list)
     candidate: np.ndarray | None = None
-    # (extrinsic (4, 4), covariance (6, 6)) fused from the windows whose keyframes have all left the window: the
-    # prior the next window starts from (what a sliding-window filter's marginalisation leaves); None before
-    marginal: tuple[np.ndarray, np.ndarray] | None = None
-    _recent: deque = field(default_factory=deque)
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     _pending: list = field(default_factory=list)
     _drifting: list = field(default_factory=list)
 
     def fuse(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
-        """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6). Its share of information leaves
-        the windows ``overlap`` windows later, with its keyframes: it then joins :attr:`marginal`."""
+        """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6)."""
         info_new = _information(covariance * self.overlap)
-        self.extrinsic, self.covariance = _fused(self.extrinsic, self.covariance, extrinsic, info_new)
-        self._recent.append((extrinsic.copy(), info_new))
-        if len(self._recent) > max(round(self.overlap), 1):
-            old, info_old = self._recent.popleft()
-            self.marginal = _fused(*(self.marginal or (None, None)), old, info_old)
+        if self.extrinsic is None:
+            self.extrinsic, self.covariance = extrinsic.copy(), _information(info_new, UNINFORMED)
+            return
+        info = _information(self.covariance) + info_new
+        cov = _information(info, UNINFORMED)  # the inverse, as a covariance
+        self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
+        self.covariance = cov
 
     def drifted(self, frame: int, extrinsic: np.ndarray, covariance: np.ndarray) -> Change | None:
         """Test the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) at keyframe ``frame`` against the
@@ -142,8 +139,6 @@ class ExtrinsicTrack:
         """The candidate ``change`` is real: record it and restart the track from its extrinsic, uninformed."""
         self.changes.append(change)
         self.extrinsic, self.covariance = self.candidate, np.eye(6) * UNINFORMED
-        self.marginal = None
-        self._recent.clear()
         self._history.clear()
         self.dismiss()
 
@@ -152,16 +147,6 @@ class ExtrinsicTrack:
         self._pending.clear()
         self._drifting.clear()
         self.candidate = None
-
-
-def _fused(extrinsic, covariance, new: np.ndarray, info_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) (None: none yet) and an estimate ``new`` (4, 4)
-    of information ``info_new`` (6, 6), fused by their information -> (extrinsic, covariance)."""
-    if extrinsic is None:
-        return new.copy(), _information(info_new, UNINFORMED)
-    info = _information(covariance) + info_new
-    cov = _information(info, UNINFORMED)  # the inverse, as a covariance
-    return perturbed(extrinsic, cov @ info_new @ innovation(extrinsic, new)), cov
 
 
 def information(xy: np.ndarray, xyz: np.ndarray, K: np.ndarray, pose: np.ndarray, extrinsic: np.ndarray) -> np.ndarray:

@@ -21,10 +21,7 @@ camera's extrinsic. Every ``keyframe_step``-th frame, :meth:`OnlineRigEstimator.
    before it (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a
    move, nor is a step under ``min_change_deg`` and ``min_change_m``;
 5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
-   (:mod:`ocalib.rigba.window`), each released camera's extrinsic with a prior: what the keyframes that have left
-   the window said of it (the track's windows from before them, fused: a sliding-window filter's marginalisation,
-   approximated), so that a window over little motion does not wander from what the stream has established; and
-   fuses the window's estimate into each camera's track. A camera *waits* (held,
+   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
    its track empty) at the start and after a change, until the window determines it: the 1-sigma of its
    extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`), under
    ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two best-determined
@@ -195,9 +192,8 @@ class OnlineRigEstimator:
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
         if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
             held = frozenset(self.waiting) | frozenset(self.pending)  # waiting or suspect: the window does not move it
-            priors = {k: t.marginal for k, t in enumerate(self.tracks) if t.marginal is not None and k not in held}
             window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held,
-                                   self.options.metric_noise, priors)  # fmt: skip
+                                   self.options.metric_noise)  # fmt: skip
             for k, u in enumerate(window.uncertainty, start=1):
                 if u is not None and k in self.waiting and self._determines(u):
                     del self.waiting[k]  # released: the next window moves it

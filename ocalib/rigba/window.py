@@ -22,9 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pyceres  # noqa: F401  (the type of the adjuster's problem, to which the extrinsics' priors are added)
 import pycolmap
-import pycolmap.cost_functions
 
 from ocalib.rigba.change import innovation
 from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
@@ -119,20 +117,17 @@ def adjust_window(
     sizes: list[tuple[int, int]],
     held: frozenset[int] = frozenset(),
     prior_noise: float | None = None,
-    priors: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> WindowResult:
     """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity;
     so do those of the cameras in ``held``). The keyframes' poses are held, or with ``prior_noise`` (metres per
-    axis, > 0) solved too where every keyframe's cameras share one pose (:func:`solves_poses`). ``priors``: camera
-    k -> (extrinsic (4, 4), covariance (6, 6)) a Gaussian prior on its extrinsic (what the keyframes that left the
-    window said of it; see :func:`_add_priors`). K (C, 3, 3) and ``sizes`` (C,) of (height, width) per camera.
-    Outlying observations are dropped from the keyframes afterwards (their ``point_ids`` set to -1). The returned
-    uncertainty is the window's observations' alone, without the priors."""
+    axis, > 0) solved too where every keyframe's cameras share one pose (:func:`solves_poses`). K (C, 3, 3) and
+    ``sizes`` (C,) of (height, width) per camera. Outlying observations are dropped from the keyframes afterwards
+    (their ``point_ids`` set to -1)."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
-    xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held, prior_noise, priors)
+    xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held, prior_noise)
     for pid, x in zip(obs["ids"], xyz):
         points[int(pid)] = x
     for kf, pose in zip(keyframes, poses):
@@ -223,12 +218,11 @@ def shares_pose(kf: Keyframe) -> bool:
     return bool((kf.poses == kf.poses[0]).all())
 
 
-def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(), prior_noise=None, priors=None):
+def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(), prior_noise=None):
     """Adjust the window's points and rig sensors (robust loss; sensor k sees camera ``source[k]``; those in ``held``
-    stay; those in ``priors`` with their prior), the intrinsics held, the rig's poses held or solved
-    (:func:`solves_poses`), camera 0's metric positions then priors of ``prior_noise`` metres: ``extrinsics``
-    (S, 4, 4) updated in place -> the points (P, 3) of ``obs["ids"]`` and the keyframes' poses (F, C, 4, 4) after
-    it."""
+    stay), the intrinsics held, the rig's poses held or solved (:func:`solves_poses`), camera 0's metric positions
+    then priors of ``prior_noise`` metres: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of
+    ``obs["ids"]`` and the keyframes' poses (F, C, 4, 4) after it."""
     shared = solves_poses(keyframes, prior_noise)
     rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared)
     config = pycolmap.BundleAdjustmentConfig()
@@ -250,12 +244,9 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
     options.ceres.solver_options.num_threads = 1
     options.ceres.solver_options.max_num_iterations = MAX_ITERATIONS
     if shared:
-        adjuster = _prior_adjuster(rec, config, options, keyframes, prior_noise)
+        _prior_adjuster(rec, config, options, keyframes, prior_noise).solve()
     else:
-        adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
-    costs = _add_priors(adjuster.problem, rec, {k: p for k, p in (priors or {}).items() if k not in held})
-    adjuster.solve()
-    del costs  # the problem refers to them until it has been solved
+        pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
     rig = rec.rig(1)
     for k in range(1, len(extrinsics)):
         extrinsics[k] = np.linalg.inv(to_matrix(rig.sensor_from_rig(_sensor(k))))
@@ -287,27 +278,7 @@ def _prior_adjuster(rec, config, options, keyframes, noise: float):
     prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
     prior_options.alignment_ransac.max_error = 3 * noise
     prior_options.alignment_ransac.random_seed = 0
-    return pycolmap.create_pose_prior_ceres_bundle_adjuster(options, prior_options, config, priors, rec)
-
-
-def _add_priors(problem, rec: pycolmap.Reconstruction, priors: dict[int, tuple[np.ndarray, np.ndarray]]) -> list:
-    """Add to the adjustment's ceres ``problem`` a prior on sensor k's ``sensor_from_rig`` per entry of ``priors``
-    (k -> ``T_cam0_camk`` (4, 4), its covariance (6, 6) in :func:`~ocalib.rigba.change.innovation`'s perturbation)
-    -> the cost functions, to keep alive until the problem is solved.
-
-    COLMAP's pose prior is on ``sensor_from_rig = E^-1`` with the error ``log(P P0^-1)`` (rotation first) in the
-    sensor's axes: to first order ``-diag(R0^T, R0^T) d`` for ``E = exp(d) E0``, so the covariance is turned by
-    ``R0^T``."""
-    costs = []
-    for k, (extrinsic, covariance) in priors.items():
-        sensor = rec.rig(1).non_ref_sensors[_sensor(k)]  # the rig's own pose, whose memory the problem adjusts
-        if not problem.has_parameter_block(sensor.params):
-            raise RuntimeError(f"camera {k}'s sensor_from_rig is not a parameter of the adjustment")
-        A = np.kron(np.eye(2), extrinsic[:3, :3].T)
-        prior = to_rigid(np.linalg.inv(extrinsic))
-        costs.append(pycolmap.cost_functions.AbsolutePosePriorCost(A @ covariance @ A.T, prior))
-        problem.add_residual_block(costs[-1], None, [sensor.params])
-    return costs
+    return pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec)
 
 
 def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared=False) -> pycolmap.Reconstruction:
