@@ -8,8 +8,7 @@ share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measu
 innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the statistic
 ``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
 points are estimates, shared by neighbouring keyframes) taken as the median of the recent steady statistics over
-the distribution's median, when above 1 (and 1 until ``MIN_HISTORY`` steady statistics are known: the test runs
-from the camera's first tested keyframe, a knock then found by the caller's stricter confirmation). Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
+the distribution's median, when above 1. Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
 in a row is a candidate change; the caller confirms it (:meth:`ExtrinsicTrack.accept`: the track restarts from the
 keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
 
@@ -38,7 +37,7 @@ from ocalib.data.distortion import project
 from ocalib.geometry.pose import cross_matrix
 
 HISTORY = 30  # steady keyframes whose statistics give the overdispersion
-MIN_HISTORY = 10  # steady keyframes needed before their overdispersion is used
+MIN_HISTORY = 10  # steady keyframes needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 CHI2_MEDIAN = float(chi2_distribution.median(6))
 DRIFT_FALSE_ALARM = 1e-6  # drifted's level; steady rigs stay far below it (docs/results-rig-online.md)
@@ -117,8 +116,10 @@ class ExtrinsicTrack:
             statistic = float(d @ np.linalg.solve(np.linalg.inv(info) + reference[1], d))
         except np.linalg.LinAlgError:
             return None
-        known = len(self._history) >= MIN_HISTORY
-        overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0) if known else 1.0
+        if len(self._history) < MIN_HISTORY:
+            self._history.append(statistic)
+            return None
+        overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0)
         self.chi2 = statistic / overdispersion
         if self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 6):
             self._pending.clear()
