@@ -26,7 +26,7 @@ import pyceres  # noqa: F401  (the type of the adjuster's problem, to which the 
 import pycolmap
 import pycolmap.cost_functions
 
-from ocalib.rigba.change import innovation
+from ocalib.geometry.se3 import innovation
 from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
 from ocalib.rigba.covariance import ExtrinsicUncertainty, Observations, observations_uncertainty
 from ocalib.rigba.features import Features

@@ -16,8 +16,8 @@ from scipy.stats import chi2
 from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
-from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturbed, reaches, relative_information
+from ocalib.geometry.se3 import innovation, perturbed, rotation_angle_deg
+from ocalib.rigba.change import ExtrinsicTrack, information, reaches, relative_information
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
