@@ -49,7 +49,7 @@ from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
     from ocalib.rigba.result import RigAdjustment
-    from ocalib.rigba.stream import RigStream
+    from ocalib.rigba.stream import OnlineRigStage
 
 MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
@@ -60,7 +60,7 @@ DETERMINED_ROTATION_DEG = 0.5  # a reported rotation's 1-sigma over this (deg, a
 @dataclass
 class ImageCalibration:
     """:func:`calibrate_images`'s outcome: the run (JSON, trace, warnings), the ground-truth errors, where the
-    on-line rig estimator ran (:class:`ocalib.rigba.stream.RigStream`) its states and errors, and where the rig
+    on-line rig estimator ran (:class:`ocalib.rigba.stream.OnlineRigStage`) its states and errors, and where the rig
     bundle adjustment ran (:func:`ocalib.calibnet.bundle.refine_calibration`) its result and errors."""
 
     run: CalibrationRun
@@ -71,7 +71,7 @@ class ImageCalibration:
     bundle_errors: list[dict] | None = (
         None  # its ground-truth errors, see :func:`ocalib.rigba.evaluate.adjustment_errors`
     )
-    rig: RigStream | None = None  # the on-line rig estimator
+    rig: OnlineRigStage | None = None  # the on-line rig estimator
     rig_errors: list[dict] | None = None  # its final estimate's errors against the truth at the last frame
 
     def result_json(self) -> dict:

@@ -287,7 +287,7 @@ def _metric_trajectory(args, sequence):
         )
     from ocalib.data.metric_trajectory import read_metric_trajectory
     from ocalib.rigba.online import OnlineRigOptions
-    from ocalib.rigba.stream import RigStream
+    from ocalib.rigba.stream import OnlineRigStage
 
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
     shown = getattr(args, "metric_shown", None)  # what the messages call the trajectory, where not its file's name
@@ -299,7 +299,7 @@ def _metric_trajectory(args, sequence):
     options = OnlineRigOptions(keyframe_step=args.keyframe_step)
     if args.metric_noise is not None:
         options = replace(options, metric_noise=args.metric_noise)
-    rig = RigStream(sequence, metric, options) if args.online_rig else None
+    rig = OnlineRigStage(sequence, metric, options) if args.online_rig else None
     return sequence, metric, rig, said
 
 

@@ -45,7 +45,7 @@ HELD_HINT = (  # after a change found with the trajectory's poses held: where th
 )
 
 
-class RigStream:
+class OnlineRigStage:
     """Call with ``(t, estimate)`` after the head's frame t (estimate: its :class:`Calibration`, rig 0)."""
 
     def __init__(self, sequence: Sequence, metric: np.ndarray, options: OnlineRigOptions = OnlineRigOptions()):
