@@ -27,7 +27,8 @@ from bench_calibnet_accuracy import ensure
 from common import add_sequence_arguments, write_json
 
 from ocalib.calibnet.bundle import refine_calibration
-from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
+from ocalib.calibnet.run import calibrate_images
+from ocalib.calibnet.sequence import open_calibration_sequence
 from ocalib.frontend import FRONTENDS, FrontEndOptions
 from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions

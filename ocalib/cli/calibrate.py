@@ -190,8 +190,7 @@ def run(args) -> int:
 
 def _calibrate(args, warnings: list[str] = ()) -> int:
     """``calibrate`` on the sequence folder ``args.sequence``; ``warnings`` go first in the result's."""
-    from ocalib.calib.poses.report import print_warnings, summary
-    from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
+    from ocalib.calibnet.sequence import open_calibration_sequence
 
     frontend, head = frontend_options(args), head_options(args)
     _check_numbers(args)
@@ -199,6 +198,9 @@ def _calibrate(args, warnings: list[str] = ()) -> int:
         args.sequence, args.cameras, args.intrinsics, args.max_frames, args.time_offset, frontend, args.device
     )
     sequence, metric, rig, said = _metric_trajectory(args, sequence)
+    from ocalib.calib.poses.report import print_warnings, summary  # here: the input's errors above load no torch
+    from ocalib.calibnet.run import calibrate_images
+
     writer = None
     if args.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
