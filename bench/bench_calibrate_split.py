@@ -34,7 +34,8 @@ from scipy.stats import chi2, norm
 
 from ocalib.calibnet.run import not_determined
 from ocalib.data.layout import open_sequence
-from ocalib.rigba.change import UNINFORMED, innovation
+from ocalib.geometry.se3 import innovation
+from ocalib.rigba.change import UNINFORMED
 
 SPLITS = {"dev": 6001, "test": 7001}  # the first seed of each split
 COUNTS = {"handheld": 20, "front-left": 20, "surround": 10}  # rigs per preset

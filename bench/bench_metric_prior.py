@@ -27,11 +27,12 @@ from common import add_sequence_arguments, write_json
 from scipy.spatial.transform import Rotation
 
 from ocalib.calibnet.bundle import refine_calibration
-from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
+from ocalib.calibnet.run import calibrate_images
+from ocalib.calibnet.sequence import open_calibration_sequence
 from ocalib.frontend import FRONTENDS, FrontEndOptions
 from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
-from ocalib.rigba.stream import RigStream
+from ocalib.rigba.stream import OnlineRigStage
 
 KEYS = ("rotation_deg", "direction_deg", "translation_rel_baseline")
 VARIANTS = {"sim3": None, "prior": "--metric-noise", "held": 0.0}  # the adjustment's metric_noise (prior: the flag's)
@@ -77,7 +78,7 @@ def run(path: Path, frontend: str, args) -> dict:
     """One on-line pass with the rig estimator, then the adjustment once per variant."""
     sequence = open_calibration_sequence(path, max_frames=args.frames, frontend=FrontEndOptions(frontend))
     metric = noisy(sequence.cameras[0].poses[: args.frames], *args.trajectory_noise)
-    rig = RigStream(sequence, metric, OnlineRigOptions(metric_noise=0.0))  # the rendered poses are exact: held
+    rig = OnlineRigStage(sequence, metric, OnlineRigOptions(metric_noise=0.0))  # the rendered poses are exact: held
     result = calibrate_images(sequence, frontend=FrontEndOptions(frontend), max_frames=args.frames, progress=False,
                               on_frame=rig)  # fmt: skip
     rig.attach(result)

@@ -31,8 +31,9 @@ from common import write_json
 
 from ocalib.calib.poses.pipeline import calibrate_files
 from ocalib.data import RigStream, open_sequence
-from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
+from ocalib.eval.pose_metrics import frame_motions, step_errors
 from ocalib.frontend.opencv_vo import OpenCVOdometry
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.io.poses import write_kitti
 from ocalib.synth import preset, render_sequence
 

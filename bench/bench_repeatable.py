@@ -29,8 +29,8 @@ from common import add_sequence_arguments, write_json
 
 from ocalib.calibnet.bundle import refine_calibration
 from ocalib.calibnet.run import calibrate_images
-from ocalib.eval.pose_metrics import rotation_angle_deg
 from ocalib.frontend import FrontEndOptions
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
 
 KEYS = ("rotation_deg", "direction_deg", "translation_rel_baseline")

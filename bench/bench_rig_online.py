@@ -45,7 +45,7 @@ from common import add_sequence_arguments, write_json
 from scipy.spatial.transform import Rotation
 
 from ocalib.data.layout import open_sequence
-from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
 from ocalib.rigba.options import BundleOptions
 from ocalib.sim.trajectory import off_trajectory

@@ -27,11 +27,12 @@ from bench_calibnet_accuracy import ensure
 from common import add_sequence_arguments, write_json
 
 from ocalib.calibnet.bundle import refine_calibration
-from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
+from ocalib.calibnet.run import calibrate_images
+from ocalib.calibnet.sequence import open_calibration_sequence
 from ocalib.frontend import FRONTENDS, FrontEndOptions
 from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.options import BundleOptions, FeatureOptions, MapperOptions
-from ocalib.rigba.stream import RigStream
+from ocalib.rigba.stream import OnlineRigStage
 
 DEFAULT = ["handheld-1001", "front-left-1008", "handheld-1007", "front-left-2002", "handheld-2001", "front-left-1002"]
 
@@ -79,7 +80,7 @@ def run(path: Path, frontend: str, frames: int, options: BundleOptions, every: i
     sequence = open_calibration_sequence(path, max_frames=frames, time_offset=time_offset,
                                          frontend=FrontEndOptions(frontend))  # fmt: skip
     metric = sequence.cameras[0].poses[:frames]
-    rig = RigStream(sequence, metric, OnlineRigOptions(metric_noise=0.0)) if online_rig else None  # exact: held
+    rig = OnlineRigStage(sequence, metric, OnlineRigOptions(metric_noise=0.0)) if online_rig else None  # exact: held
     result = calibrate_images(sequence, frontend=FrontEndOptions(frontend), max_frames=frames, progress=False,
                               on_frame=rig)  # fmt: skip
     if rig is not None:

@@ -17,7 +17,7 @@ import torch
 from common import write_json
 
 from ocalib.calib.drivers.sequence import calibrate_sequence
-from ocalib.eval.pose_metrics import rotation_matrix_to_axis_angle
+from ocalib.geometry.se3 import so3_log
 from ocalib.sim.trajectory import add_noise, lds_trajectory, random_rig, rig_trajectories
 
 CASES = {"default": {}, "closed form (refine=False)": {"refine": False}, "first": {"motion": "first"},
@@ -32,7 +32,7 @@ def z_scores(rigs: int, sigma: float, model: str, options: dict, seed: int = 0) 
         rig = random_rig(g)
         poses = add_noise(rig_trajectories(lds_trajectory(128, g), rig[None]), sigma, g, model=model)
         out = calibrate_sequence(poses, **options)
-        error = rotation_matrix_to_axis_angle((out.rotation[-1, 0].mT @ rig[:3, :3]).numpy()[None])[0]
+        error = so3_log((out.rotation[-1, 0].mT @ rig[:3, :3]).numpy()[None])[0]
         z["rotation"] += list(error / out.rotation_std[-1, 0].numpy())
         z["translation"] += list((out.translation[-1, 0] - rig[:3, 3]).numpy() / out.translation_std[-1, 0].numpy())
         z["scale"].append(float((out.scale[-1, 0] - 1) / out.scale_std[-1, 0]))

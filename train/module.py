@@ -24,7 +24,8 @@ from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors
 from ocalib.eval.pose_metrics import motion_errors, rotation_gain
 from ocalib.frontend.align import align_motion
-from ocalib.geometry.pose import chain_motions, invert_pose
+from ocalib.geometry.pose import invert_pose
+from ocalib.geometry.se3 import chain_motions
 from ocalib.losses import LossOutput, SelfSupervisedLoss
 from ocalib.losses.motion import motion_distance
 from ocalib.losses.selfsup import identity_errors, self_supervised_loss

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ocalib.calib.drivers.result import planar_axes
 from ocalib.calibnet.run import ImageCalibration
 from ocalib.errors import InputError
-from ocalib.eval.calibration_metrics import planar_axes
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.rigba.adjust import adjust_rig
 from ocalib.rigba.evaluate import adjustment_errors

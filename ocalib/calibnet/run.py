@@ -27,7 +27,7 @@ from ocalib.calib.drivers.clock import find_time_offset
 from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.calib.drivers.options import MOTION_CHOICES, HeadOptions
 from ocalib.calib.drivers.result import Calibration
-from ocalib.calib.poses.pipeline import RigPoses, offset_specs
+from ocalib.calib.poses.pipeline import RigPoses
 from ocalib.calib.poses.report import (
     SOURCES,
     CalibrationRun,
@@ -37,10 +37,10 @@ from ocalib.calib.poses.report import (
     trace_rows,
 )
 from ocalib.calibnet.net import OnlineCalibrationNet
-from ocalib.data.layout import open_sequence
+from ocalib.calibnet.sequence import MIN_FRAMES, open_calibration_sequence
 from ocalib.data.sequence import Sequence
 from ocalib.data.static import check_motion
-from ocalib.data.synchronise import clocks, own_clocks, synchronise
+from ocalib.data.synchronise import clocks
 from ocalib.errors import InputError, deferred_interrupts
 from ocalib.eval.calibration_metrics import extrinsic_errors
 from ocalib.eval.pose_metrics import congruence_residual
@@ -49,9 +49,8 @@ from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
     from ocalib.rigba.result import RigAdjustment
-    from ocalib.rigba.stream import RigStream
+    from ocalib.rigba.stream import OnlineRigStage
 
-MIN_FRAMES = 10  # frames below which a sequence is too short to calibrate
 TRACE_EVERY = 50  # frames gathered before their estimates are copied to the trace
 SYNC_WARNING = 0.1  # frames: paired frames further apart than this (median) are warned about
 DETERMINED_ROTATION_DEG = 0.5  # a reported rotation's 1-sigma over this (deg, any axis): not determined (a target)
@@ -60,7 +59,7 @@ DETERMINED_ROTATION_DEG = 0.5  # a reported rotation's 1-sigma over this (deg, a
 @dataclass
 class ImageCalibration:
     """:func:`calibrate_images`'s outcome: the run (JSON, trace, warnings), the ground-truth errors, where the
-    on-line rig estimator ran (:class:`ocalib.rigba.stream.RigStream`) its states and errors, and where the rig
+    on-line rig estimator ran (:class:`ocalib.rigba.stream.OnlineRigStage`) its states and errors, and where the rig
     bundle adjustment ran (:func:`ocalib.calibnet.bundle.refine_calibration`) its result and errors."""
 
     run: CalibrationRun
@@ -71,7 +70,7 @@ class ImageCalibration:
     bundle_errors: list[dict] | None = (
         None  # its ground-truth errors, see :func:`ocalib.rigba.evaluate.adjustment_errors`
     )
-    rig: RigStream | None = None  # the on-line rig estimator
+    rig: OnlineRigStage | None = None  # the on-line rig estimator
     rig_errors: list[dict] | None = None  # its final estimate's errors against the truth at the last frame
 
     def result_json(self) -> dict:
@@ -209,46 +208,6 @@ def _replaced_said(warnings: list[str], extrinsics: list[dict]) -> list[str]:
     return out
 
 
-def open_calibration_sequence(
-    path: str | Path,
-    cameras: list[str] | None = None,
-    intrinsics: str | None = None,
-    max_frames: int | None = None,
-    time_offset: list[float | str] | None = None,
-    frontend: FrontEndOptions = FrontEndOptions(),
-    device: str = "cpu",
-) -> Sequence:
-    """The sequence at ``path`` as :func:`calibrate_images` calibrates it: at least two cameras, at most
-    ``max_frames`` frames, and, where the cameras have clocks of their own or ``time_offset`` is given, its frames
-    paired in time (:func:`ocalib.data.synchronise.synchronise`).
-
-    time_offset: one value for every camera k >= 1, or one per camera: seconds, or ``"auto"``: estimated from the
-    front end's rotations over the frames as they are (a first pass of ``frontend``), as ``calibrate-poses`` does
-    from trajectories. Convention: ``t0 = tk + offset``.
-    """
-    sequence = open_sequence(path, cameras, intrinsics)
-    if len(sequence.cameras) < 2:
-        raise InputError(
-            f"{path}: calibration needs at least two cameras, the sequence has {', '.join(sequence.names)}"
-        )
-    frames = len(sequence) if max_frames is None else min(len(sequence), max_frames)
-    if frames < MIN_FRAMES:
-        raise InputError(f"{path}: {frames} frames is too short to calibrate (at least {MIN_FRAMES})")
-    if time_offset is None and not own_clocks(sequence):
-        return sequence
-    specs = offset_specs(time_offset, len(sequence.cameras) - 1)
-    auto, estimates = [s == "auto" for s in specs], [None] * len(sequence.cameras)
-    if any(auto):
-        check_motion(sequence)
-        found, quality = _estimate_offsets(sequence, frontend.resolved(), device, min(frames, sequence.common))
-        specs = [f if a else s for f, s, a in zip(found, specs, auto)]
-        estimates = [None] + [q if a else None for q, a in zip(quality, auto)]
-    sequence = synchronise(sequence, [s or 0.0 for s in specs], frames, estimates)
-    if len(sequence) < MIN_FRAMES:
-        raise InputError(f"{path}: {len(sequence)} frames pair in time, too few to calibrate (at least {MIN_FRAMES})")
-    return sequence
-
-
 def _trajectories(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int, desc: str) -> np.ndarray:
     """Every camera's trajectory (frames, C, 4, 4) from the front end of ``frontend`` over the first ``frames``."""
     front_end = build_frontend(sequence, frontend, device)
@@ -271,7 +230,7 @@ def choose_frontend(sequence: Sequence, frontend: FrontEndOptions, device: str, 
     return chosen.resolved(), tried
 
 
-def _estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
+def estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
     """Each camera k's clock offset from the front end's rotations over the first ``frames`` frames as they are
     -> (offsets, OffsetQuality) per camera k >= 1 (see :func:`ocalib.calib.drivers.clock.find_time_offset`);
     with :data:`~ocalib.frontend.AUTO`, the registry's first front end's."""

@@ -116,6 +116,8 @@ def _noting_interrupts():
 
 def check_device(device: str) -> None:
     """An :class:`InputError` unless ``device`` names a torch device that this machine has."""
+    if device == "cpu":  # every machine's, the default: no torch to import for it before the input is checked
+        return
     import torch
 
     try:

@@ -190,8 +190,7 @@ def run(args) -> int:
 
 def _calibrate(args, warnings: list[str] = ()) -> int:
     """``calibrate`` on the sequence folder ``args.sequence``; ``warnings`` go first in the result's."""
-    from ocalib.calib.poses.report import print_warnings, summary
-    from ocalib.calibnet.run import calibrate_images, open_calibration_sequence
+    from ocalib.calibnet.sequence import open_calibration_sequence
 
     frontend, head = frontend_options(args), head_options(args)
     _check_numbers(args)
@@ -199,6 +198,9 @@ def _calibrate(args, warnings: list[str] = ()) -> int:
         args.sequence, args.cameras, args.intrinsics, args.max_frames, args.time_offset, frontend, args.device
     )
     sequence, metric, rig, said = _metric_trajectory(args, sequence)
+    from ocalib.calib.poses.report import print_warnings, summary  # here: the input's errors above load no torch
+    from ocalib.calibnet.run import calibrate_images
+
     writer = None
     if args.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
@@ -287,7 +289,7 @@ def _metric_trajectory(args, sequence):
         )
     from ocalib.data.metric_trajectory import read_metric_trajectory
     from ocalib.rigba.online import OnlineRigOptions
-    from ocalib.rigba.stream import RigStream
+    from ocalib.rigba.stream import OnlineRigStage
 
     frames = len(sequence) if args.max_frames is None else min(len(sequence), args.max_frames)
     shown = getattr(args, "metric_shown", None)  # what the messages call the trajectory, where not its file's name
@@ -299,7 +301,7 @@ def _metric_trajectory(args, sequence):
     options = OnlineRigOptions(keyframe_step=args.keyframe_step)
     if args.metric_noise is not None:
         options = replace(options, metric_noise=args.metric_noise)
-    rig = RigStream(sequence, metric, options) if args.online_rig else None
+    rig = OnlineRigStage(sequence, metric, options) if args.online_rig else None
     return sequence, metric, rig, said
 
 

@@ -54,7 +54,7 @@ def run(args) -> int:
     from ocalib.cli.calibrate import print_errors
     from ocalib.data.layout import open_sequence
     from ocalib.rigba.online import OnlineRigOptions
-    from ocalib.rigba.stream import RigStream
+    from ocalib.rigba.stream import OnlineRigStage
     from ocalib.synth import preset, render_sequence
     from ocalib.synth.presets import knocked
     from ocalib.viz.calibration import bundle_unobservable, plot_trace
@@ -66,7 +66,7 @@ def run(args) -> int:
     sequence = out / "sequence"
     render_sequence(cfg, sequence, overwrite=True, workers=2)
     metric = open_sequence(sequence).cameras[0].poses  # the rendered poses stand for wheel odometry
-    rig = RigStream(open_sequence(sequence), metric, OnlineRigOptions(metric_noise=0.0))  # exact: held
+    rig = OnlineRigStage(open_sequence(sequence), metric, OnlineRigOptions(metric_noise=0.0))  # exact: held
     result = calibrate_images(sequence, frontend=frontend, device=args.device, on_frame=rig)
     rig.attach(result)
     if args.bundle_adjust:

@@ -7,14 +7,16 @@ Depth maps are float32 (1, H, W) in metres, 0 where there is no surface.
 from __future__ import annotations
 
 import re
+import typing
 from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
-from torch import Tensor
 
 from ocalib.errors import InputError, read_text
+
+if typing.TYPE_CHECKING:
+    from torch import Tensor
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff")
 _PIXEL_SCALE = {np.uint8: 255.0, np.uint16: 65535.0}  # full scale of the pixel types read
@@ -59,6 +61,8 @@ def resize_image(array: np.ndarray, out_size: tuple[int, int] | None) -> np.ndar
 
 def image_tensor(array: np.ndarray) -> Tensor:
     """A decoded image (:func:`decode_image`) -> (3, H, W) float32 in [0, 1] (grey expanded to 3 channels)."""
+    import torch  # here: listing and reading images loads no torch
+
     image = torch.from_numpy(array.astype(np.float32) / _PIXEL_SCALE[array.dtype.type])
     return image.permute(2, 0, 1).contiguous() if image.ndim == 3 else image.expand(3, -1, -1).contiguous()
 
@@ -86,6 +90,8 @@ def decode_depth(
 
 def depth_tensor(array: np.ndarray, scale: float = 256.0) -> Tensor:
     """A decoded depth map (:func:`decode_depth`) -> (1, H, W) float32 metres."""
+    import torch
+
     return torch.from_numpy(array.astype(np.float32) / scale)[None]
 
 

@@ -9,26 +9,30 @@ of the mirrored world, see :func:`flip_pose`).
 
 from __future__ import annotations
 
+import typing
 from pathlib import Path
 
 import numpy as np
-import torch
 import yaml
-from torch import Tensor
 
 from ocalib.data.image_io import read_numbers
 from ocalib.errors import InputError, read_text
 
+if typing.TYPE_CHECKING:
+    from torch import Tensor
+
 
 def scale_intrinsics(K: Tensor, sx, sy) -> Tensor:
     """K (..., 3, 3) after resizing by ``sx`` horizontally and ``sy`` vertically (floats or (...) tensors)."""
+    import torch  # here, as in the others: reading a sequence's intrinsics loads no torch
+
     K = K.clone()
     # python numbers stay numbers: a tensor made from one is a host-to-device copy on CUDA
     sx, sy = (
         s if isinstance(s, (int, float)) else torch.as_tensor(s, dtype=K.dtype, device=K.device) for s in (sx, sy)
     )
-    K[..., 0, :] *= sx[..., None] if isinstance(sx, Tensor) and sx.ndim else sx
-    K[..., 1, :] *= sy[..., None] if isinstance(sy, Tensor) and sy.ndim else sy
+    K[..., 0, :] *= sx[..., None] if isinstance(sx, torch.Tensor) and sx.ndim else sx
+    K[..., 1, :] *= sy[..., None] if isinstance(sy, torch.Tensor) and sy.ndim else sy
     K[..., 0, 2] += 0.5 * (sx - 1)  # (cx + 0.5) s - 0.5 = s cx + 0.5 (s - 1)
     K[..., 1, 2] += 0.5 * (sy - 1)
     return K
@@ -41,6 +45,8 @@ def resize_intrinsics(K: Tensor, old_size: tuple[int, int], new_size: tuple[int,
 
 def crop_intrinsics(K: Tensor, x0, y0) -> Tensor:
     """K (..., 3, 3) for the crop whose top-left pixel is (x0, y0) (floats or (...) tensors)."""
+    import torch
+
     K = K.clone()
     K[..., 0, 2] -= torch.as_tensor(x0, dtype=K.dtype, device=K.device)
     K[..., 1, 2] -= torch.as_tensor(y0, dtype=K.dtype, device=K.device)
@@ -57,6 +63,8 @@ def flip_intrinsics(K: Tensor, width: int) -> Tensor:
 def flip_pose(T: Tensor) -> Tensor:
     """A pose or relative pose (..., 4, 4) in the mirrored world of a horizontally flipped image: M T M,
     M = diag(-1, 1, 1, 1)."""
+    import torch
+
     M = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=T.dtype, device=T.device))
     return M @ T @ M
 
@@ -104,6 +112,8 @@ def read_intrinsics(path: str | Path, size: tuple[int, int] | None = None) -> np
     K = _checked(K, path)
     if size is not None and "width" in data and "height" in data:
         old = (int(data["height"]), int(data["width"]))
+        import torch
+
         K = resize_intrinsics(torch.from_numpy(K), old, size).numpy()
     return K
 

@@ -17,7 +17,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from torch import Tensor
 
 from ocalib.data.distortion import Distortion, undistort_image
 from ocalib.data.image_io import decode_image, image_tensor, read_image, resize_image
@@ -25,6 +24,8 @@ from ocalib.data.rig import ExtrinsicChange
 from ocalib.errors import InputError
 
 if typing.TYPE_CHECKING:
+    from torch import Tensor
+
     from ocalib.data.synchronise import Pairing
 
 

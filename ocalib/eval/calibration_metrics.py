@@ -11,21 +11,11 @@ import math
 
 import numpy as np
 
-from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.drivers.result import Calibration, planar_axes
 from ocalib.eval.pose_metrics import frame_motions, rotation_gain
-
-
-def trajectory_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
-    """The factor that brings the positions of ``estimate`` (T, 4, 4) to metres: the scale of the Sim(3)
-    (Umeyama) fit of its positions to those of ``truth`` (T, 4, 4); NaN when the truth does not move."""
-    from ocalib.eval.alignment import umeyama
-
-    valid = np.isfinite(estimate).all((1, 2)) & np.isfinite(truth).all((1, 2))
-    moves = lambda p: np.ptp(p[valid, :3, 3], 0).max() > 0  # noqa: E731
-    if valid.sum() < 3 or not moves(truth) or not moves(estimate):
-        return math.nan
-    scale, _, _ = umeyama(estimate[valid, :3, 3], truth[valid, :3, 3])
-    return scale
+from ocalib.geometry.alignment import trajectory_scale
+from ocalib.geometry.directions import angle_deg, projector_without
+from ocalib.geometry.se3 import rotation_angle_deg
 
 
 def front_end_rotation_gain(estimate: np.ndarray, truth: np.ndarray) -> list[float]:
@@ -69,41 +59,6 @@ def scale_wander(trajectory: np.ndarray, truth: np.ndarray, window: int = WANDER
     return moving_std(e[:, 1] - e[:, 0]), moving_std(lever)
 
 
-def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle between two vectors in degrees (NaN when either is zero)."""
-    na, nb = np.linalg.norm(a), np.linalg.norm(b)
-    if na == 0 or nb == 0:
-        return math.nan
-    return math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(a @ b)))
-
-
-def planar_axes(estimate: Calibration) -> np.ndarray:
-    """(K, 3) per camera k >= 1 of rig 0, the axis the rig turns about where the head found its motion planar (a
-    car's vertical; camera 0's axes), NaN rows elsewhere: the normal of the ground plane a car's translation is
-    compared in, by every stage alike."""
-    axes = estimate.planar_axis[0].double().cpu().numpy().copy()
-    axes[~estimate.planar_motion[0].cpu().numpy()] = np.nan
-    return axes
-
-
-def height_error(t: np.ndarray, t_true: np.ndarray, axis: np.ndarray) -> float | None:
-    """The error of translation ``t`` (3,) against ``t_true`` along the ground's normal ``axis`` (3,) (a car's
-    camera height: outside the targets compared in the ground plane); None where ``axis`` is NaN (not planar)."""
-    return float(abs(axis @ (t - t_true))) if np.isfinite(axis).all() else None
-
-
-def projector_without(directions: np.ndarray) -> np.ndarray:
-    """(3, 3) the orthogonal projector onto what ``directions`` (n, 3) (unit rows; NaN rows ignored) leave: rows
-    within about 15 deg of each other count as one direction (a car's height, unobservable and the ground's normal)."""
-    rows = np.asarray(directions, np.float64).reshape(-1, 3)
-    rows = rows[np.isfinite(rows).all(1)]
-    if not len(rows):
-        return np.eye(3)
-    _, s, vt = np.linalg.svd(rows)
-    basis = vt[: int(np.sum(s > 0.2))]
-    return np.eye(3) - basis.T @ basis
-
-
 def extrinsic_errors(
     estimate: Calibration, extrinsics: np.ndarray, trajectory: np.ndarray, truth: np.ndarray | None
 ) -> list[dict]:
@@ -135,14 +90,13 @@ def extrinsic_errors(
     for k in range(1, C):
         R, t = estimate.rotation[0, k - 1].double().numpy(), estimate.translation[0, k - 1].double().numpy()
         R_gt, t_gt = rel[k, :3, :3], rel[k, :3, 3]
-        cos = np.clip((np.trace(R.T @ R_gt) - 1) / 2, -1.0, 1.0)
         planar = bool(np.isfinite(axes[k - 1]).all())
         project = projector_without(axes[k - 1])
         baseline = float(np.linalg.norm(t_gt))  # the whole lever arm, whatever is compared
         t, t_gt = project @ t, project @ t_gt
         e = {
             "camera": k,
-            "rotation_error_deg": math.degrees(math.acos(cos)),
+            "rotation_error_deg": float(rotation_angle_deg(R.T @ R_gt)),
             "translation_direction_error_deg": angle_deg(t, t_gt),
             "compared_in_plane": planar,
         }

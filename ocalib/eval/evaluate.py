@@ -23,8 +23,8 @@ from ocalib.data.model_view import ModelView, model_view
 from ocalib.data.sequence import Camera, Sequence
 from ocalib.errors import InputError
 from ocalib.eval.depth_metrics import depth_errors, mean_depth_errors
-from ocalib.eval.pose_metrics import invert, pose_metrics
-from ocalib.geometry.pose import chain_motions
+from ocalib.eval.pose_metrics import pose_metrics
+from ocalib.geometry.se3 import chain_motions, invert
 from ocalib.inference.predict import FramePrediction, PredictOptions, predict_frames
 from ocalib.io.jsonable import finite_or_null
 

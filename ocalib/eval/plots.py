@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ocalib.eval.evaluate import CameraEvaluation
-from ocalib.eval.pose_metrics import frame_motions, rotation_matrix_to_axis_angle
+from ocalib.eval.pose_metrics import frame_motions
+from ocalib.geometry.se3 import so3_log
 from ocalib.viz.figure import save_figure
 
 
@@ -79,9 +80,7 @@ def plot_camera(result: CameraEvaluation, path: str | Path, title: str = "") -> 
         _empty(ax, "no ground-truth depth")
     ax = axes[0, 2]
     if d is not None:
-        pred, true = (
-            np.degrees(rotation_matrix_to_axis_angle(frame_motions(p)[:, :3, :3])) for p in (result.poses, result.truth)
-        )
+        pred, true = (np.degrees(so3_log(frame_motions(p)[:, :3, :3])) for p in (result.poses, result.truth))
         gains = result.pose["rotation_gain_xyz"]
         for i, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
             gain = "n/a" if gains[i] is None or not np.isfinite(gains[i]) else f"{gains[i]:.2f}"

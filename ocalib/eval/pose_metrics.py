@@ -12,38 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ocalib.errors import InputError
-from ocalib.eval.alignment import align_trajectory
-
-
-def invert(T: np.ndarray) -> np.ndarray:
-    """Inverse of rigid poses (..., 4, 4) through R^T."""
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -(Rt @ T[..., :3, 3:])[..., 0]
-    out[..., 3, 3] = 1
-    return out
-
-
-def _sin_axis_cos(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``sin(angle) * axis`` (..., 3) (the skew part of R) and ``cos(angle)`` (..., 1) of rotations (..., 3, 3)."""
-    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1) / 2
-    return w, (np.trace(R, axis1=-2, axis2=-1)[..., None] - 1) / 2
-
-
-def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
-    """Rotation angles in degrees, [0, 180], of rotation matrices (..., 3, 3) (atan2 form, accurate near 0)."""
-    w, cos = _sin_axis_cos(R)
-    return np.degrees(np.arctan2(np.linalg.norm(w, axis=-1), cos[..., 0]))
-
-
-def rotation_matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3) (axis times angle, radians) of rotation matrices (..., 3, 3), for angles below
-    180 degrees (the axis from the skew part, the angle in atan2 form: accurate near 0)."""
-    w, cos = _sin_axis_cos(R)
-    sin = np.linalg.norm(w, axis=-1, keepdims=True)
-    angle = np.arctan2(sin, cos)
-    return np.where(sin > 0, w * angle / np.maximum(sin, 1e-300), w)
+from ocalib.geometry.alignment import align_trajectory
+from ocalib.geometry.se3 import invert, rotation_angle_deg, so3_log
 
 
 def rotation_gain(pred: np.ndarray, truth: np.ndarray, min_rms_deg: float = 0.01) -> np.ndarray:
@@ -53,7 +23,7 @@ def rotation_gain(pred: np.ndarray, truth: np.ndarray, min_rms_deg: float = 0.01
     the rotation (a pose network short of training regresses toward no motion). NaN about an axis whose true
     rotation is below ``min_rms_deg`` RMS (nothing to measure). Different gains per axis bend the rotation axes,
     which biases hand-eye calibration even where the per-frame errors are small."""
-    rp, rt = rotation_matrix_to_axis_angle(pred[:, :3, :3]), rotation_matrix_to_axis_angle(truth[:, :3, :3])
+    rp, rt = so3_log(pred[:, :3, :3]), so3_log(truth[:, :3, :3])
     power = (rt * rt).sum(0)
     excited = np.sqrt(power / len(rt)) > np.radians(min_rms_deg)
     return np.where(excited, (rp * rt).sum(0) / np.where(excited, power, 1.0), np.nan)

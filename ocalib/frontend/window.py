@@ -15,7 +15,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ocalib.geometry.pose import cross_matrix
+from ocalib.geometry.se3 import cross_matrix
 
 
 def _project(R, c, frame, anchor, b, rho, K):

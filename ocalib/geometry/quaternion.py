@@ -111,3 +111,13 @@ def rotation_angle(R: Tensor) -> Tensor:
     skew = torch.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
     cos = (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1) / 2
     return torch.atan2(skew.norm(dim=-1) / 2, cos)
+
+
+def so3_exp(w: Tensor) -> Tensor:
+    """Rotation matrices (..., 3, 3) from rotation vectors (..., 3), through the quaternion (exact for all angles;
+    numpy: :func:`ocalib.geometry.se3.so3_exp`)."""
+    theta = w.norm(dim=-1, keepdim=True)
+    half = theta / 2
+    # sin(x)/x written so that it is smooth at 0
+    scale = torch.where(theta > 1e-8, torch.sin(half) / theta.clamp_min(1e-300), 0.5 - theta**2 / 48)
+    return quaternion_to_rotation_matrix(torch.cat([torch.cos(half), scale * w], -1))

@@ -17,7 +17,7 @@ import numpy as np
 
 from ocalib.data.model_view import model_view
 from ocalib.data.sequence import Sequence
-from ocalib.geometry.pose import chain_motions
+from ocalib.geometry.se3 import chain_motions
 from ocalib.inference.predict import PredictOptions, predict_frames
 from ocalib.io.poses import write_kitti
 

@@ -1,7 +1,7 @@
 """Running an ego-motion model over a sequence: batched depth and frame-to-frame poses for every camera.
 
 :func:`predict_frames` yields, frame by frame, every camera's depth map and motion ``T_{t-1,t}``
-(:func:`~ocalib.geometry.pose.chain_motions` turns the motions into a trajectory). Images reach the model through
+(:func:`~ocalib.geometry.se3.chain_motions` turns the motions into a trajectory). Images reach the model through
 a :class:`~ocalib.data.model_view.ModelView`.
 
 Convention: ``T_{t-1,t}`` is the pose of frame t's camera in frame t-1's camera frame (``p_{t-1} = T p_t``,

@@ -22,10 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from ocalib.errors import InputError, read_text
-from ocalib.geometry import orthonormality_error, quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 POSE_TOLERANCE = 1e-3  # rotation orthonormality error above which a pose is invalid (as the head's default)
 
@@ -183,6 +181,10 @@ def read_tum(path: str | Path) -> Trajectory:
 
 
 def _tum_trajectory(rows: np.ndarray, lines: np.ndarray, path: Path) -> Trajectory:
+    import torch  # here, as in write_tum and pose_validity: opening a sequence's layout loads no torch
+
+    from ocalib.geometry.quaternion import quaternion_to_rotation_matrix
+
     times = rows[:, 0].copy()
     _check_times(times, path, lines)
     q = rows[:, [7, 4, 5, 6]]  # (w, x, y, z)
@@ -200,6 +202,10 @@ def _tum_trajectory(rows: np.ndarray, lines: np.ndarray, path: Path) -> Trajecto
 
 def write_tum(path: str | Path, times, poses) -> None:
     """Write times (N,) and poses (N, 4, 4) (numpy or torch) as a TUM file ``t tx ty tz qx qy qz qw``."""
+    import torch
+
+    from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
+
     times, poses = _numpy(times), _numpy(poses)
     if times.shape != poses.shape[:1]:
         raise InputError(f"{path}: {len(times)} timestamps for {len(poses)} poses")
@@ -290,6 +296,10 @@ def _first_line_columns(path: Path) -> int | None:
 
 def pose_validity(poses, tol: float = POSE_TOLERANCE) -> np.ndarray:
     """Which poses (N, 4, 4) are usable -> bool (N,): all finite, rotation orthonormal with det +1 within tol."""
+    import torch
+
+    from ocalib.geometry.pose import orthonormality_error
+
     poses = _numpy(poses)
     finite = np.isfinite(poses).all(axis=(1, 2))
     R = np.where(finite[:, None, None], poses[:, :3, :3], np.eye(3))  # keep NaN out of det

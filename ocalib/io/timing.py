@@ -8,13 +8,8 @@ Convention: a time offset is ADDED to camera 1's timestamps to put them on camer
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from ocalib.errors import InputError
-from ocalib.geometry.quaternion import (
-    quaternion_to_rotation_matrix,
-    rotation_matrix_to_quaternion,
-)
 from ocalib.io.poses import pose_validity
 
 # interpolate's default max_dt, in camera-k frame periods: a gap of one dropped frame (2 periods) is bridged, two are not
@@ -62,7 +57,10 @@ def interpolate(times0, times1, poses1, max_dt: float, offset: float = 0.0, name
     times0 (N0,), times1 (N1,) strictly increasing seconds; poses1 (N1, 4, 4) camera-to-world.
     Convention: ``t0 = t1 + offset``.
     """
-    from kornia.geometry.quaternion import Quaternion  # here: importing kornia takes 0.2 s, KITTI input never needs it
+    import torch  # here, as kornia: associating stamps loads neither
+    from kornia.geometry.quaternion import Quaternion  # importing kornia takes 0.2 s, KITTI input never needs it
+
+    from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
     t0 = increasing(times0, names[0])
     t1 = increasing(times1, names[1]) + offset

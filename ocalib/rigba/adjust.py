@@ -26,8 +26,7 @@ from tqdm import tqdm
 
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
-from ocalib.eval.alignment import umeyama
-from ocalib.eval.calibration_metrics import trajectory_scale
+from ocalib.geometry.alignment import trajectory_scale, umeyama
 from ocalib.rigba.colmap import camera_to_world, pinhole_equivalent, to_matrix
 from ocalib.rigba.covariance import extrinsic_uncertainty
 from ocalib.rigba.lens_check import radial_residuals

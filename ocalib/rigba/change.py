@@ -29,12 +29,11 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.drivers.change import Change, step_size
 from ocalib.data.distortion import project
-from ocalib.geometry.pose import cross_matrix
+from ocalib.geometry.se3 import cross_matrix, innovation, perturbed
 
 HISTORY = 30  # steady keyframes whose statistics give the overdispersion
 MIN_HISTORY = 10  # steady keyframes needed before the test runs
@@ -186,20 +185,6 @@ def reaches(d: np.ndarray, least: tuple[float, float]) -> bool:
     """Whether the step ``d`` (6,) (see :func:`innovation`) is at least ``least``: its rotation (deg) or its
     translation (m). False for NaN."""
     return bool(np.degrees(np.linalg.norm(d[:3])) >= least[0] or np.linalg.norm(d[3:]) >= least[1])
-
-
-def innovation(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:
-    """(6,) ``d`` with ``estimate = exp(d) reference``: rotation vector (rad) and translation difference."""
-    rotation = Rotation.from_matrix(estimate[:3, :3] @ reference[:3, :3].T).as_rotvec()
-    return np.concatenate([rotation, estimate[:3, 3] - reference[:3, 3]])
-
-
-def perturbed(reference: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``exp(d) reference`` (4, 4), the inverse of :func:`innovation`."""
-    out = reference.copy()
-    out[:3, :3] = Rotation.from_rotvec(d[:3]).as_matrix() @ reference[:3, :3]
-    out[:3, 3] = reference[:3, 3] + d[3:]
-    return out
 
 
 def with_unobservable(covariance: np.ndarray, unobservable: np.ndarray) -> np.ndarray:

@@ -26,7 +26,8 @@ import numpy as np
 import pycolmap
 import scipy.sparse as sp
 
-from ocalib.geometry.pose import cross_matrix, touched_axes
+from ocalib.geometry.directions import touched_axes
+from ocalib.geometry.se3 import cross_matrix
 from ocalib.rigba.colmap import to_matrix
 
 UNOBSERVABLE = 1e-6  # information below this share of the best-known translation direction's: unobservable
@@ -54,7 +55,7 @@ class ExtrinsicUncertainty:
     @property
     def translation_std(self) -> np.ndarray:
         """(3,) along camera 0's axes; inf along an axis an unobservable direction has a share of (over
-        ``ocalib.geometry.pose.UNOBSERVABLE_AXIS_SHARE``)."""
+        ``ocalib.geometry.directions.UNOBSERVABLE_AXIS_SHARE``)."""
         std = np.sqrt(np.clip(np.diag(self.covariance)[3:], 0, None))  # an unobservable axis: 0 up to rounding
         return np.where(touched_axes(self.unobservable), np.inf, std)
 

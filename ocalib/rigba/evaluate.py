@@ -9,9 +9,9 @@ import math
 
 import numpy as np
 
-from ocalib.eval.alignment import umeyama
-from ocalib.eval.calibration_metrics import angle_deg, height_error, projector_without
-from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.alignment import umeyama
+from ocalib.geometry.directions import angle_deg, height_error, projector_without
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.rigba.result import RigAdjustment
 
 
@@ -22,12 +22,12 @@ def adjustment_errors(
     :func:`ocalib.eval.calibration_metrics.extrinsic_errors` gives the head's: ``rotation_error_deg``,
     ``translation_direction_error_deg`` (with the unobservable directions projected out, and on a planar drive the
     ground plane's normal ``plane`` (C - 1, 3), NaN rows elsewhere, see
-    :func:`~ocalib.eval.calibration_metrics.planar_axes`: ``compared_in_plane``; NaN where fewer than two directions
+    :func:`~ocalib.calib.drivers.result.planar_axes`: ``compared_in_plane``; NaN where fewer than two directions
     remain), and
     with ``truth`` (T, C, 4, 4) ground-truth poses: ``metric_scale`` (the result's units -> metres, a Sim(3) fit of
     camera 0's reconstructed trajectory to its truth; 1 in metres), ``translation_error`` (metres),
     ``translation_error_rel_baseline`` (over the whole true lever arm; NaN where no direction is determined) and
-    ``height_error`` (:func:`~ocalib.eval.calibration_metrics.height_error`)."""
+    ``height_error`` (:func:`~ocalib.geometry.directions.height_error`)."""
     rel = np.linalg.inv(extrinsics[0]) @ extrinsics
     scale = 1.0
     ok = adjustment.registered[:, 0]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pycolmap
 
-from ocalib.eval.alignment import umeyama
+from ocalib.geometry.alignment import umeyama
 from ocalib.rigba.colmap import camera_to_world, to_rigid
 from ocalib.rigba.workspace import camera_and_frame
 

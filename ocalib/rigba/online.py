@@ -145,7 +145,7 @@ class OnlineRigEstimator:
         self.keyframes_unregistered = 0
         self.dismissed: list[tuple[int, int, SplitTest]] = []  # candidates the window did not confirm: camera, frame
         # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
-        # is never judged: the camera keeps the window's estimate, and RigStream reports it)
+        # is never judged: the camera keeps the window's estimate, and OnlineRigStage reports it)
         self.pending: dict[int, Change] = {}
         # per waiting camera (see the module), whether its rotation follows the head's (at the start, not after a change)
         self.waiting: dict[int, bool] = {k: True for k in range(1, C)}

@@ -20,12 +20,12 @@ import cv2
 import numpy as np
 import torch
 
-from ocalib.calib.drivers.result import Calibration
+from ocalib.calib.drivers.result import Calibration, planar_axes
 from ocalib.data.sequence import Sequence
 from ocalib.errors import InputError
-from ocalib.eval.calibration_metrics import angle_deg, height_error, planar_axes, projector_without
-from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.directions import angle_deg, height_error, projector_without
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.io.timing import interpolate
 from ocalib.rigba.covariance import WEAK_SHARE
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions, RigState
@@ -45,7 +45,7 @@ HELD_HINT = (  # after a change found with the trajectory's poses held: where th
 )
 
 
-class RigStream:
+class OnlineRigStage:
     """Call with ``(t, estimate)`` after the head's frame t (estimate: its :class:`Calibration`, rig 0)."""
 
     def __init__(self, sequence: Sequence, metric: np.ndarray, options: OnlineRigOptions = OnlineRigOptions()):

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from ocalib.data.sequence import Sequence
-from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.rigba.result import RigAdjustment
 
 MAX_ROTATION_CHANGE_DEG = 5.0  # a bundle-adjusted rotation this far from the head's is not trusted

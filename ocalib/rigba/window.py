@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import pycolmap
 
-from ocalib.rigba.change import innovation
+from ocalib.geometry.se3 import innovation
 from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
 from ocalib.rigba.covariance import ExtrinsicUncertainty, Observations, observations_uncertainty
 from ocalib.rigba.features import Features

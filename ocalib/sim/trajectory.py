@@ -11,22 +11,13 @@ import math
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 from torch import Tensor
 
+from ocalib.geometry import se3
 from ocalib.geometry.pose import make_pose, rereference
-from ocalib.geometry.quaternion import quaternion_to_rotation_matrix
+from ocalib.geometry.quaternion import quaternion_to_rotation_matrix, so3_exp
 
 F64 = torch.float64
-
-
-def so3_exp(w: Tensor) -> Tensor:
-    """Rotation matrices (..., 3, 3) from rotation vectors (..., 3) (Rodrigues, exact for all angles)."""
-    theta = w.norm(dim=-1, keepdim=True)
-    half = theta / 2
-    # sin(x)/x written so that it is smooth at 0
-    scale = torch.where(theta > 1e-8, torch.sin(half) / theta.clamp_min(1e-300), 0.5 - theta**2 / 48)
-    return quaternion_to_rotation_matrix(torch.cat([torch.cos(half), scale * w], -1))
 
 
 def random_rotation(generator: torch.Generator, *shape: int) -> Tensor:
@@ -148,7 +139,7 @@ def off_trajectory(poses: np.ndarray, degrees: float, seed: int = 0) -> np.ndarr
     walk of ``degrees`` a frame (about each world axis, per square root of a frame), their positions by 1 cm of white
     noise per axis. Numpy, float64."""
     rng = np.random.default_rng(seed)
-    walk = Rotation.from_rotvec(np.cumsum(rng.normal(0, np.radians(degrees), (len(poses), 3)), axis=0)).as_matrix()
+    walk = se3.so3_exp(np.cumsum(rng.normal(0, np.radians(degrees), (len(poses), 3)), axis=0))
     out = poses.copy()
     out[:, :3, :3] = walk @ poses[:, :3, :3]
     out[:, :3, 3] += rng.normal(0, 0.01, (len(poses), 3))

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ocalib.geometry.angles import angles_text, rotation_error_deg
-from ocalib.geometry.pose import touched_axes
+from ocalib.geometry.directions import touched_axes
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.viz.figure import save_figure
 
@@ -198,7 +198,7 @@ def _bundle_row(
 ) -> None:
     """The rig bundle adjustment's translation at the frames where it ran (markers), the truth dashed (when in
     metres), and its rotation's error against the truth in the title. Its ``unobservable`` translation directions
-    (n, 3) are named in the panel, and the axes they have a share in (:func:`~ocalib.geometry.pose.touched_axes`, as the
+    (n, 3) are named in the panel, and the axes they have a share in (:func:`~ocalib.geometry.directions.touched_axes`, as the
     result's 1-sigma counts them) are labelled unobservable and drawn faint: their values are not measurements."""
     t, q = trace["bundle_translation"][:, k], trace["bundle_quaternion"][:, k]
     ran = np.isfinite(t[:, 0])

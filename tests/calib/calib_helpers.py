@@ -7,7 +7,8 @@ from ocalib.calib.stages.gating import NO_GATES
 from ocalib.calib.stages.handeye import TranslationMoment, row_statistics, translation_quadratic
 from ocalib.calib.stages.rotation import RotationSystem
 from ocalib.geometry import make_pose
-from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories, so3_exp
+from ocalib.geometry.quaternion import so3_exp
+from ocalib.sim.trajectory import add_noise, car_trajectory, lds_trajectory, random_rig, rig_trajectories
 
 
 def lds_rig(generator, frames=64, cameras=2, noise=0.0, scale=2.0, model="independent"):

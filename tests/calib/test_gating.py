@@ -11,7 +11,7 @@ from ocalib.calib.stages.gating import affine_scan, check_poses, rotation_weight
 from ocalib.calib.stages.handeye import rotation_blocks
 from ocalib.calib.stages.rotation import RotationSystem, rotation_solution
 from ocalib.geometry import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
-from ocalib.sim.trajectory import so3_exp
+from ocalib.geometry.quaternion import so3_exp
 
 
 def test_check_poses_twin(generator):

@@ -7,7 +7,8 @@ from calib_helpers import car_rig, lds_rig, no_gating
 from ocalib.calib.drivers.batch import batch_calibrate
 from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.geometry import make_pose, rotation_angle
-from ocalib.sim.trajectory import add_noise, random_rig, rig_trajectories, so3_exp, straight_trajectory
+from ocalib.geometry.quaternion import so3_exp
+from ocalib.sim.trajectory import add_noise, random_rig, rig_trajectories, straight_trajectory
 
 
 def rotation_error_deg(R, R_true):

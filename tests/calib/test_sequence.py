@@ -7,7 +7,7 @@ from calib_helpers import lds_rig
 from ocalib.calib.drivers.online import OnlineCalibrator
 from ocalib.calib.drivers.sequence import calibrate_sequence
 from ocalib.geometry import make_pose
-from ocalib.sim.trajectory import so3_exp
+from ocalib.geometry.quaternion import so3_exp
 
 FIELDS = ("quaternion", "translation", "scale", "rotation_singular_values")
 

@@ -110,10 +110,11 @@ def test_ground_truth_errors_are_zero_for_a_perfect_front_end(tiny):
     assert err["translation_error_rel_baseline"] < 0.01 and err["scale_true"] == pytest.approx(1.0, rel=1e-6)
     np.testing.assert_allclose(err["rotation_gain_reference"] + err["rotation_gain"], 1.0, atol=1e-9)
     # a front end that reports half the rotation of camera 1 about its z axis
-    from ocalib.eval.pose_metrics import frame_motions, rotation_matrix_to_axis_angle
+    from ocalib.eval.pose_metrics import frame_motions
+    from ocalib.geometry.se3 import so3_log
 
     steps = frame_motions(front_end[:, 1])
-    rv = rotation_matrix_to_axis_angle(steps[:, :3, :3]) * [1.0, 1.0, 0.5]
+    rv = so3_log(steps[:, :3, :3]) * [1.0, 1.0, 0.5]
     halved = front_end.copy()
     for t, (step, r) in enumerate(zip(steps, rv)):
         step[:3, :3] = cv2.Rodrigues(r)[0]
@@ -168,7 +169,7 @@ def test_demo_prints_the_estimate_beside_the_truth_and_its_warnings(tmp_path, ca
     """``ocalib demo`` (the README's main job) on 12 frames with the shipped checkpoint: its files, and its reported
     rotation error equals the one computed here from result.json and the rendered rig's true extrinsic."""
     from ocalib.data.layout import open_sequence
-    from ocalib.eval.pose_metrics import rotation_angle_deg
+    from ocalib.geometry.se3 import rotation_angle_deg
 
     out = tmp_path / "demo"
     assert main(["demo", "--frames", "12", "--out", str(out)]) == 0

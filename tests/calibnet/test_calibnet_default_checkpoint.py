@@ -3,7 +3,7 @@
 import numpy as np
 import torch
 
-from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.models import DEFAULT_CHECKPOINT, load_model
 from ocalib.synth import preset, render_rig
 

@@ -17,9 +17,9 @@ from ocalib.calibnet import OnlineCalibrationNet
 from ocalib.frontend.align import StreamAligner
 from ocalib.frontend.network import NetworkFrontEnd
 from ocalib.geometry.pose import invert_pose, make_pose
-from ocalib.geometry.quaternion import rotation_angle
+from ocalib.geometry.quaternion import rotation_angle, so3_exp
 from ocalib.models import EgoMotionModel
-from ocalib.sim.trajectory import car_trajectory, lds_trajectory, random_rig, rig_trajectories, so3_exp
+from ocalib.sim.trajectory import car_trajectory, lds_trajectory, random_rig, rig_trajectories
 from ocalib.synth import preset, render_rig
 
 H, W = 8, 12

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ocalib.calibnet.run import open_calibration_sequence
+from ocalib.calibnet.sequence import open_calibration_sequence
 from ocalib.cli import main
 from ocalib.data.metric_trajectory import OWN, read_metric_trajectory
 from ocalib.errors import InputError

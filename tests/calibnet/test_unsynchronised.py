@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from ocalib.calibnet.run import _apart, _pairing_warnings, open_calibration_sequence
+from ocalib.calibnet.run import _apart, _pairing_warnings
+from ocalib.calibnet.sequence import open_calibration_sequence
 from ocalib.cli import main
 from ocalib.synth import preset
 

@@ -8,7 +8,8 @@ import torch
 
 from ocalib.eval.calibration_metrics import scale_wander
 from ocalib.geometry.pose import make_pose
-from ocalib.sim.trajectory import car_trajectory, rig_trajectories, so3_exp
+from ocalib.geometry.quaternion import so3_exp
+from ocalib.sim.trajectory import car_trajectory, rig_trajectories
 
 
 def car_rig(lever_arm: bool) -> np.ndarray:
@@ -67,7 +68,7 @@ def test_projector_without_leaves_the_complement_of_the_directions_given():
     """Against hand-built projectors: none given is the identity; one unit row u gives I - u u^T; a second row 5 deg
     from the first is the same direction (a car's unobservable height and its ground normal), while two orthogonal
     rows leave one axis; NaN rows are ignored."""
-    from ocalib.eval.calibration_metrics import projector_without
+    from ocalib.geometry.directions import projector_without
 
     y = np.array([0.0, 1.0, 0.0])
     assert np.allclose(projector_without(np.zeros((0, 3))), np.eye(3))

@@ -15,8 +15,7 @@ from ocalib.data.layout import open_sequence
 from ocalib.data.model_view import model_view
 from ocalib.errors import InputError
 from ocalib.eval.evaluate import evaluate_stream
-from ocalib.eval.pose_metrics import invert
-from ocalib.geometry.pose import chain_motions
+from ocalib.geometry.se3 import chain_motions, invert
 from ocalib.inference.predict import FramePrediction, PredictOptions, predict_frames
 from ocalib.io.poses import read_kitti
 from ocalib.models import EgoMotionModel, load_model, save_model

@@ -13,7 +13,7 @@ from ocalib.errors import InputError
 from ocalib.frontend import AUTO, FRONTENDS, FrontEndOptions, build_frontend, frontend_class
 from ocalib.frontend.base import FrontEnd
 from ocalib.frontend.opencv_vo import run_opencv_vo
-from ocalib.geometry.pose import chain_motions
+from ocalib.geometry.se3 import chain_motions
 from ocalib.models import EgoMotionModel, save_model
 from ocalib.synth import preset
 

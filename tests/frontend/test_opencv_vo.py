@@ -8,9 +8,10 @@ import torch
 from frontend_scenes import render_poses
 
 from ocalib.errors import InputError
-from ocalib.eval.pose_metrics import frame_motions, rotation_angle_deg, step_errors
+from ocalib.eval.pose_metrics import frame_motions, step_errors
 from ocalib.frontend.opencv import OpenCVFrontEnd
 from ocalib.frontend.opencv_vo import OpenCVOdometry, run_opencv_vo
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.synth import preset
 
 

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from ocalib.data.distortion import Distortion, undistort_pixels
 from ocalib.data.layout import open_sequence
 from ocalib.data.rig import read_rig_yaml, write_rig_yaml
-from ocalib.eval.pose_metrics import rotation_angle_deg
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.rigba.adjust import MAX_HELD_ERROR_RATIO, adjust_rig
 from ocalib.rigba.colmap import colmap_camera, pinhole_params
 from ocalib.rigba.evaluate import adjustment_errors

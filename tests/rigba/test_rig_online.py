@@ -16,12 +16,12 @@ from scipy.stats import chi2
 from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
-from ocalib.eval.pose_metrics import rotation_angle_deg
-from ocalib.rigba.change import ExtrinsicTrack, information, innovation, perturbed, reaches, relative_information
+from ocalib.geometry.se3 import innovation, perturbed, rotation_angle_deg
+from ocalib.rigba.change import ExtrinsicTrack, information, reaches, relative_information
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions
-from ocalib.rigba.stream import RigStream
+from ocalib.rigba.stream import OnlineRigStage
 from ocalib.rigba.window import Keyframe, adjust_window, split_statistic
 from ocalib.sim.trajectory import off_trajectory
 from ocalib.synth import preset
@@ -396,7 +396,7 @@ def test_a_candidate_raised_at_the_streams_end_is_reported_unjudged(knocked_rig)
     assert not any(s.changes for s in states) and list(estimator.pending) == [1]
     cams = knocked_rig.cameras
     sequence = SimpleNamespace(cameras=cams, names=["cam0", "cam1"], times=None, pairing=None)
-    stream = RigStream(sequence, np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses[:75])
+    stream = OnlineRigStage(sequence, np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses[:75])
     stream.estimator, stream.states = estimator, states
     [entry] = stream.result_json()["unjudged_changes"]
     assert entry["camera"] == "cam1" and 70 <= entry["frame"] <= 74 and entry["rotation_change_deg"] > 1.0

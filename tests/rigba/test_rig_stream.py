@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from ocalib.calib.drivers.change import Change
 from ocalib.data.synchronise import Pairing
 from ocalib.rigba.online import OnlineRigOptions
-from ocalib.rigba.stream import RigStream, capture_poses
+from ocalib.rigba.stream import OnlineRigStage, capture_poses
 
 
 def _trajectory(times: np.ndarray) -> np.ndarray:
@@ -34,7 +34,7 @@ def test_a_late_camera_is_placed_at_the_rigs_pose_when_it_captured():
     inside = (times + late >= 0) & (times + late <= times[-1])  # camera 0's frames bracket the capture
     np.testing.assert_allclose(poses[inside, 1], _trajectory(times + late)[inside], atol=1e-9)
     np.testing.assert_array_equal(poses[~inside, 1], _trajectory(times)[~inside])  # outside: camera 0's
-    stream = RigStream(sequence, _trajectory(times))  # the default: a trajectory's noise stated
+    stream = OnlineRigStage(sequence, _trajectory(times))  # the default: a trajectory's noise stated
     assert not stream.solves_poses  # each camera at its own capture pose: only held poses allow it
 
 
@@ -47,7 +47,7 @@ def test_cameras_a_millisecond_apart_share_the_rigs_pose_and_the_window_solves_i
         pairing = Pairing(np.array([0.0, late]), np.tile(np.arange(20)[:, None], (1, 2)),
                           np.c_[np.zeros(20), np.full(20, -late)], np.array([20, 20]))  # fmt: skip
         sequence = SimpleNamespace(cameras=[None, None], names=["cam0", "cam1"], times=times, pairing=pairing)
-        stream = RigStream(sequence, _trajectory(times))
+        stream = OnlineRigStage(sequence, _trajectory(times))
         assert stream.solves_poses == shared and (stream.capture[:, 1] == stream.capture[:, 0]).all() == shared
         assert (capture_poses(sequence, _trajectory(times))[:-1, 1] != _trajectory(times)[:-1]).any()  # no noise given
 
@@ -57,8 +57,8 @@ def test_synchronised_cameras_share_the_rigs_pose():
     sequence = SimpleNamespace(cameras=[None, None, None], names=["a", "b", "c"], times=times, pairing=None)
     poses = capture_poses(sequence, _trajectory(times))
     assert poses.shape == (5, 3, 4, 4) and (poses == _trajectory(times)[:, None]).all()
-    assert RigStream(sequence, _trajectory(times)).solves_poses
-    assert not RigStream(sequence, _trajectory(times), OnlineRigOptions(metric_noise=0.0)).solves_poses
+    assert OnlineRigStage(sequence, _trajectory(times)).solves_poses
+    assert not OnlineRigStage(sequence, _trajectory(times), OnlineRigOptions(metric_noise=0.0)).solves_poses
 
 
 def test_the_final_errors_leave_out_the_axes_the_data_do_not_inform():
@@ -71,16 +71,18 @@ def test_the_final_errors_leave_out_the_axes_the_data_do_not_inform():
     E[1, 1, 3] += 1.0
     std = np.zeros((2, 6))
     std[1, 3:] = 0.01, 0.2, 0.01  # the lever arm 1.4 m: 0.2 m is over a tenth
-    (car,) = RigStream.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth)
+    (car,) = OnlineRigStage.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth)
     assert car["compared_in_plane"] and car["translation_error"] == 0 and car["translation_direction_error_deg"] == 0
     std[1, 4] = 0.01
-    (informed,) = RigStream.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth)
+    (informed,) = OnlineRigStage.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth)
     assert not informed["compared_in_plane"] and informed["translation_error"] == 1.0
     a, b = E[1, :3, 3], truth[1, :3, 3]
     expected = np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)))
     assert informed["translation_direction_error_deg"] == pytest.approx(expected)
     # on a planar drive the ground's normal is left out too, however well pinned, and its error said apart
-    (planar,) = RigStream.errors(SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth, np.eye(3)[1:2])
+    (planar,) = OnlineRigStage.errors(
+        SimpleNamespace(final=SimpleNamespace(extrinsics=E, std=std)), truth, np.eye(3)[1:2]
+    )
     assert planar["compared_in_plane"] and planar["translation_error"] == 0 and planar["height_error"] == 1.0
 
 
@@ -92,7 +94,7 @@ def test_a_change_found_with_the_trajectory_held_says_so(noise, tmp_path):
     cv2.imwrite(str(image), np.zeros((4, 4), np.uint8))
     cameras = [SimpleNamespace(images=[image]), SimpleNamespace(images=[image])]
     sequence = SimpleNamespace(cameras=cameras, names=["cam0", "cam1"], times=None, pairing=None)
-    stream = RigStream(sequence, _trajectory(np.zeros(1)), OnlineRigOptions(metric_noise=noise))
+    stream = OnlineRigStage(sequence, _trajectory(np.zeros(1)), OnlineRigOptions(metric_noise=noise))
     state = SimpleNamespace(changes=[(1, Change(40, 44, 1.0, 0.05))])
     stream.estimator = SimpleNamespace(update=lambda t, images, pose, rotations: state)
     stream(0, SimpleNamespace(rotation=torch.eye(3, dtype=torch.float64)[None, None]))
@@ -112,7 +114,7 @@ def test_the_extrinsics_the_adjustment_is_checked_against_are_those_the_estimato
     std[3, 1] = np.radians(2.0)
     final = SimpleNamespace(extrinsics=E, std=std)
     states = [SimpleNamespace(changes=[(4, object())]), SimpleNamespace(changes=[])]
-    out = RigStream.steady_extrinsics(SimpleNamespace(final=final, states=states))
+    out = OnlineRigStage.steady_extrinsics(SimpleNamespace(final=final, states=states))
     assert np.array_equal(out[:2], E[:2]) and np.isnan(out[2:]).all()
 
 
@@ -134,11 +136,11 @@ def test_an_estimate_the_window_did_not_determine_is_not_to_be_reported():
         final=SimpleNamespace(extrinsics=E, std=std),
         estimator=SimpleNamespace(waiting={2: True}, tried=np.full(6, 10), resected=np.full(6, 9)),
     )
-    out = RigStream.undetermined(stream)
+    out = OnlineRigStage.undetermined(stream)
     assert sorted(out) == [2, 3, 4], out
     assert "never determined" in out[2] and "2.00 deg" in out[3] and "fewer than two axes" in out[4]
     stream.estimator.resected[5] = 4  # 6 of camera 5's 10 keyframes since its release unregistered: still reported
-    assert sorted(RigStream.undetermined(stream)) == [2, 3, 4]
+    assert sorted(OnlineRigStage.undetermined(stream)) == [2, 3, 4]
     stream.estimator.resected[5] = 2  # 8 of 10: withheld
-    assert sorted(RigStream.undetermined(stream)) == [2, 3, 4, 5]
-    assert "8 of its 10 keyframes since its release did not register" in RigStream.undetermined(stream)[5]
+    assert sorted(OnlineRigStage.undetermined(stream)) == [2, 3, 4, 5]
+    assert "8 of its 10 keyframes since its release did not register" in OnlineRigStage.undetermined(stream)[5]

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import chdtrc, chdtri, gammaincinv
 
-from ocalib.geometry.pose import cross_matrix
+from ocalib.geometry.se3 import cross_matrix
 
 SEGMENT_HISTORIES = 10  # the frames a segment tests, in histories (a new reference each; segments overlap by a span)
 OUTLIER_LEVEL = 1e-4  # a frame's residuals beyond this chi-square level weigh less (:func:`_outlier_weights`)

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, fields
 from functools import cached_property
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -184,3 +185,12 @@ class Calibration:
                 "weakest_translation_direction": dirs[:, 0].tolist(),
             },
         }
+
+
+def planar_axes(estimate: Calibration) -> np.ndarray:
+    """(K, 3) per camera k >= 1 of rig 0, the axis the rig turns about where the head found its motion planar (a
+    car's vertical; camera 0's axes), NaN rows elsewhere: the normal of the ground plane a car's translation is
+    compared in, by every stage alike."""
+    axes = estimate.planar_axis[0].double().cpu().numpy().copy()
+    axes[~estimate.planar_motion[0].cpu().numpy()] = np.nan
+    return axes

@@ -1,4 +1,4 @@
-"""Similarity (Sim(3)) alignment of trajectories: Umeyama's closed form.
+"""Similarity (Sim(3)) alignment of trajectories, numpy: Umeyama's closed form, and the scale it finds.
 
 Convention: poses are camera-to-world 4x4 float64 (numpy). ``umeyama(src, dst)`` returns (s, R, t) with
 ``dst ~ s R src + t``; :func:`align_poses` applies such a transform to poses, so an aligned predicted
@@ -6,6 +6,8 @@ pose maps the predicted camera into the ground-truth world: ``R' = R R_i``, ``t'
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -54,3 +56,14 @@ def align_trajectory(pred: np.ndarray, gt: np.ndarray, with_scale: bool = True) 
     """
     s, R, t = umeyama(pred[:, :3, 3], gt[:, :3, 3], with_scale)
     return align_poses(pred, s, R, t), {"scale": s, "rotation": R, "translation": t}
+
+
+def trajectory_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """The factor that brings the positions of ``estimate`` (T, 4, 4) to those of ``truth`` (T, 4, 4) (to metres):
+    the scale of the Sim(3) (Umeyama) fit of its finite positions; NaN when either does not move."""
+    valid = np.isfinite(estimate).all((1, 2)) & np.isfinite(truth).all((1, 2))
+    moves = lambda p: np.ptp(p[valid, :3, 3], 0).max() > 0  # noqa: E731
+    if valid.sum() < 3 or not moves(truth) or not moves(estimate):
+        return math.nan
+    scale, _, _ = umeyama(estimate[valid, :3, 3], truth[valid, :3, 3])
+    return scale
