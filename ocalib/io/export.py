@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from ocalib.errors import InputError, read_text
+from ocalib.geometry.se3 import invert
 
 METRES = "metres"
 ORTHONORMAL_TOLERANCE = 1e-6  # a result's rotation further than this from a rotation matrix: not a result JSON
@@ -97,12 +98,14 @@ def _camera(entry, where: str) -> ExportCamera:
 
 def with_intrinsics(rig: ExportRig, specs: list, where: str | Path) -> ExportRig:
     """``rig`` with each camera's K, size and lens from the rig.yaml cameras ``specs`` (objects with ``name``,
-    ``width``, ``height``, ``K``, ``distortion``, as :class:`ocalib.data.rig.CameraSpec`), matched by name or by the
-    stem of a pose file's name; an :class:`InputError` naming ``where`` for a camera it does not have."""
+    ``width``, ``height``, ``K``, ``distortion``, as :class:`ocalib.data.rig.CameraSpec`), matched by name, by the
+    stem of a pose file's name, or by the folder of a rig folder's ``CAMERA/poses.txt``; an :class:`InputError`
+    naming ``where`` for a camera it does not have."""
     by_name = {spec.name: spec for spec in specs}
     cameras = []
     for cam in rig.cameras:
-        spec = by_name.get(cam.name) or by_name.get(Path(cam.name).stem)
+        path = Path(cam.name)
+        spec = by_name.get(cam.name) or by_name.get(path.stem) or by_name.get(path.parent.name)
         if spec is None:
             raise InputError(f"{where}: no camera {cam.name!r} of the result (cameras: {', '.join(by_name)})")
         K, size = np.asarray(spec.K, dtype=np.float64), (int(spec.width), int(spec.height))
@@ -110,14 +113,6 @@ def with_intrinsics(rig: ExportRig, specs: list, where: str | Path) -> ExportRig
     return replace(rig, cameras=cameras)
 
 
-# ocalib.geometry is torch: imported where used, so that the command line's parser, which reads FORMATS, stays light
-def _inverse(T: np.ndarray) -> np.ndarray:
-    """The inverse of a rigid transform (4, 4), by :func:`ocalib.geometry.invert_pose`."""
-    import torch
-
-    from ocalib.geometry import invert_pose
-
-    return invert_pose(torch.from_numpy(T)).numpy()
 
 
 def _quaternion(R: np.ndarray) -> list[float]:
@@ -160,7 +155,7 @@ def kalibr_camchain(rig: ExportRig, prefix: str = "cam") -> str:
             "distortion_coeffs": coeffs,
             "resolution": list(cam.size),
             "rostopic": f"/{prefix}{n}/image_raw",
-        } | ({"T_cn_cnm1": (_inverse(cam.T_cam0_cam) @ rig.cameras[n - 1].T_cam0_cam).tolist()} if n else {})
+        } | ({"T_cn_cnm1": (invert(cam.T_cam0_cam) @ rig.cameras[n - 1].T_cam0_cam).tolist()} if n else {})
     comments = "".join(f"# {line}\n" for line in _comments(rig, "cam"))
     return comments + yaml.safe_dump(chain, sort_keys=False, default_flow_style=None)
 
@@ -258,7 +253,7 @@ def colmap_rig_config(rig: ExportRig, prefix: str = "cam") -> str:
         if n == 0:
             entry["ref_sensor"] = True
         else:
-            T = _inverse(cam.T_cam0_cam)
+            T = invert(cam.T_cam0_cam)
             entry |= {"cam_from_rig_rotation": _quaternion(T[:3, :3]), "cam_from_rig_translation": T[:3, 3].tolist()}
         if cam.K is not None:
             model, params = colmap_intrinsics(cam.K, cam.distortion)

@@ -241,3 +241,28 @@ def test_kalibr_refuses_a_lens_with_k3(files, tmp_path, capsys):
     write_rig_yaml(rig, RigSpec([CameraSpec(f"cam{k}", 640, 480, np.eye(3), distortion=lens) for k in range(CAMERAS)]))
     assert main(["export", str(files / "rig.json"), "--format", "kalibr", "--rig", str(rig)]) == 2
     assert "k3" in capsys.readouterr().err
+
+
+def test_a_rendered_rigs_kalibr_chain_is_its_truth(render, tmp_path):
+    """A rendered rig calibrated from its cameras' ground-truth pose files (``calibrate-poses``, batch) and exported
+    with its own rig.yaml: Kalibr's ``T_cn_cnm1`` is the renderer's ``T_cam1_cam0`` and its intrinsics the render's
+    K (camera names matched to the rig folder's ``CAMERA/poses.txt``)."""
+    from ocalib.data.layout import open_sequence
+    from ocalib.synth import preset
+
+    path = render(preset("handheld").with_overrides(frames=40, height=32, width=96, seed=1011))
+    cams = open_sequence(path).cameras
+    result, camchain = tmp_path / "rig.json", tmp_path / "camchain.yaml"
+    poses = [str(path / cam.name / "poses.txt") for cam in cams]
+    assert main(["calibrate-poses", *poses, "--solver", "batch", "--out", str(result)]) == 0
+    assert main(["export", str(result), "--format", "kalibr", "--rig", str(path / "rig.yaml"),
+                 "--out", str(camchain)]) == 0  # fmt: skip
+    chain = yaml.safe_load(camchain.read_text())
+    truth = np.linalg.inv(np.linalg.inv(cams[0].T_cam0_cam) @ cams[1].T_cam0_cam)
+    T = np.array(chain[cams[1].name]["T_cn_cnm1"])
+    assert Rotation.from_matrix(T[:3, :3] @ truth[:3, :3].T).magnitude() < 1e-6
+    np.testing.assert_allclose(T[:3, 3], truth[:3, 3], atol=1e-6)
+    for cam in cams:
+        K = cam.K
+        assert chain[cam.name]["intrinsics"] == pytest.approx([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+        assert chain[cam.name]["resolution"] == [int(cam.size[1]), int(cam.size[0])]
