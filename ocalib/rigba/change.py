@@ -16,8 +16,8 @@ keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
 few keyframes (they then agree with it): each window estimate, before it is fused, against the track, ``d^T (P +
 P_w)^-1 d`` with ``d`` the innovation from the track's ``E`` to ``E_w``; the track holds the windows before it, so on a
 steady rig the statistic sits well under a chi-square with 6 degrees of freedom, and over its quantile at
-``DRIFT_FALSE_ALARM`` on ``persistence`` windows in a row, by a step of at least ``min_change``, the track moves
-to the window's estimate.
+``DRIFT_FALSE_ALARM`` on ``persistence`` windows in a row, by a step of at least ``min_change``, is a change whose
+candidate is the window's estimate (the caller accepts it: :meth:`ocalib.rigba.camera_state.CameraState.restart`).
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``); perturbations ``E = exp(d) E_ref`` with ``d`` =
 (rotation rad, translation) in camera 0's axes; rig poses camera-to-world (4, 4).
@@ -46,7 +46,8 @@ DRIFT_FALSE_ALARM = 1e-6  # drifted's level; steady rigs stay far below it (docs
 class ExtrinsicTrack:
     """The fused extrinsic of one camera: ``extrinsic`` (4, 4) and ``covariance`` (6, 6) (None before the first
     window), the last keyframe's normalised change statistic ``chi2``, the ``changes`` accepted, and the extrinsic
-    a pending ``candidate`` change would give."""
+    the ``candidate`` change raised last would give (``_disagreeing``: the tested keyframes in a row that disagree
+    with the window, frame and measurement)."""
 
     overlap: float = 1.0
     false_alarm: float = 1e-8
@@ -58,7 +59,7 @@ class ExtrinsicTrack:
     changes: list[Change] = field(default_factory=list)
     candidate: np.ndarray | None = None
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
-    _pending: list = field(default_factory=list)
+    _disagreeing: list = field(default_factory=list)
     _drifting: list = field(default_factory=list)
 
     def fuse(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
@@ -74,9 +75,9 @@ class ExtrinsicTrack:
 
     def drifted(self, frame: int, extrinsic: np.ndarray, covariance: np.ndarray) -> Change | None:
         """Test the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) at keyframe ``frame`` against the
-        track, before it is fused -> the change it completes, if any, already accepted: the track then holds the
-        window's estimate, uninformed. The change's frame is the first window of the run over the level (the change
-        happened before it)."""
+        track, before it is fused -> the change it completes, if any, its ``candidate`` the window's estimate, to
+        :meth:`accept` (the track then holds the window's estimate, uninformed). The change's frame is the first
+        window of the run over the level (the change happened before it)."""
         if self.extrinsic is None:
             return None
         d = innovation(self.extrinsic, extrinsic)
@@ -94,13 +95,12 @@ class ExtrinsicTrack:
         self.candidate = extrinsic.copy()
         change = Change(self._drifting[0], frame, *step_size(before[:3, :3], before[:3, 3], extrinsic[:3, :3],
                                                              extrinsic[:3, 3]))  # fmt: skip
-        self.accept(change)
         return change
 
     @property
     def disagrees(self) -> bool:
         """Whether the last keyframes disagree with the window, short of a change yet."""
-        return bool(self._pending)
+        return bool(self._disagreeing)
 
     def observe(
         self, frame: int, extrinsic: np.ndarray, info: np.ndarray, reference: tuple[np.ndarray, np.ndarray]
@@ -121,16 +121,16 @@ class ExtrinsicTrack:
         overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0)
         self.chi2 = statistic / overdispersion
         if self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 6):
-            self._pending.clear()
+            self._disagreeing.clear()
             self._history.append(statistic)
             return None
-        self._pending.append((frame, extrinsic))
-        if len(self._pending) < self.persistence:
+        self._disagreeing.append((frame, extrinsic))
+        if len(self._disagreeing) < self.persistence:
             return None
-        step = np.mean([innovation(self.extrinsic, E) for _, E in self._pending], axis=0)
+        step = np.mean([innovation(self.extrinsic, E) for _, E in self._disagreeing], axis=0)
         self.candidate = perturbed(self.extrinsic, step)
         return Change(
-            self._pending[0][0],
+            self._disagreeing[0][0],
             frame,
             *step_size(self.extrinsic[:3, :3], self.extrinsic[:3, 3], self.candidate[:3, :3], self.candidate[:3, 3]),
         )
@@ -143,8 +143,8 @@ class ExtrinsicTrack:
         self.dismiss()
 
     def dismiss(self) -> None:
-        """Forget the pending candidate: the keyframes that disagreed were wrong, not the window."""
-        self._pending.clear()
+        """Forget the candidate and the disagreeing keyframes or windows: they were wrong, not the window."""
+        self._disagreeing.clear()
         self._drifting.clear()
         self.candidate = None
 

@@ -5,22 +5,25 @@ Camera 0's metric trajectory (wheel odometry, GNSS, a stereo or visual-inertial 
 given (as CamOdoCal holds the odometry) where it is exact (``metric_noise`` 0), or by default its positions are
 priors of ``metric_noise`` metres and the images solve the rig's poses with the extrinsics (a real trajectory's
 rotation, tenths of a degree off, would otherwise read as the cameras moving); what the images must give is each
-camera's extrinsic. Every ``keyframe_step``-th frame, :meth:`OnlineRigEstimator.update`:
+camera's extrinsic. The local map (keyframes and points) is :mod:`ocalib.rigba.local_map`'s, each camera's state
+(its phase, below, and its fused extrinsic) :mod:`ocalib.rigba.camera_state`'s. Every ``keyframe_step``-th frame,
+:meth:`OnlineRigEstimator.update`:
 
-1. extracts every camera's features (:mod:`ocalib.rigba.features`) and matches them to the same camera's
+1. (map) extracts every camera's features (:mod:`ocalib.rigba.features`) and matches them to the same camera's
    ``match_previous`` latest keyframes;
-2. resects every camera from its 2-D-3-D matches (COLMAP's absolute pose), keeping the matches that agree: with the
-   rig's pose (camera 0's own resection where the poses are solved), each gives that keyframe's own measurement of
-   the camera's extrinsic, with its information;
-3. tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
-4. continues the tracks the matches extend and triangulates new points, each camera where the window puts it, or
+2. (map) resects every camera from its 2-D-3-D matches (COLMAP's absolute pose), keeping the matches that agree:
+   with the rig's pose (camera 0's own resection where the poses are solved), each gives that keyframe's own
+   measurement of the camera's extrinsic, with its information;
+3. (observe) tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
+4. (map, judge) continues the tracks the matches extend and triangulates new points, each camera where the window
+   puts it, or
    where its own resection does while it disagrees with the window; a candidate change (``persistence``
    keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN`` keyframes from the
    candidate's frame on (the camera held meanwhile, its new points where its own resections put it), adjusted
    with a second extrinsic for the camera from the candidate's frame, or one of the ``SPLIT_SEARCH`` keyframes
    before it (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a
    move, nor is a step under ``min_change_deg`` and ``min_change_m``;
-5. every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
+5. (adjust, judge) every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
    (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
    its track empty) at the start and after a change, until the window determines it: the 1-sigma of its
    extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`), under
@@ -31,6 +34,26 @@ camera's extrinsic. Every ``keyframe_step``-th frame, :meth:`OnlineRigEstimator.
 The estimator starts from the on-line head's rotations and zero lever arms; while a camera waits at the start, its
 rotation follows the head's latest estimate (``update``'s ``rotations``); its translations are in metres.
 
+Each camera's phase (:class:`~ocalib.rigba.camera_state.Phase`; camera 0 is the ``reference``):
+
+============  ================================================  ================================================
+phase         moved on by                                       where
+============  ================================================  ================================================
+waiting       the window determines it -> tracking              ``_adjust``, :meth:`CameraState.release`
+tracking      a tested keyframe disagrees -> disagreeing;       ``_observe`` (:meth:`ExtrinsicTrack.observe`);
+              the drift test -> waiting                         ``_adjust`` (:meth:`ExtrinsicTrack.drifted`,
+                                                                :meth:`CameraState.restart`)
+disagreeing   ``persistence`` in a row -> candidate;            ``_observe``
+              one that agrees -> tracking
+candidate     the split test, ``CONFIRM_SPAN`` keyframes on:    ``_judge``, ``_confirmed``
+              confirmed -> waiting, dismissed -> tracking       (:meth:`CameraState.restart`)
+============  ================================================  ================================================
+
+The window holds a waiting or candidate camera; a suspect one (disagreeing or candidate) has its new points
+triangulated where its own resection puts it. ``extrinsics`` is the window's working estimate of every camera,
+each camera's track (:class:`~ocalib.rigba.change.ExtrinsicTrack`) the windows' estimates fused, reported in
+:class:`RigState`.
+
 Convention: poses camera-to-world (4, 4); ``extrinsics`` (C, 4, 4) ``T_cam0_camk`` (``p_cam0 = R p_camk + t``);
 K (C, 3, 3) in ocalib's pixels (integer centres); images grayscale (H, W) uint8.
 """
@@ -38,27 +61,18 @@ K (C, 3, 3) in ocalib's pixels (integer centres); images grayscale (H, W) uint8.
 from __future__ import annotations
 
 import time
-from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
-import pycolmap
 from scipy.stats import chi2 as chi2_distribution
 
 from ocalib.calib.drivers.change import Change
-from ocalib.data.distortion import Distortion, undistort_pixels
-from ocalib.rigba.change import (
-    UNINFORMED,
-    ExtrinsicTrack,
-    information,
-    reaches,
-    relative_information,
-    with_unobservable,
-)
-from ocalib.rigba.colmap import pinhole_params, to_matrix
-from ocalib.rigba.features import Features, SiftExtractor, match_features
+from ocalib.data.distortion import Distortion
+from ocalib.rigba.camera_state import CameraState
+from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, reaches, with_unobservable
+from ocalib.rigba.local_map import LocalMap, Measured
 from ocalib.rigba.options import DEFAULT_METRIC_NOISE
-from ocalib.rigba.window import MAX_ERROR_PX, Keyframe, SplitTest, adjust_window, shares_pose, split_statistic
+from ocalib.rigba.window import Keyframe, SplitTest, adjust_window, split_statistic
 
 MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
 CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
@@ -100,7 +114,8 @@ class RigState:
     (rotation rad, translation m; camera 0's axes; NaN where not yet known, inf where the data do not inform it), each
     camera's normalised change statistic ``chi2`` (C,), whether the
     keyframe ``registered`` (every camera resected from its matches), the ``changes`` (camera, change) it completed,
-    and the ``seconds`` it took."""
+    the ``seconds`` it took, and each camera's ``phases`` (C,) after it (:class:`~ocalib.rigba.camera_state.Phase`'s
+    labels: camera 0 ``reference``, the others ``waiting``, ``tracking``, ``disagreeing`` or ``candidate``)."""
 
     frame: int
     extrinsics: np.ndarray
@@ -109,6 +124,7 @@ class RigState:
     registered: bool
     changes: list[tuple[int, Change]]
     seconds: float
+    phases: list[str]
 
 
 class OnlineRigEstimator:
@@ -124,34 +140,25 @@ class OnlineRigEstimator:
         distortions: list[Distortion | None] | None = None,
     ):
         self.K, self.sizes, self.options = np.asarray(K, np.float64), list(sizes), options
-        self.distortions = distortions or [None] * len(self.K)
-        self.extrinsics = np.array(extrinsics, dtype=np.float64)
+        self.extrinsics = np.array(extrinsics, dtype=np.float64)  # the window's working estimate
         self.extrinsics[:, :3, 3] = 0.0
         self.extrinsics[0] = np.eye(4)
-        C = len(self.K)
         overlap = options.window / options.adjust_every  # windows a keyframe is adjusted in
         least = (options.min_change_deg, options.min_change_m)
-        self.tracks = [ExtrinsicTrack(overlap, options.false_alarm, options.persistence, least) for _ in range(C)]
-        self.window_covariance = np.tile(np.eye(6) * UNINFORMED, (C, 1, 1))  # of the window's last extrinsics
-        self.keyframes: deque[Keyframe] = deque()
-        self.points: dict[int, np.ndarray] = {}
-        self._next_point = 0
-        self._extract = SiftExtractor(options.max_features)
-        self._cameras = [
-            pycolmap.Camera(model="PINHOLE", width=w, height=h, params=pinhole_params(k), camera_id=i + 1)
-            for i, (k, (h, w)) in enumerate(zip(self.K, self.sizes))
-        ]
+        tracks = [ExtrinsicTrack(overlap, options.false_alarm, options.persistence, least) for _ in self.K]
+        self.cameras = [CameraState.reference(tracks[0])] + [CameraState(k, t) for k, t in enumerate(tracks) if k]
+        self.map = LocalMap(self.K, self.sizes, options, distortions or [None] * len(self.K))
         self.frames_seen = 0
         self.keyframes_unregistered = 0
         self.dismissed: list[tuple[int, int, SplitTest]] = []  # candidates the window did not confirm: camera, frame
-        # per camera, a candidate change awaiting CONFIRM_SPAN keyframes (one raised in the stream's last keyframes
-        # is never judged: the camera keeps the window's estimate, and OnlineRigStage reports it)
-        self.pending: dict[int, Change] = {}
-        # per waiting camera (see the module), whether its rotation follows the head's (at the start, not after a change)
-        self.waiting: dict[int, bool] = {k: True for k in range(1, C)}
-        self.released: dict[int, int] = {}  # camera -> the keyframe it was last released at
-        self.tried = np.zeros(C, int)  # per camera, the keyframes it was resected at since its release (or the start)
-        self.resected = np.zeros(C, int)  # of which those it registered at
+
+    @property
+    def candidates(self) -> dict[int, Change]:
+        """Camera -> its candidate change awaiting the window's split test, in the order they were raised (one raised
+        in the stream's last keyframes is never judged: the camera keeps the window's estimate, and OnlineRigStage
+        reports it)."""
+        raised = [(k, cam.candidate) for k, cam in enumerate(self.cameras) if cam.candidate is not None]
+        return dict(sorted(raised, key=lambda kc: kc[1].detected))
 
     def update(
         self, frame: int, images: list[np.ndarray], pose: np.ndarray, rotations: np.ndarray | None = None
@@ -165,49 +172,75 @@ class OnlineRigEstimator:
         if (self.frames_seen - 1) % self.options.keyframe_step:
             return None
         start = time.perf_counter()
-        if rotations is not None:
-            for k, follows in self.waiting.items():
-                if follows and np.isfinite(rotations[k - 1]).all():
-                    self.extrinsics[k][:3, :3] = rotations[k - 1]
-        features = [self._features(image, k) for k, image in enumerate(images)]
-        poses = np.broadcast_to(np.asarray(pose, np.float64), (len(images), 4, 4)).copy()
-        kf = Keyframe(frame, self._working(poses), features, [np.full(len(f), -1) for f in features], poses[0].copy())
+        self._follow_head(rotations)
+        kf = self.map.keyframe(frame, images, pose)  # map: extract
         measured = {}
-        if self.keyframes:
-            recent = list(self.keyframes)[-self.options.match_previous :]
-            matches = [[match_features(f.descriptors, p.features[k].descriptors) for p in recent] for k, f in
-                       enumerate(features)]  # fmt: skip
-            measured = self._resect(kf, recent, matches)
-            self.keyframes_unregistered += len(measured) < len(features)
-            self.tried += 1
-            self.resected[list(measured)] += 1
-            candidates = self._candidates(frame, measured)
-            self._triangulate(kf, recent, matches, self._poses(kf, measured))
-        else:
-            candidates = []
-        self.keyframes.append(kf)
-        self._evict()
-        self.pending.update((k, self.pending.get(k, change)) for k, change in candidates)
-        changes = self._judged(frame)
+        if self.map.keyframes:
+            recent, matches = self.map.match(kf)  # map: match
+            measured = self.map.resect(kf, recent, matches)  # map: resect
+            self._observe(frame, measured)  # observe: the keyframes' test, before a suspect camera's new points
+            self.map.triangulate(kf, recent, matches, self._poses(kf, measured), self.extrinsics)  # map: triangulate
+        self.map.add(kf)
+        changes = self._judge(frame)  # judge: the split test of the candidates due, on the last window's estimate
         adjust = (self.frames_seen - 1) // self.options.keyframe_step % self.options.adjust_every == 0
-        if adjust and len(self.keyframes) >= MIN_KEYFRAMES and len(self.points) >= MIN_POINTS:
-            held = frozenset(self.waiting) | frozenset(self.pending)  # waiting or suspect: the window does not move it
-            window = adjust_window(list(self.keyframes), self.points, self.extrinsics, self.K, self.sizes, held,
-                                   self.options.metric_noise)  # fmt: skip
-            for k, u in enumerate(window.uncertainty, start=1):
-                if u is not None and k in self.waiting and self._determines(u):
-                    del self.waiting[k]  # released: the next window moves it
-                    self.released[k], self.tried[k], self.resected[k] = frame, 0, 0
-                elif u is not None and k not in held:
-                    self.window_covariance[k] = with_unobservable(u.covariance, u.unobservable)
-                    drift = self.tracks[k].drifted(frame, self.extrinsics[k], self.window_covariance[k])
-                    self.tracks[k].fuse(self.extrinsics[k], self.window_covariance[k])
-                    if drift is not None:
-                        self._forget_before(k, drift.frame)
-                        self.waiting[k] = False
-                        changes.append((k, drift))
-        registered = len(measured) == len(features)
+        if adjust and len(self.map.keyframes) >= MIN_KEYFRAMES and len(self.map.points) >= MIN_POINTS:
+            changes += self._adjust(frame)  # adjust: the window; then release, and judge: the drift test
+        registered = len(measured) == len(images)
         return self._state(frame, registered, changes, time.perf_counter() - start)
+
+    def _follow_head(self, rotations: np.ndarray | None) -> None:
+        """Turn each camera waiting since the start to the head's latest rotation (``rotations`` (C - 1, 3, 3))."""
+        if rotations is None:
+            return
+        for k, cam in enumerate(self.cameras):
+            if cam.follows_head and np.isfinite(rotations[k - 1]).all():
+                self.extrinsics[k][:3, :3] = rotations[k - 1]
+
+    def _observe(self, frame: int, measured: Measured) -> None:
+        """Count the new keyframe's resections (``measured``: :meth:`LocalMap.resect`) and test each camera's
+        measured extrinsic against the window's (:meth:`ExtrinsicTrack.observe`): a candidate change it completes
+        becomes the camera's, unless one already awaits the split test."""
+        self.keyframes_unregistered += len(measured) < len(self.cameras)
+        for k, cam in enumerate(self.cameras):
+            cam.tried += 1
+            cam.registered += k in measured
+        for k, (extrinsic, info) in measured.items():
+            cam = self.cameras[k]
+            reference = self.extrinsics[k], cam.window_covariance
+            change = cam.track.observe(frame, extrinsic, info, reference) if k > 0 else None
+            if change is not None and cam.candidate is None:
+                cam.candidate = change
+
+    def _poses(self, kf: Keyframe, measured: Measured) -> list[np.ndarray]:
+        """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or where its own
+        resection does while it is suspect (:attr:`CameraState.suspect`: so that a knocked camera's new points are
+        where it now looks, and the next keyframes measure the new mounting instead of the old one their points
+        would give)."""
+        return [
+            np.linalg.inv(kf.poses[k] @ (measured[k][0] if k in measured and cam.suspect else E))
+            for k, (cam, E) in enumerate(zip(self.cameras, self.extrinsics))
+        ]
+
+    def _adjust(self, frame: int) -> list[tuple[int, Change]]:
+        """Adjust the window (the cameras held as :attr:`CameraState.held`); release each waiting camera the window
+        determines; fuse each other one's estimate into its track, after the drift test, which restarts the
+        camera where the window followed a move -> the changes the drift test found."""
+        held = frozenset(k for k, cam in enumerate(self.cameras) if cam.held)
+        window = adjust_window(list(self.map.keyframes), self.map.points, self.extrinsics, self.K, self.sizes, held,
+                               self.options.metric_noise)  # fmt: skip
+        changes = []
+        for k, u in enumerate(window.uncertainty, start=1):
+            cam = self.cameras[k]
+            if u is not None and cam.waiting and self._determines(u):
+                cam.release(frame)  # the next window moves it
+            elif u is not None and k not in held:
+                cam.window_covariance = with_unobservable(u.covariance, u.unobservable)
+                drift = cam.track.drifted(frame, self.extrinsics[k], cam.window_covariance)
+                if drift is not None:
+                    cam.restart(drift, self.extrinsics[k], self.map)
+                    changes.append((k, drift))
+                cam.track.fuse(self.extrinsics[k], cam.window_covariance)
+        return changes
 
     def _determines(self, u) -> bool:
         """Whether the window's uncertainty ``u`` (:class:`~ocalib.rigba.covariance.ExtrinsicUncertainty`) of a
@@ -220,167 +253,14 @@ class OnlineRigEstimator:
             and np.sqrt(max(translation[1], 0.0)) <= self.options.release_translation_m
         )
 
-    def _working(self, metric: np.ndarray) -> np.ndarray:
-        """The new keyframe's poses (C, 4, 4) from the trajectory's ``metric`` ones: as given where the window holds
-        them; where it solves them, moved as the window moved the last keyframe's from its metric pose, until camera
-        0's own resection places the rig (:meth:`_resect`)."""
-        if not self.options.metric_noise or not self.keyframes:
-            return metric
-        last = self.keyframes[-1]
-        return last.poses[0] @ np.linalg.inv(last.prior) @ metric
-
-    def _features(self, image: np.ndarray, k: int) -> Features:
-        """Camera k's SIFT features of ``image``, their keypoints moved to the pinhole pixels of their rays where the
-        camera has a lens distortion (the estimator works in pinhole pixels; rays the lens cannot invert dropped)."""
-        features = self._extract(image)
-        if self.distortions[k] is None:
-            return features
-        xy = undistort_pixels(features.keypoints, self.K[k], self.distortions[k])
-        ok = np.isfinite(xy).all(1)
-        return Features(xy[ok], features.descriptors[ok])
-
-    def _resect(self, kf: Keyframe, recent: list[Keyframe], matches) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """Each camera's pose from its 2-D-3-D matches with the ``recent`` keyframes (``matches[k][j]``: camera k's
-        with keyframe j; COLMAP's absolute pose, at least ``min_inliers`` inliers), whose inliers' point ids are set
-        -> per camera resected: its extrinsic as this keyframe measures it (``inverse(rig pose) @ camera pose``) and
-        the information (6, 6) its inliers give about it (:func:`~ocalib.rigba.change.information`; NaN with fewer
-        than ``min_test_inliers``: not tested)."""
-        options = pycolmap.AbsolutePoseEstimationOptions()
-        options.ransac.max_error, options.ransac.min_num_trials, options.ransac.random_seed = MAX_ERROR_PX, 100, 0
-        measured = {}
-        for k, features in enumerate(kf.features):
-            xy, xyz, where = [], [], []
-            for previous, pairs in zip(recent, matches[k]):
-                for i, pid in zip(pairs[:, 0], previous.point_ids[k][pairs[:, 1]]):
-                    if pid >= 0 and pid in self.points and kf.point_ids[k][i] < 0:
-                        xy.append(features.keypoints[i])
-                        xyz.append(self.points[pid])
-                        where.append((i, pid))
-            if len(xy) < self.options.min_inliers:
-                continue
-            result = pycolmap.estimate_and_refine_absolute_pose(
-                np.asarray(xy) + 0.5, np.asarray(xyz), self._cameras[k], options
-            )
-            if result is None or int(np.sum(result["inlier_mask"])) < self.options.min_inliers:
-                continue
-            inliers = np.asarray(result["inlier_mask"], bool)
-            for (i, pid), inlier in zip(where, inliers):
-                if inlier:
-                    kf.point_ids[k][i] = pid
-            camera_pose = np.linalg.inv(to_matrix(result["cam_from_world"]))
-            xy, xyz = np.asarray(xy)[inliers], np.asarray(xyz)[inliers]
-            if k == 0 and self._places_rig(kf):
-                kf.poses[:] = camera_pose  # the rig's pose is camera 0's: the extrinsics are measured against it
-            extrinsic = np.linalg.inv(kf.poses[k]) @ camera_pose
-            info = np.full((6, 6), np.nan)
-            if inliers.sum() >= self.options.min_test_inliers:
-                info = information(xy, xyz, self.K[k], kf.poses[k], extrinsic)
-                if k > 0 and self._places_rig(kf):
-                    reference = measured[0][1] if 0 in measured else np.full((6, 6), np.nan)
-                    info = relative_information(info, reference, extrinsic)
-            measured[k] = extrinsic, info
-        return measured
-
-    def _places_rig(self, kf: Keyframe) -> bool:
-        """Whether camera 0's resection places keyframe ``kf``'s rig: the window solves the poses (the trajectory's
-        noise over 0) and the keyframe's cameras share one pose."""
-        return bool(self.options.metric_noise) and shares_pose(kf)
-
-    def _poses(self, kf: Keyframe, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-        """Each camera's ``cam_from_world`` (4, 4) at the new keyframe: where the window puts it, or where its own
-        resection does while it disagrees with the window or a change of it is pending (so that a knocked camera's
-        new points are where it now looks, and the next keyframes measure the new mounting instead of the old one
-        their points would give)."""
-        return [
-            np.linalg.inv(kf.poses[k] @ (measured[k][0] if k in measured and self._suspect(k) else E))
-            for k, E in enumerate(self.extrinsics)
-        ]
-
-    def _suspect(self, k: int) -> bool:
-        """Whether camera k's keyframes disagree with the window, or a candidate change of it awaits judgement."""
-        return self.tracks[k].disagrees or k in self.pending
-
-    def _triangulate(self, kf: Keyframe, recent: list[Keyframe], matches, poses: list[np.ndarray]) -> None:
-        """Extend the tracks the new keyframe's matches with the ``recent`` keyframes continue (where the point
-        reprojects), and triangulate new points from the others, the latest keyframe first; ``poses`` (C,) the new
-        keyframe's cam_from_world (4, 4) per camera."""
-        for k, features in enumerate(kf.features):
-            new_from_world = poses[k]
-            for previous, pairs in reversed(list(zip(recent, matches[k]))):
-                i, j = pairs[kf.point_ids[k][pairs[:, 0]] < 0].T
-                pid = previous.point_ids[k][j]
-                known = np.array([p in self.points for p in pid.tolist()], dtype=bool)
-                if known.any():
-                    X = np.stack([self.points[p] for p in pid[known].tolist()])
-                    ok = self._reprojects(new_from_world, k, X, features.keypoints[i[known]])
-                    kf.point_ids[k][i[known][ok]] = pid[known][ok]
-                fresh = pid < 0
-                if not fresh.any():
-                    continue
-                old_from_world = np.linalg.inv(previous.poses[k] @ self.extrinsics[k])
-                uv = previous.features[k].keypoints[j[fresh]], features.keypoints[i[fresh]]
-                X, ok = self._points(old_from_world, new_from_world, k, *uv)
-                ids = self._next_point + np.arange(int(ok.sum()))
-                self._next_point += len(ids)
-                self.points.update(zip(ids.tolist(), X[ok]))
-                kf.point_ids[k][i[fresh][ok]] = ids
-                previous.point_ids[k][j[fresh][ok]] = ids
-
-    def _points(self, old_from_world, new_from_world, k: int, old_uv: np.ndarray, new_uv: np.ndarray):
-        """The 3-D points (n, 3) of keypoints ``old_uv`` and ``new_uv`` (n, 2) of camera k seen from two poses
-        (linear triangulation), and which are good (n,): in front of both, seen under ``min_angle_deg`` or more,
-        reprojecting within ``MAX_ERROR_PX``."""
-        rows = []
-        for T, uv in ((old_from_world, old_uv), (new_from_world, new_uv)):
-            xy = (np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(self.K[k]).T)[:, :2]
-            rows += [xy[:, :1] * T[2] - T[0], xy[:, 1:] * T[2] - T[1]]
-        X = np.linalg.svd(np.stack(rows, 1))[2][:, -1]  # (n, 4) homogeneous
-        with np.errstate(divide="ignore", invalid="ignore"):
-            X = X[:, :3] / X[:, 3:]
-        a, b = (X - np.linalg.inv(T)[:3, 3] for T in (old_from_world, new_from_world))
-        cosine = (a * b).sum(1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
-        ok = np.isfinite(X).all(1) & (cosine <= np.cos(np.radians(self.options.min_angle_deg)))
-        ok &= self._reprojects(old_from_world, k, X, old_uv) & self._reprojects(new_from_world, k, X, new_uv)
-        return X, ok
-
-    def _reprojects(self, cam_from_world: np.ndarray, k: int, X: np.ndarray, uv: np.ndarray) -> np.ndarray:
-        """Whether points ``X`` (n, 3) lie in front of camera k at ``cam_from_world`` and reproject within
-        ``MAX_ERROR_PX`` of keypoints ``uv`` (n, 2) -> (n,) bool."""
-        p = X @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            projected = p @ self.K[k].T
-            error = np.linalg.norm(projected[:, :2] / projected[:, 2:] - uv, axis=1)
-        return (p[:, 2] > 1e-9) & (error < MAX_ERROR_PX)
-
-    def _evict(self) -> None:
-        """Keep the last ``window`` keyframes and the points they observe."""
-        while len(self.keyframes) > self.options.window:
-            self.keyframes.popleft()
-        seen = set()
-        for kf in self.keyframes:
-            for ids in kf.point_ids:
-                seen.update(ids[ids >= 0].tolist())
-        for pid in set(self.points) - seen:
-            del self.points[pid]
-
-    def _candidates(self, frame: int, measured: dict[int, tuple[np.ndarray, np.ndarray]]) -> list[tuple[int, Change]]:
-        """Test each camera's measured extrinsic against the window -> the candidate changes completed."""
-        candidates = []
-        for k, (extrinsic, info) in measured.items():
-            reference = self.extrinsics[k], self.window_covariance[k]
-            change = self.tracks[k].observe(frame, extrinsic, info, reference) if k > 0 else None
-            if change is not None:
-                candidates.append((k, change))
-        return candidates
-
-    def _judged(self, frame: int) -> list[tuple[int, Change]]:
-        """The pending candidates judged at keyframe ``frame`` by the window's split test, once ``CONFIRM_SPAN``
+    def _judge(self, frame: int) -> list[tuple[int, Change]]:
+        """The candidates judged at keyframe ``frame`` by the window's split test, once ``CONFIRM_SPAN``
         keyframes from the candidate's frame on are in the window (two keyframes misled by their matches, as on a
         repeated texture, decide less among four) -> the changes confirmed (noticed at ``frame``)."""
         changes = []
-        for k, change in list(self.pending.items()):
-            if sum(kf.frame >= change.frame for kf in self.keyframes) >= CONFIRM_SPAN:
-                del self.pending[k]
+        for k, change in self.candidates.items():
+            if sum(kf.frame >= change.frame for kf in self.map.keyframes) >= CONFIRM_SPAN:
+                self.cameras[k].candidate = None
                 confirmed = self._confirmed(k, change)
                 if confirmed is not None:
                     changes.append((k, replace(confirmed, detected=frame)))
@@ -390,42 +270,32 @@ class OnlineRigEstimator:
         """Whether the window confirms camera k's candidate ``change``: the window's split test at the keyframe
         among the candidate's and the ``SPLIT_SEARCH`` before it where it is largest among the steps of at least
         the least change (the keyframes' test starts a run a keyframe or two after the move, and a split after the
-        move keeps moved keyframes on its first side), over its level at ``CONFIRM_FALSE_ALARM`` shared among those splits. Confirmed, the change is dated at that
-        keyframe, the camera loses its observations from before it, and it restarts from the candidate's rotation
-        (the disagreeing keyframes' mean measurement) with the lever arm it had (a knock turns a camera more than it
-        moves it), waiting until the window determines it; its track then takes the next windows' estimates. -> the change
-        confirmed, or None."""
-        track = self.tracks[k]
-        frames = [kf.frame for kf in self.keyframes]
+        move keeps moved keyframes on its first side), over its level at ``CONFIRM_FALSE_ALARM`` shared among those
+        splits. Confirmed, the change is dated at that keyframe and the camera restarts
+        (:meth:`CameraState.restart`: from the candidate's rotation, the disagreeing keyframes' mean measurement,
+        with the lever arm it had, its observations from before the change dropped, waiting until the window
+        determines it); dismissed, the track forgets the candidate. -> the change confirmed, or None."""
+        cam = self.cameras[k]
+        frames = [kf.frame for kf in self.map.keyframes]
         at = frames.index(change.frame) if change.frame in frames else 0
         tests = [(self._split(k, f), f) for f in frames[max(at - SPLIT_SEARCH, 0) : at + 1]]
         level = chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM / len(tests), 6)
+        least = cam.track.min_change
         split, split_frame = max(
-            tests, key=lambda t: (reaches(t[0].step, track.min_change), np.nan_to_num(t[0].statistic, nan=-np.inf))
+            tests, key=lambda t: (reaches(t[0].step, least), np.nan_to_num(t[0].statistic, nan=-np.inf))
         )
-        if not (split.statistic > level and reaches(split.step, track.min_change)):  # NaN: too little
-            track.dismiss()
+        if not (split.statistic > level and reaches(split.step, least)):  # NaN: too little
+            cam.track.dismiss()
             self.dismissed.append((k, change.detected, split))
             return None
         change = replace(change, frame=split_frame)
-        lever_arm = self.extrinsics[k][:3, 3].copy()
-        track.accept(change)
-        self.extrinsics[k][:3, :3] = track.extrinsic[:3, :3]
-        self.extrinsics[k][:3, 3] = track.extrinsic[:3, 3] = lever_arm
-        self._forget_before(k, change.frame)
-        self.waiting[k] = False
+        cam.restart(change, self.extrinsics[k], self.map)
         return change
 
     def _split(self, k: int, frame: int) -> SplitTest:
         """The window's split test of camera k moving at keyframe ``frame`` (:func:`split_statistic`)."""
-        keyframes, noise = list(self.keyframes), self.options.metric_noise
-        return split_statistic(keyframes, self.points, self.extrinsics, self.K, self.sizes, k, frame, noise)
-
-    def _forget_before(self, k: int, frame: int) -> None:
-        """Drop camera k's observations before ``frame``: they saw the camera where it no longer is."""
-        for kf in self.keyframes:
-            if kf.frame < frame:
-                kf.point_ids[k][:] = -1
+        keyframes, noise = list(self.map.keyframes), self.options.metric_noise
+        return split_statistic(keyframes, self.map.points, self.extrinsics, self.K, self.sizes, k, frame, noise)
 
     def _state(self, frame: int, registered: bool, changes, seconds: float) -> RigState:
         C = len(self.K)
@@ -433,7 +303,7 @@ class OnlineRigEstimator:
         std = np.full((C, 6), np.nan)
         std[0] = 0.0
         for k in range(1, C):
-            track = self.tracks[k]
+            track = self.cameras[k].track
             if track.extrinsic is not None:
                 extrinsics[k] = track.extrinsic
                 variance = np.clip(np.diag(track.covariance), 0, None)
@@ -441,5 +311,6 @@ class OnlineRigEstimator:
             else:  # waiting since the start: the head's rotation, no lever arm yet
                 extrinsics[k] = self.extrinsics[k]
                 extrinsics[k, :3, 3] = np.nan
-        chi2 = np.array([t.chi2 for t in self.tracks])
-        return RigState(frame, extrinsics, std, chi2, registered, changes, seconds)
+        chi2 = np.array([cam.track.chi2 for cam in self.cameras])
+        phases = [cam.phase.label for cam in self.cameras]
+        return RigState(frame, extrinsics, std, chi2, registered, changes, seconds, phases)

@@ -27,6 +27,7 @@ from ocalib.geometry.directions import angle_deg, height_error, projector_withou
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.io.timing import interpolate
+from ocalib.rigba.camera_state import Phase
 from ocalib.rigba.covariance import WEAK_SHARE
 from ocalib.rigba.online import OnlineRigEstimator, OnlineRigOptions, RigState
 from ocalib.rigba.trust import MAX_ROTATION_STD_DEG
@@ -153,12 +154,12 @@ class OnlineRigStage:
         C = len(self.sequence.cameras)
         if self.final is None:
             return {k: "the estimator never started" for k in range(1, C)}
-        tried, resected = self.estimator.tried, self.estimator.resected
         out = {}
         for k in range(1, C):
             std, lever_arm = self.final.std[k], float(np.linalg.norm(self.final.extrinsics[k, :3, 3]))
             rotation = np.degrees(std[:3])
-            if k in self.estimator.waiting or not np.isfinite(rotation).all():
+            tried, registered = self.estimator.cameras[k].tried, self.estimator.cameras[k].registered
+            if self.estimator.cameras[k].waiting or not np.isfinite(rotation).all():
                 out[k] = "the window never determined it (too little motion or too few registered keyframes)"
             elif rotation.max() > MAX_ROTATION_STD_DEG:
                 out[k] = f"its rotation's 1-sigma is {rotation.max():.2f} deg (over {MAX_ROTATION_STD_DEG:g})"
@@ -167,21 +168,23 @@ class OnlineRigStage:
                     f"its translation's 1-sigma ({', '.join(f'{v:.3g}' for v in std[3:])} m) leaves fewer than two "
                     f"axes within {WEAK_SHARE:.0%} of its {lever_arm:.3f} m lever arm"
                 )
-            elif tried[k] - resected[k] >= UNREGISTERED * tried[k] > 0:
-                out[k] = f"{tried[k] - resected[k]} of its {tried[k]} keyframes since its release did not register"
+            elif tried - registered >= UNREGISTERED * tried > 0:
+                out[k] = f"{tried - registered} of its {tried} keyframes since its release did not register"
         return out
 
     def trace(self, frames: int) -> dict[str, np.ndarray]:
         """Per frame (F = ``frames``), each camera k >= 1's latest estimate: ``rig_quaternion`` (F, K, 4),
-        ``rig_translation`` (F, K, 3), ``rig_translation_std`` (F, K, 3), ``rig_chi2`` (F, K); NaN before the
-        first keyframe's estimate; ``rig_change_frame`` (F, K): at the frame a change was noticed, the first frame
-        that disagreed (NaN elsewhere)."""
+        ``rig_translation`` (F, K, 3), ``rig_translation_std`` (F, K, 3), ``rig_chi2`` (F, K), ``rig_phase`` (F, K)
+        the code of its :class:`~ocalib.rigba.camera_state.Phase` (1 waiting, 2 tracking, 3 disagreeing, 4
+        candidate); NaN before the first keyframe's estimate; ``rig_change_frame`` (F, K): at the frame a change was
+        noticed, the first frame that disagreed (NaN elsewhere)."""
         K = len(self.sequence.cameras) - 1
         out = {
             "rig_quaternion": np.full((frames, K, 4), np.nan),
             "rig_translation": np.full((frames, K, 3), np.nan),
             "rig_translation_std": np.full((frames, K, 3), np.nan),
             "rig_chi2": np.full((frames, K), np.nan),
+            "rig_phase": np.full((frames, K), np.nan),
             "rig_change_frame": np.full((frames, K), np.nan),
         }
         ends = [s.frame for s in self.states[1:]] + [frames]
@@ -191,6 +194,7 @@ class OnlineRigStage:
             out["rig_translation"][rows] = state.extrinsics[1:, :3, 3]
             out["rig_translation_std"][rows] = state.std[1:, 3:]
             out["rig_chi2"][rows] = state.chi2[1:]
+            out["rig_phase"][rows] = [Phase[label.upper()].value for label in state.phases[1:]]
             for k, change in state.changes:
                 out["rig_change_frame"][state.frame, k - 1] = change.frame
         return out
@@ -198,7 +202,7 @@ class OnlineRigStage:
     def unjudged(self) -> dict:
         """Camera k -> the candidate change (:class:`~ocalib.calib.drivers.change.Change`) raised too close to the stream's
         end for the window to judge it."""
-        return {} if self.estimator is None else dict(self.estimator.pending)
+        return {} if self.estimator is None else self.estimator.candidates
 
     def changes_json(self) -> list[dict]:
         """The changes found: camera name, first disagreeing frame, frame noticed, size of the step."""
@@ -266,12 +270,12 @@ class OnlineRigStage:
                     "rotation_std_deg": [_finite(math.degrees(v)) for v in std[:3]],
                     "translation_std": [_finite(v) for v in std[3:]],
                     # rotation rad, translation m, camera 0's axes; variances of UNINFORMED where the data say nothing
-                    "covariance": None if (P := self.estimator.tracks[k].covariance) is None else P.tolist(),
+                    "covariance": None if (P := self.estimator.cameras[k].track.covariance) is None else P.tolist(),
                     "chi2": _finite(final.chi2[k]),
-                    "released_at_frame": self.estimator.released.get(k),
+                    "released_at_frame": self.estimator.cameras[k].released_at,
                     # since its release (or the start): the keyframes it was resected at, and of those registered
-                    "keyframes_tried": int(self.estimator.tried[k]),
-                    "keyframes_registered": int(self.estimator.resected[k]),
+                    "keyframes_tried": int(self.estimator.cameras[k].tried),
+                    "keyframes_registered": int(self.estimator.cameras[k].registered),
                     "source": "rig_estimator",
                 }
             )

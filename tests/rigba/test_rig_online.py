@@ -17,6 +17,7 @@ from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion
 from ocalib.data.layout import open_sequence
 from ocalib.geometry.se3 import innovation, perturbed, rotation_angle_deg
+from ocalib.rigba.camera_state import Phase
 from ocalib.rigba.change import ExtrinsicTrack, information, reaches, relative_information
 from ocalib.rigba.colmap import to_matrix
 from ocalib.rigba.features import Features
@@ -277,6 +278,8 @@ def test_a_window_that_follows_a_step_is_caught_drifting_from_the_track(seed):
     for t in range(110):
         window = perturbed(before if t < 100 else after, rng.multivariate_normal(np.zeros(6), covariance))
         change = track.drifted(t, window, covariance)
+        if change is not None:
+            track.accept(change)
         changes.append(change)
         track.fuse(window, covariance)
     assert not any(changes[:100]), "a false alarm"
@@ -310,7 +313,7 @@ def _run(sequence, frames, options=EXACT, trajectory_error: float = 0.0):
         state = estimator.update(t, images, poses[t])
         if state is not None:
             states.append(state)
-            assert len(estimator.keyframes) <= options.window
+            assert len(estimator.map.keyframes) <= options.window
     return estimator, states, truth
 
 
@@ -331,7 +334,7 @@ def test_a_rendered_rig_is_followed_and_its_knocked_camera_noticed(knocked_rig):
     after = np.linalg.inv(knocked_rig.cameras[0].T_cam0_cam) @ knocked_rig.cameras[1].change.T_cam0_cam
     final = states[-1].extrinsics[1]
     assert float(rotation_angle_deg(final[:3, :3].T @ after[:3, :3])) < 0.5
-    assert len(estimator.points) < 40 * 1024  # the window's points only
+    assert len(estimator.map.points) < 40 * 1024  # the window's points only
 
 
 def test_a_trajectory_off_as_a_real_one_is_needs_its_noise_stated(knocked_rig):
@@ -361,12 +364,12 @@ def test_the_windows_solved_poses_take_the_metric_positions_as_priors(knocked_ri
     for shift in (0.0, 0.3):
         keyframes = [
             replace(kf, poses=kf.poses.copy(), point_ids=[ids.copy() for ids in kf.point_ids], prior=kf.prior.copy())
-            for kf in estimator.keyframes
+            for kf in estimator.map.keyframes
         ]
         for kf in keyframes:
             kf.prior[:3, 3] += [shift, 0.0, 0.0]
         extrinsics = estimator.extrinsics.copy()
-        adjust_window(keyframes, dict(estimator.points), extrinsics, estimator.K, estimator.sizes, prior_noise=0.01)
+        adjust_window(keyframes, dict(estimator.map.points), extrinsics, estimator.K, estimator.sizes, prior_noise=0.01)
         solved.append((np.stack([kf.poses[0, :3, 3] for kf in keyframes]), extrinsics[1]))
     (before, E_before), (after, E_after) = solved
     np.testing.assert_allclose(after - before, np.tile([0.3, 0.0, 0.0], (len(before), 1)), atol=2e-3)
@@ -379,21 +382,24 @@ def test_a_candidate_waits_for_four_keyframes_and_its_camera_is_held_meanwhile()
     judges it, whatever the keyframes between say; meanwhile the window holds the camera and its new points are
     triangulated where its own resections put it."""
     estimator = OnlineRigEstimator(np.stack([K, K]), [(128, 416)] * 2, np.stack([np.eye(4), np.eye(4)]))
-    estimator.pending[1] = Change(10, 12, 8.0, 1.0)
-    estimator.keyframes.extend(Keyframe(f, np.tile(np.eye(4), (2, 1, 1)), [], []) for f in (8, 10, 12, 14))
-    assert estimator._judged(14) == [] and 1 in estimator.pending  # 3 keyframes from frame 10 on: it waits
-    assert estimator._suspect(1) and not estimator.tracks[1].disagrees  # held, whatever the keyframes say
+    estimator.cameras[1].candidate = Change(10, 12, 8.0, 1.0)
+    estimator.map.keyframes.extend(Keyframe(f, np.tile(np.eye(4), (2, 1, 1)), [], []) for f in (8, 10, 12, 14))
+    assert estimator._judge(14) == [] and 1 in estimator.candidates  # 3 keyframes from frame 10 on: it waits
+    assert estimator.cameras[1].suspect and not estimator.cameras[1].track.disagrees  # held, whatever they say
+    assert estimator.cameras[1].held and estimator.cameras[1].phase is Phase.CANDIDATE
     calls = []
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(estimator, "_confirmed", lambda k, change: calls.append((k, change.frame)) or None)
-        estimator.keyframes.append(Keyframe(16, np.tile(np.eye(4), (2, 1, 1)), [], []))
-        assert estimator._judged(16) == []  # judged: the split test did not confirm it
-    assert calls == [(1, 10)] and not estimator.pending and not estimator._suspect(1)
+        estimator.map.keyframes.append(Keyframe(16, np.tile(np.eye(4), (2, 1, 1)), [], []))
+        assert estimator._judge(16) == []  # judged: the split test did not confirm it
+    assert calls == [(1, 10)] and not estimator.candidates and not estimator.cameras[1].suspect
 
 
 def test_a_candidate_raised_at_the_streams_end_is_reported_unjudged(knocked_rig):
     estimator, states, truth = _run(knocked_rig, range(75))  # the knock at 70: fewer than 4 keyframes after it
-    assert not any(s.changes for s in states) and list(estimator.pending) == [1]
+    assert not any(s.changes for s in states) and list(estimator.candidates) == [1]
+    assert states[0].phases == ["reference", "waiting"] and states[-1].phases == ["reference", "candidate"]
+    assert any(s.phases[1] == "tracking" for s in states if s.frame < 70)
     cams = knocked_rig.cameras
     sequence = SimpleNamespace(cameras=cams, names=["cam0", "cam1"], times=None, pairing=None)
     stream = OnlineRigStage(sequence, np.linalg.inv(cams[0].poses[:1]) @ cams[0].poses[:75])
@@ -426,7 +432,7 @@ def test_keypoints_of_a_distorted_camera_are_moved_to_the_pinhole_pixels_of_thei
     lens = Distortion("fisheye", (0.05, -0.01, 0.002, 0.0))
     estimator = OnlineRigEstimator(np.stack([K, K]), [(128, 416)] * 2, np.tile(np.eye(4), (2, 1, 1)),
                                    distortions=[None, lens])  # fmt: skip
-    raw, moved = estimator._features(image, 0), estimator._features(image, 1)
+    raw, moved = estimator.map.features(image, 0), estimator.map.features(image, 1)
     assert len(moved.keypoints) == len(raw.keypoints) > 100
     reference = cv2.fisheye.undistortPoints(raw.keypoints[:, None].astype(np.float64), K, np.array(lens.coeffs), P=K)
     np.testing.assert_allclose(moved.keypoints, reference[:, 0], atol=1e-6)
@@ -480,7 +486,7 @@ def test_a_short_stream_is_released_when_the_window_determines_it_and_states_its
     for t in range(50):
         images = [cv2.imread(str(c.images[t]), cv2.IMREAD_GRAYSCALE) for c in cams]
         state = estimator.update(t, images, poses[t], start[1:, :3, :3]) or state
-    assert 1 not in estimator.waiting and estimator.released[1] < 40, estimator.released
+    assert not estimator.cameras[1].waiting and estimator.cameras[1].released_at < 40, estimator.cameras[1]
     E = state.extrinsics[1]
     error = innovation(truth[1], E)
     assert np.degrees(np.linalg.norm(error[:3])) < 0.8  # from 0.98 at the start
@@ -521,10 +527,10 @@ def test_a_candidate_raised_late_is_dated_at_the_move():
     keyframes, points = _window(np.random.default_rng(0), truth, moved)
     estimator = OnlineRigEstimator(np.stack([K, K]), [(128, 416)] * 2, truth, EXACT)
     estimator.extrinsics = truth.copy()
-    estimator.keyframes.extend(keyframes)
-    estimator.points = points
+    estimator.map.keyframes.extend(keyframes)
+    estimator.map.points = points
     adjust_window(keyframes, points, estimator.extrinsics, estimator.K, estimator.sizes)
     assert estimator._split(1, 8).statistic > estimator._split(1, 10).statistic
-    estimator.tracks[1].extrinsic, estimator.tracks[1].candidate = truth[1], moved
+    estimator.cameras[1].track.extrinsic, estimator.cameras[1].track.candidate = truth[1], moved
     change = estimator._confirmed(1, Change(10, 12, 1.0, 0.0))
     assert change is not None and change.frame == 8, change

@@ -10,6 +10,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from ocalib.calib.drivers.change import Change
+from ocalib.calib.poses.report import CalibrationRun
 from ocalib.data.synchronise import Pairing
 from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.stream import OnlineRigStage, capture_poses
@@ -134,13 +135,35 @@ def test_an_estimate_the_window_did_not_determine_is_not_to_be_reported():
     stream = SimpleNamespace(
         sequence=SimpleNamespace(cameras=[None] * 6),
         final=SimpleNamespace(extrinsics=E, std=std),
-        estimator=SimpleNamespace(waiting={2: True}, tried=np.full(6, 10), resected=np.full(6, 9)),
+        estimator=SimpleNamespace(cameras=[SimpleNamespace(waiting=k == 2, tried=10, registered=9) for k in range(6)]),
     )
     out = OnlineRigStage.undetermined(stream)
     assert sorted(out) == [2, 3, 4], out
     assert "never determined" in out[2] and "2.00 deg" in out[3] and "fewer than two axes" in out[4]
-    stream.estimator.resected[5] = 4  # 6 of camera 5's 10 keyframes since its release unregistered: still reported
+    stream.estimator.cameras[5].registered = 4  # 6 of camera 5's 10 since its release unregistered: still reported
     assert sorted(OnlineRigStage.undetermined(stream)) == [2, 3, 4]
-    stream.estimator.resected[5] = 2  # 8 of 10: withheld
+    stream.estimator.cameras[5].registered = 2  # 8 of 10: withheld
     assert sorted(OnlineRigStage.undetermined(stream)) == [2, 3, 4, 5]
     assert "8 of its 10 keyframes since its release did not register" in OnlineRigStage.undetermined(stream)[5]
+
+
+def test_the_trace_and_its_csv_give_each_cameras_phase(tmp_path):
+    """The trace's ``rig_phase`` holds each camera's phase code from the keyframe that set it on (NaN before the
+    first), and the trace's CSV writes it as a column of its own."""
+    E, std, chi2 = np.tile(np.eye(4), (3, 1, 1)), np.zeros((3, 6)), np.zeros(3)
+    states = [
+        SimpleNamespace(frame=f, extrinsics=E, std=std, chi2=chi2, changes=[], phases=["reference", *phases])
+        for f, phases in ((2, ["waiting", "waiting"]), (4, ["tracking", "disagreeing"]), (6, ["candidate", "tracking"]))
+    ]
+    stream = SimpleNamespace(sequence=SimpleNamespace(cameras=[None] * 3), states=states)
+    phase = OnlineRigStage.trace(stream, 8)["rig_phase"]
+    assert np.isnan(phase[:2]).all()
+    np.testing.assert_array_equal(phase[2:], [[1, 1], [1, 1], [2, 3], [2, 3], [4, 2], [4, 2]])
+    trace = {"frame": np.arange(8), "time": np.arange(8) / 10, "quaternion": np.zeros((8, 2, 4)),
+             "rotation_singular_values": np.zeros((8, 2, 3)), **OnlineRigStage.trace(stream, 8)}  # fmt: skip
+    run = SimpleNamespace(trace=trace)
+    run.trace_table = lambda: CalibrationRun.trace_table(run)
+    CalibrationRun.write_trace(run, tmp_path / "trace.csv")
+    table = np.genfromtxt(tmp_path / "trace.csv", delimiter=",", names=True)
+    assert "rig_phase" in table.dtype.names
+    np.testing.assert_array_equal(table["rig_phase"][table["frame"] == 4], [2, 3])  # cameras 1 and 2
