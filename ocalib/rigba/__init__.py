@@ -6,7 +6,8 @@ mappers), :mod:`~ocalib.rigba.metric_prior` (a metric trajectory as priors), :mo
 (uncertainty and observability), :mod:`~ocalib.rigba.lens_check` (a missing lens), :mod:`~ocalib.rigba.adjust` (the
 solve), :mod:`~ocalib.rigba.trust` (what can be used), :mod:`~ocalib.rigba.result` (the outcome and its JSON) and
 :mod:`~ocalib.rigba.evaluate` (against the truth); the stage after the on-line pass of ``ocalib calibrate`` is
-:mod:`ocalib.calibnet.bundle`. The on-line estimator: :mod:`~ocalib.rigba.online` with its :mod:`~ocalib.rigba.window`,
-:mod:`~ocalib.rigba.change` test, :mod:`~ocalib.rigba.features` and :mod:`~ocalib.rigba.stream` (in ``ocalib
+:mod:`ocalib.calibnet.bundle`. The on-line estimator: :mod:`~ocalib.rigba.online` with its
+:mod:`~ocalib.rigba.local_map` (keyframes and points), :mod:`~ocalib.rigba.camera_state` (each camera's phase),
+:mod:`~ocalib.rigba.window`, :mod:`~ocalib.rigba.change` test, :mod:`~ocalib.rigba.features` and :mod:`~ocalib.rigba.stream` (in ``ocalib
 calibrate``). Importing this package does not load COLMAP; import the module you need.
 """
