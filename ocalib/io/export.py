@@ -113,8 +113,6 @@ def with_intrinsics(rig: ExportRig, specs: list, where: str | Path) -> ExportRig
     return replace(rig, cameras=cameras)
 
 
-
-
 def _quaternion(R: np.ndarray) -> list[float]:
     """Rotation matrix (3, 3) -> quaternion (w, x, y, z), w >= 0, by
     :func:`ocalib.geometry.rotation_matrix_to_quaternion`."""
