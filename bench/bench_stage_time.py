@@ -35,10 +35,10 @@ STAGES = {
     "front end": [("frontend/network.py", "forward"), ("frontend/opencv.py", "forward")],
     "on-line head": [("calib/drivers/online.py", "forward")],
     "rig estimator (all)": [("rigba/online.py", "update")],
-    "  features (SIFT)": [("rigba/online.py", "_features")],
+    "  features (SIFT)": [("rigba/local_map.py", "features")],
     "  matching": [("rigba/features.py", "match_features")],
-    "  resection + information": [("rigba/online.py", "_resect")],
-    "  triangulation": [("rigba/online.py", "_triangulate")],
+    "  resection + information": [("rigba/local_map.py", "resect")],
+    "  triangulation": [("rigba/local_map.py", "triangulate")],
     "  window adjustment + covariance": [("rigba/window.py", "adjust_window")],
 }
 

@@ -16,15 +16,14 @@ camera's extrinsic. The local map (keyframes and points) is :mod:`ocalib.rigba.l
    measurement of the camera's extrinsic, with its information;
 3. (observe) tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
 4. (map, judge) continues the tracks the matches extend and triangulates new points, each camera where the window
-   puts it, or
-   where its own resection does while it disagrees with the window; a candidate change (``persistence``
-   keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN`` keyframes from the
-   candidate's frame on (the camera held meanwhile, its new points where its own resections put it), adjusted
-   with a second extrinsic for the camera from the candidate's frame, or one of the ``SPLIT_SEARCH`` keyframes
-   before it (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a
-   move, nor is a step under ``min_change_deg`` and ``min_change_m``;
-5. (adjust, judge) every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last ``window`` keyframes
-   (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
+   puts it, or where its own resection does while it disagrees with the window; a candidate change
+   (``persistence`` keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN``
+   keyframes from the candidate's frame on (the camera held meanwhile, its new points where its own resections put
+   it), adjusted with a second extrinsic for the camera from the candidate's frame on
+   (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move, nor is
+   a step under ``min_change_deg`` and ``min_change_m``;
+5. (adjust, judge) every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last
+   ``window`` keyframes (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
    its track empty) at the start and after a change, until the window determines it: the 1-sigma of its
    extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`), under
    ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two best-determined
@@ -78,7 +77,6 @@ MIN_POINTS = 10  # 3-D points a window needs before it is adjusted
 CONFIRM_FALSE_ALARM = 1e-12  # the split test's level, stricter: it runs where the data already chose a moment
 MIN_KEYFRAMES = 5  # keyframes a window needs before it is adjusted (the points are triangulated from the first two)
 CONFIRM_SPAN = 4  # keyframes from a candidate change's frame on before the window's split test judges it
-SPLIT_SEARCH = 3  # keyframes before a candidate's at which the split test also looks for the move
 
 
 @dataclass(frozen=True)
@@ -267,28 +265,18 @@ class OnlineRigEstimator:
         return changes
 
     def _confirmed(self, k: int, change: Change) -> Change | None:
-        """Whether the window confirms camera k's candidate ``change``: the window's split test at the keyframe
-        among the candidate's and the ``SPLIT_SEARCH`` before it where it is largest among the steps of at least
-        the least change (the keyframes' test starts a run a keyframe or two after the move, and a split after the
-        move keeps moved keyframes on its first side), over its level at ``CONFIRM_FALSE_ALARM`` shared among those
-        splits. Confirmed, the change is dated at that keyframe and the camera restarts
-        (:meth:`CameraState.restart`: from the candidate's rotation, the disagreeing keyframes' mean measurement,
-        with the lever arm it had, its observations from before the change dropped, waiting until the window
-        determines it); dismissed, the track forgets the candidate. -> the change confirmed, or None."""
+        """Whether the window confirms camera k's candidate ``change``: the window's split test at the candidate's
+        keyframe over its quantile at ``CONFIRM_FALSE_ALARM``, by a step of at least the least change. Confirmed,
+        the camera restarts (:meth:`CameraState.restart`: from the candidate's rotation, the disagreeing keyframes'
+        mean measurement, with the lever arm it had, its observations from before the change dropped, waiting until
+        the window determines it); dismissed, the track forgets the candidate. -> the change confirmed, or None."""
         cam = self.cameras[k]
-        frames = [kf.frame for kf in self.map.keyframes]
-        at = frames.index(change.frame) if change.frame in frames else 0
-        tests = [(self._split(k, f), f) for f in frames[max(at - SPLIT_SEARCH, 0) : at + 1]]
-        level = chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM / len(tests), 6)
-        least = cam.track.min_change
-        split, split_frame = max(
-            tests, key=lambda t: (reaches(t[0].step, least), np.nan_to_num(t[0].statistic, nan=-np.inf))
-        )
-        if not (split.statistic > level and reaches(split.step, least)):  # NaN: too little
+        split = self._split(k, change.frame)
+        level = chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6)
+        if not (split.statistic > level and reaches(split.step, cam.track.min_change)):  # NaN: too little
             cam.track.dismiss()
             self.dismissed.append((k, change.detected, split))
             return None
-        change = replace(change, frame=split_frame)
         cam.restart(change, self.extrinsics[k], self.map)
         return change
 

@@ -84,18 +84,6 @@ def observations(keyframes: list[Keyframe], points: dict[int, np.ndarray]) -> di
     return {"camera": camera, "frame": frame, "keypoint": keypoint, "point": point, "xy": xy, "ids": ids}
 
 
-def _kept(obs: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, np.ndarray]:
-    """:func:`observations`' ``obs`` with only the observations ``keep`` (N,) bool, and of those the points still
-    seen at least twice (renumbered)."""
-    out = {key: v[keep] for key, v in obs.items() if key != "ids"}
-    used, counts = np.unique(out["point"], return_counts=True)
-    twice = np.isin(out["point"], used[counts >= 2])
-    out = {key: v[twice] for key, v in out.items()}
-    used, out["point"] = np.unique(out["point"], return_inverse=True)
-    out["ids"] = obs["ids"][used]
-    return out
-
-
 def reprojection_errors(
     obs: dict[str, np.ndarray], poses: np.ndarray, extrinsics: np.ndarray, xyz: np.ndarray, K: np.ndarray
 ) -> np.ndarray:
@@ -171,9 +159,7 @@ def split_statistic(
     prior_noise: float | None = None,
 ) -> SplitTest:
     """The likelihood ratio of camera ``camera`` having moved at ``frame``: the window adjusted with one extrinsic
-    for the camera, then from that solution with a second one for its keyframes from ``frame`` on (their
-    observations of the points it saw before ``frame``: a point first seen after it goes wherever the second
-    extrinsic puts it, which would absorb the move); the fall of the
+    for the camera, then from that solution with a second one for its keyframes from ``frame`` on; the fall of the
     truncated squared reprojection errors (``min(e^2, c^2)``, c^2 the chi-square's 1e-3 quantile with 2 degrees of
     freedom over the variance per axis) over that variance. Near chi-square with 6 degrees of freedom where it has
     not moved; the points (and, with ``prior_noise``, the rig's poses: see :func:`adjust_window`) are free in both,
@@ -182,11 +168,6 @@ def split_statistic(
     given is changed."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
-    after = (obs["camera"] == camera) & (np.array([kf.frame for kf in keyframes])[obs["frame"]] >= frame)
-    before = (obs["camera"] == camera) & ~after
-    # the camera's observations after the split only of points it saw before: points first seen after it are
-    # triangulated wherever the second extrinsic puts them and would absorb the move
-    obs = _kept(obs, ~(after & ~np.isin(obs["point"], obs["point"][before])))
     after = (obs["camera"] == camera) & (np.array([kf.frame for kf in keyframes])[obs["frame"]] >= frame)
     before = (obs["camera"] == camera) & ~after
     if min(after.sum(), before.sum()) < MIN_SPLIT_OBSERVATIONS:
