@@ -29,17 +29,26 @@ class Features:
 
 class SiftExtractor:
     """SIFT keypoints of a grayscale image (H, W) uint8, at most ``max_features``, with RootSIFT descriptors
-    (the square root of the L1-normalised SIFT descriptor: Euclidean distance then compares as Hellinger's)."""
+    (the square root of the L1-normalised SIFT descriptor: Euclidean distance then compares as Hellinger's). An
+    image wider than ``max_width`` is detected on a copy shrunk to that width (area-averaged; its cost grows with the
+    pixels) and its keypoints scaled back to the image's pixels."""
 
-    def __init__(self, max_features: int = 1024, contrast_threshold: float = 0.01):
+    def __init__(self, max_features: int = 1024, contrast_threshold: float = 0.01, max_width: int | None = None):
         self._sift = cv2.SIFT_create(nfeatures=max_features, contrastThreshold=contrast_threshold)
+        self.max_width = max_width
 
     def __call__(self, image: np.ndarray) -> Features:
+        height, width = image.shape[:2]
+        if self.max_width and width > self.max_width:
+            image = cv2.resize(image, (self.max_width, max(round(height * self.max_width / width), 1)),
+                               interpolation=cv2.INTER_AREA)  # fmt: skip
         keypoints, descriptors = self._sift.detectAndCompute(image, None)
         if descriptors is None or not keypoints:
             return Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32))
         descriptors = np.sqrt(descriptors / np.maximum(descriptors.sum(1, keepdims=True), 1e-12))
-        return Features(np.array([k.pt for k in keypoints], dtype=np.float64), descriptors.astype(np.float32))
+        scale = np.array([width / image.shape[1], height / image.shape[0]])
+        xy = (np.array([k.pt for k in keypoints], dtype=np.float64) + 0.5) * scale - 0.5  # integer pixel centres
+        return Features(xy, descriptors.astype(np.float32))
 
 
 def match_features(a: np.ndarray, b: np.ndarray, ratio: float = 0.8) -> np.ndarray:

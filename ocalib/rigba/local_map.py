@@ -47,7 +47,7 @@ class LocalMap:
         self.keyframes: deque[Keyframe] = deque()
         self.points: dict[int, np.ndarray] = {}
         self._next_point = 0
-        self._extract = SiftExtractor(options.max_features)
+        self._extract = SiftExtractor(options.max_features, max_width=options.sift_max_width)
         self._cameras = [
             pycolmap.Camera(model="PINHOLE", width=w, height=h, params=pinhole_params(k), camera_id=i + 1)
             for i, (k, (h, w)) in enumerate(zip(self.K, self.sizes))
