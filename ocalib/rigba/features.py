@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+SIFT_OFFSET = 0.25  # px: where OpenCV's SIFT places a blob's keypoint from its centre, along x and y
+
 
 @dataclass(frozen=True)
 class Features:
@@ -47,7 +49,11 @@ class SiftExtractor:
             return Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32))
         descriptors = np.sqrt(descriptors / np.maximum(descriptors.sum(1, keepdims=True), 1e-12))
         scale = np.array([width / image.shape[1], height / image.shape[0]])
-        xy = (np.array([k.pt for k in keypoints], dtype=np.float64) + 0.5) * scale - 0.5  # integer pixel centres
+        xy = np.array([k.pt for k in keypoints], dtype=np.float64)
+        # integer pixel centres: pixel j of the copy averages the image's j s .. (j + 1) s - 1; OpenCV's SIFT
+        # places keypoints a quarter pixel down and right (its first octave is the image doubled), an offset kept
+        # as it is at full size, not scaled with the copy
+        xy = (xy - SIFT_OFFSET + 0.5) * scale - 0.5 + SIFT_OFFSET
         return Features(xy, descriptors.astype(np.float32))
 
 

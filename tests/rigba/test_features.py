@@ -1,0 +1,36 @@
+"""The on-line rig estimator's SIFT: keypoints on a shrunk copy of a wide image land where the full-size detection
+puts them (blobs at known sub-pixel centres as the reference)."""
+
+import numpy as np
+import pytest
+
+from ocalib.rigba.features import SIFT_OFFSET, SiftExtractor
+
+CENTRES = np.array([(200.3, 100.7), (512.6, 150.2), (803.1, 220.4)])
+
+
+def _blobs(height: int = 300, width: int = 1000) -> np.ndarray:
+    """Gaussian blobs (sigma 6 px) at ``CENTRES`` (integer pixel centres), uint8."""
+    yy, xx = np.mgrid[0:height, 0:width].astype(float)
+    image = sum(np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 6.0**2)) for x, y in CENTRES)
+    return (255 * image / image.max()).astype(np.uint8)
+
+
+def _nearest(keypoints: np.ndarray) -> np.ndarray:
+    """(3, 2) the keypoint nearest each blob centre."""
+    return np.stack([keypoints[np.argmin(np.linalg.norm(keypoints - c, axis=1))] for c in CENTRES])
+
+
+@pytest.mark.parametrize("max_width", [500, 250])
+def test_keypoints_of_a_shrunk_copy_are_in_the_images_pixels(max_width):
+    full = _nearest(SiftExtractor(64)(_blobs()).keypoints)
+    shrunk = _nearest(SiftExtractor(64, max_width=max_width)(_blobs()).keypoints)
+    np.testing.assert_allclose(full, CENTRES + SIFT_OFFSET, atol=0.06)  # OpenCV's quarter pixel, as documented
+    np.testing.assert_allclose(shrunk, full, atol=0.06 * 1000 / max_width)  # not scaled with the copy
+
+
+def test_an_image_within_the_width_is_detected_as_it_is():
+    image = _blobs()
+    a, b = SiftExtractor(64)(image), SiftExtractor(64, max_width=1000)(image)
+    np.testing.assert_array_equal(a.keypoints, b.keypoints)
+    np.testing.assert_array_equal(a.descriptors, b.descriptors)
