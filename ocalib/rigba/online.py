@@ -23,12 +23,12 @@ camera's extrinsic. The local map (keyframes and points) is :mod:`ocalib.rigba.l
    (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move, nor is
    a step under ``min_change_deg`` and ``min_change_m``;
 5. (adjust, judge) every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last
-   ``window`` keyframes (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A camera *waits* (held,
-   its track empty) at the start and after a change, until the window determines it: the 1-sigma of its
-   extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`), under
-   ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two best-determined
-   directions (a car's height is never pinned by planar motion): released sooner, a window over a short stretch of
-   motion throws the lever arm metres off; later, the stream is spent waiting.
+   ``window`` keyframes (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A
+   camera *waits* (held, its track empty) at the start and after a change, until the window determines it: the
+   1-sigma of its extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`),
+   under ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two
+   best-determined directions (a car's height is never pinned by planar motion): released sooner, a window over a
+   short stretch of motion throws the lever arm metres off; later, the stream is spent waiting.
 
 The estimator starts from the on-line head's rotations and zero lever arms; while a camera waits at the start, its
 rotation follows the head's latest estimate (``update``'s ``rotations``); its translations are in metres.
