@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from ocalib.errors import InputError
+from ocalib.geometry.se3 import rotation_angle_deg
 from ocalib.synth.world import PITCH, ROAD
 
 TURN_RADIUS = 9.0
@@ -197,6 +198,4 @@ def _channels(kind, frames, dt, speed, height, xy, heading, kappa, rng) -> list[
 
 def turned_deg(poses: np.ndarray) -> float:
     """The largest rotation (deg) of the poses (N, 4, 4) from the first one's orientation: how far the camera turns."""
-    R = poses[0, :3, :3].T @ poses[:, :3, :3]
-    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
-    return float(np.degrees(np.arccos(cos)).max())
+    return float(rotation_angle_deg(poses[0, :3, :3].T @ poses[:, :3, :3]).max())

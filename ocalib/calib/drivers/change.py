@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import chdtrc, chdtri, gammaincinv
 
-from ocalib.geometry.se3 import cross_matrix
+from ocalib.geometry.se3 import cross_matrix, rotation_angle_deg
 
 SEGMENT_HISTORIES = 10  # the frames a segment tests, in histories (a new reference each; segments overlap by a span)
 OUTLIER_LEVEL = 1e-4  # a frame's residuals beyond this chi-square level weigh less (:func:`_outlier_weights`)
@@ -332,5 +332,4 @@ def chi2_sf(x: np.ndarray, dof: np.ndarray) -> np.ndarray:
 
 def step_size(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray) -> tuple[float, float]:
     """The step from extrinsic (R0 (3, 3), t0 (3,)) to (R1, t1): rotation angle (deg) and translation distance."""
-    angle = np.linalg.norm(Rotation.from_matrix(R1 @ R0.T).as_rotvec())
-    return float(np.degrees(angle)), float(np.linalg.norm(t1 - t0))
+    return float(rotation_angle_deg(R1 @ R0.T)), float(np.linalg.norm(t1 - t0))
