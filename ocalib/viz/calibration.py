@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ocalib.geometry.angles import angles_text, rotation_error_deg
-from ocalib.geometry.directions import touched_axes
+from ocalib.geometry.directions import angle_deg, touched_axes
 from ocalib.geometry.quaternion import rotation_matrix_to_quaternion
 from ocalib.viz.figure import save_figure
 
@@ -118,10 +118,9 @@ def _translation_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndar
         for i in range(3):
             ax.axhline(direction[i] * np.linalg.norm(t[-1]), color=COLORS[i], lw=1, ls="--")
         labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, direction * np.linalg.norm(t[-1]))]
-        cos = t[-1] @ true_t / max(np.linalg.norm(t[-1]) * np.linalg.norm(true_t), 1e-300)
         title += (
             f"\ntruth (dashed): the true direction at the final length; final "
-            f"{np.degrees(np.arccos(np.clip(cos, -1, 1))):.1f} deg off"
+            f"{angle_deg(t[-1], true_t):.1f} deg off"
         )
         include = direction * np.linalg.norm(t[-1])
     else:
