@@ -119,8 +119,7 @@ def _translation_row(ax, frames: np.ndarray, trace: dict, k: int, truth: np.ndar
             ax.axhline(direction[i] * np.linalg.norm(t[-1]), color=COLORS[i], lw=1, ls="--")
         labels = [f"{label}, truth {v:+.4f}" for label, v in zip(labels, direction * np.linalg.norm(t[-1]))]
         title += (
-            f"\ntruth (dashed): the true direction at the final length; final "
-            f"{angle_deg(t[-1], true_t):.1f} deg off"
+            f"\ntruth (dashed): the true direction at the final length; final {angle_deg(t[-1], true_t):.1f} deg off"
         )
         include = direction * np.linalg.norm(t[-1])
     else:
