@@ -64,10 +64,12 @@ def match_features(a: np.ndarray, b: np.ndarray, ratio: float = 0.8) -> np.ndarr
     if len(a) < 2 or len(b) < 2:
         return np.zeros((0, 2), np.int64)
     similarity = a @ b.T  # for unit vectors, squared distance = 2 - 2 similarity
+    rows = np.arange(len(a))
     best = np.argmax(similarity, 1)
-    top2 = np.partition(-similarity, 1, axis=1)[:, :2]
-    distance2 = np.maximum(2 + 2 * top2, 0)  # (N, 2): nearest, second nearest
-    distinct = distance2[:, 0] < ratio**2 * distance2[:, 1]
-    mutual = np.argmax(similarity, 0)[best] == np.arange(len(a))
+    nearest = similarity[rows, best]
+    mutual = nearest >= similarity.max(0)[best]  # a column's maximum, not its argmax: that one reads strided
+    similarity[rows, best] = -np.inf
+    second = similarity.max(1)
+    distinct = np.maximum(2 - 2 * nearest, 0) < ratio**2 * np.maximum(2 - 2 * second, 0)
     keep = np.flatnonzero(distinct & mutual)
     return np.stack([keep, best[keep]], 1)

@@ -1,10 +1,12 @@
 """The on-line rig estimator's SIFT: keypoints on a shrunk copy of a wide image land where the full-size detection
-puts them (blobs at known sub-pixel centres as the reference)."""
+puts them (blobs at known sub-pixel centres as the reference); its matches are OpenCV's brute-force matcher's
+mutual nearest neighbours that pass the ratio test."""
 
+import cv2
 import numpy as np
 import pytest
 
-from ocalib.rigba.features import SIFT_OFFSET, SiftExtractor
+from ocalib.rigba.features import SIFT_OFFSET, SiftExtractor, match_features
 
 CENTRES = np.array([(200.3, 100.7), (512.6, 150.2), (803.1, 220.4)])
 
@@ -34,3 +36,25 @@ def test_an_image_within_the_width_is_detected_as_it_is():
     a, b = SiftExtractor(64)(image), SiftExtractor(64, max_width=1000)(image)
     np.testing.assert_array_equal(a.keypoints, b.keypoints)
     np.testing.assert_array_equal(a.descriptors, b.descriptors)
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return (x / np.linalg.norm(x, axis=1, keepdims=True)).astype(np.float32)
+
+
+@pytest.mark.parametrize("ratio", [0.8, 0.6])
+def test_matches_are_opencvs_mutual_nearest_neighbours_that_pass_the_ratio_test(ratio):
+    rng = np.random.default_rng(3)
+    a = _unit(rng.random((300, 128)))
+    order = rng.permutation(300)[:250]
+    b = _unit(np.concatenate([a[order] + rng.normal(0, 0.01 + 0.04 * rng.random((250, 1)), (250, 128)),
+                              rng.random((80, 128))]))  # fmt: skip
+    a = np.concatenate([a, _unit(a[order[:40]] + rng.normal(0, 0.03, (40, 128)))])  # near twins: not mutual
+    ours = {tuple(m) for m in match_features(a, b, ratio)}
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    nearest_two = matcher.knnMatch(a, b, k=2)
+    back = {m.queryIdx: m.trainIdx for m in matcher.match(b, a)}
+    reference = {(m.queryIdx, m.trainIdx) for m, n in nearest_two
+                 if m.distance < ratio * n.distance and back[m.trainIdx] == m.queryIdx}  # fmt: skip
+    assert 50 < len(reference) < 250  # some pass, some fail the ratio test
+    assert ours == reference
