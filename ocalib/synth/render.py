@@ -135,7 +135,7 @@ def render_view(
     t, hit = raycast.trace_tiles(dirs, rel32, near_boxes[keep], rect[keep], raycast.ground_t(oz, dirs, FAR))
     hit = torch.where(hit >= 0, hit, torch.where(torch.isfinite(t), GROUND, SKY))
     depth = torch.where(hit == SKY, torch.zeros_like(t), t)
-    hit, t, dirs = hit.view(-1), t.view(-1), dirs.view(-1, 3)
+    hit, t, dirs = hit.reshape(-1), t.reshape(-1), dirs.reshape(-1, 3)  # tiles of an odd size: not contiguous
     axis, _ = _faces(dirs, hit, rel32, oz)
 
     # Pixels whose 3x3 neighbourhood sees one face: one prefiltered sample; edges: s x s traced samples.

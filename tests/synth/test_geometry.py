@@ -61,8 +61,9 @@ def test_rig_is_rigid_to_1e6(rendered):
         assert np.abs(rel[0] - preset(name).cameras[1].T_cam0_cam()).max() < 1e-9
 
 
-def test_depth_is_exact_at_pixel_centres_on_the_ground(rendered):
-    seq = rendered("stereo", frames=1)
+@pytest.mark.parametrize("size", [{}, {"height": 63, "width": 207}])  # an odd width: KITTI's 1241, for one
+def test_depth_is_exact_at_pixel_centres_on_the_ground(rendered, size):
+    seq = rendered("stereo", frames=1, **size)
     K = torch.as_tensor(seq.rig.cameras[0].K)
     pose = seq.poses[0, 0]
     H, W = seq.depth.shape[-2:]
