@@ -10,6 +10,10 @@ many small calls (the head's) more than the few large ones (SIFT, the adjustment
     python bench/bench_stage_time.py --sequence data/kitti/dataset/sequences/01 \
         --metric-trajectory data/kitti/dataset/poses/01.txt [--frames 51] [--frontend auto] --label kitti-01-1241x376
 
+Beside the profile, the cost of a frame in the stream without the profiler and without the start (imports, the
+model, the first calls): ``calibrate`` run as a user runs it, in a fresh process, on the first ``frames`` and on the
+first half of them; the difference of their wall times over the difference of their frames.
+
 Writes ``bench/results/stage_time.json`` (one entry per ``--label``, kept across runs).
 """
 
@@ -21,6 +25,8 @@ import cProfile
 import io
 import json
 import pstats
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -53,6 +59,19 @@ def stage_seconds(stats: pstats.Stats) -> dict[str, float]:
     return out
 
 
+def streaming_ms(argv: list[str], frames: int) -> tuple[float, float]:
+    """(ms a frame in the stream, ms a frame of the whole command) of ``ocalib calibrate`` ``argv`` (its
+    ``--max-frames`` appended), from fresh processes on ``frames`` and ``frames // 2`` frames."""
+    walls = {}
+    for n in (frames // 2, frames):
+        start = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "ocalib", *argv, "--max-frames", str(n)], capture_output=True)
+        walls[n] = time.perf_counter() - start
+        if done.returncode != 0:
+            raise SystemExit(f"ocalib calibrate failed ({done.returncode}): {done.stderr.decode()[-300:]}")
+    return (walls[frames] - walls[frames // 2]) / (frames - frames // 2) * 1000, walls[frames] / frames * 1000
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sequence", required=True)
@@ -64,12 +83,12 @@ def main() -> None:
     args = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         argv = ["calibrate", "--sequence", args.sequence, "--metric-trajectory", args.metric_trajectory,
-                "--no-bundle-adjust", "--max-frames", str(args.frames), "--frontend", args.frontend,
-                "--out", str(Path(tmp) / "out.json")]  # fmt: skip
+                "--no-bundle-adjust", "--frontend", args.frontend, "--out", str(Path(tmp) / "out.json")]  # fmt: skip
+        streaming, whole = streaming_ms(argv, args.frames)
         profile = cProfile.Profile()
         start = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):
-            code = profile.runcall(ocalib_main, argv)
+            code = profile.runcall(ocalib_main, [*argv, "--max-frames", str(args.frames)])
         wall = time.perf_counter() - start
         result = json.loads((Path(tmp) / "out.json").read_text()) if code == 0 else {}
     if code != 0:
@@ -77,6 +96,7 @@ def main() -> None:
     seconds = stage_seconds(pstats.Stats(profile))
     frames = result.get("settings", {}).get("frames", args.frames)
     print(f"{args.label}: {frames} frames, {wall:.1f} s under the profiler ({wall / frames * 1000:.0f} ms a frame)")
+    print(f"  {'a frame in the stream (no profiler)':34} {streaming:8.1f} ms; the whole command {whole:.1f} ms a frame")
     for stage, s in seconds.items():
         print(f"  {stage:34} {s / frames * 1000:8.1f} ms a frame")
     path = Path(args.out)
@@ -85,6 +105,8 @@ def main() -> None:
         "sequence": args.sequence,
         "frames": frames,
         "wall_seconds_profiled": wall,
+        "streaming_ms_per_frame": streaming,
+        "command_ms_per_frame": whole,
         "ms_per_frame": {stage: s / frames * 1000 for stage, s in seconds.items()},
         "frontend": result.get("settings", {}).get("frontend"),
     }
