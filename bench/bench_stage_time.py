@@ -12,7 +12,7 @@ many small calls (the head's) more than the few large ones (SIFT, the adjustment
 
 Beside the profile, the cost of a frame in the stream without the profiler and without the start (imports, the
 model, the first calls): ``calibrate`` run as a user runs it, in a fresh process, on the first ``frames`` and on the
-first half of them; the difference of their wall times over the difference of their frames.
+first half of them (medians of ``--repeats``); the difference of their wall times over the difference of their frames.
 
 Writes ``bench/results/stage_time.json`` (one entry per ``--label``, kept across runs).
 """
@@ -31,6 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 from common import write_json
 
 from ocalib.cli import main as ocalib_main
@@ -59,17 +60,19 @@ def stage_seconds(stats: pstats.Stats) -> dict[str, float]:
     return out
 
 
-def streaming_ms(argv: list[str], frames: int) -> tuple[float, float]:
+def streaming_ms(argv: list[str], frames: int, repeats: int) -> tuple[float, float]:
     """(ms a frame in the stream, ms a frame of the whole command) of ``ocalib calibrate`` ``argv`` (its
-    ``--max-frames`` appended), from fresh processes on ``frames`` and ``frames // 2`` frames."""
-    walls = {}
-    for n in (frames // 2, frames):
+    ``--max-frames`` appended), from fresh processes on ``frames // 2`` and ``frames`` frames, alternated
+    ``repeats`` times after one run that is not counted (it compiles and caches): the medians' difference."""
+    walls: dict[int, list[float]] = {frames // 2: [], frames: []}
+    for n in [frames // 2] + [frames // 2, frames] * repeats:
         start = time.perf_counter()
         done = subprocess.run([sys.executable, "-m", "ocalib", *argv, "--max-frames", str(n)], capture_output=True)
-        walls[n] = time.perf_counter() - start
+        walls[n].append(time.perf_counter() - start)
         if done.returncode != 0:
             raise SystemExit(f"ocalib calibrate failed ({done.returncode}): {done.stderr.decode()[-300:]}")
-    return (walls[frames] - walls[frames // 2]) / (frames - frames // 2) * 1000, walls[frames] / frames * 1000
+    half, full = (float(np.median(walls[n][-repeats:])) for n in (frames // 2, frames))
+    return (full - half) / (frames - frames // 2) * 1000, full / frames * 1000
 
 
 def main() -> None:
@@ -78,13 +81,14 @@ def main() -> None:
     p.add_argument("--metric-trajectory", required=True)
     p.add_argument("--frames", type=int, default=51)
     p.add_argument("--frontend", default="auto", help="calibrate's --frontend (default auto)")
+    p.add_argument("--repeats", type=int, default=3, help="runs of each length for the cost in the stream")
     p.add_argument("--label", required=True, help="the name of this case in the JSON")
     p.add_argument("--out", default="bench/results/stage_time.json")
     args = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         argv = ["calibrate", "--sequence", args.sequence, "--metric-trajectory", args.metric_trajectory,
                 "--no-bundle-adjust", "--frontend", args.frontend, "--out", str(Path(tmp) / "out.json")]  # fmt: skip
-        streaming, whole = streaming_ms(argv, args.frames)
+        streaming, whole = streaming_ms(argv, args.frames, args.repeats)
         profile = cProfile.Profile()
         start = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):

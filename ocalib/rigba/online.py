@@ -88,8 +88,9 @@ class OnlineRigOptions:
     adjust_every: int = 2  # keyframes between two adjustments of the window (each adjustment is half the cost)
     match_previous: int = 3  # earlier keyframes each new one is matched to, per camera
     max_features: int = 1024  # SIFT keypoints an image
-    # images wider are shrunk to this width for SIFT (its cost grows with the pixels), keypoints scaled back
-    sift_max_width: int | None = 640
+    # images wider are shrunk to this width for SIFT, keypoints scaled back: its cost grows with the pixels, and the
+    # estimator's tests were validated on 416-px-wide renders (docs/benchmarks.md: KITTI's 1241 px at 416)
+    sift_max_width: int | None = 416
     min_inliers: int = 15  # 2-D-3-D inliers for a keyframe to count as registered
     min_test_inliers: int = 30  # 2-D-3-D inliers for a keyframe to be tested for a change
     min_angle_deg: float = 1.0  # a new point's least triangulation angle
