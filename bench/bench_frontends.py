@@ -58,7 +58,8 @@ def trajectories(sequence, options: FrontEndOptions, frames: int) -> tuple[np.nd
 
 
 def crop_rig(sequence, frames: int, root: Path = Path("data/real")) -> Path:
-    """A rig folder of two overlapping crops (left, right) of ``sequence``'s first camera's first ``frames``."""
+    """A rig folder of two overlapping crops (left, right) of ``sequence``'s first camera's first ``frames``; their
+    extrinsic is the identity (one centre, one orientation)."""
     cam = sequence.cameras[0]
     H, W = cam.size
     width = 2 * W // 3
@@ -71,7 +72,7 @@ def crop_rig(sequence, frames: int, root: Path = Path("data/real")) -> Path:
         write_kitti(out / name / "poses.txt", cam.poses[:frames])
         K = cam.K.copy()
         K[0, 2] -= x0
-        specs.append({"name": name, "width": width, "height": H, "K": K.tolist()})
+        specs.append({"name": name, "width": width, "height": H, "K": K.tolist(), "T_cam0_cam": np.eye(4).tolist()})
     (out / "rig.yaml").write_text(yaml.safe_dump({"cameras": specs}))
     return out
 

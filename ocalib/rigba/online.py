@@ -161,10 +161,15 @@ class OnlineRigEstimator:
         raised = [(k, cam.candidate) for k, cam in enumerate(self.cameras) if cam.candidate is not None]
         return dict(sorted(raised, key=lambda kc: kc[1].detected))
 
+    @property
+    def keyframe_next(self) -> bool:
+        """Whether the next frame :meth:`update` consumes is a keyframe: only then are its images used."""
+        return self.frames_seen % self.options.keyframe_step == 0
+
     def update(
-        self, frame: int, images: list[np.ndarray], pose: np.ndarray, rotations: np.ndarray | None = None
+        self, frame: int, images: list[np.ndarray] | None, pose: np.ndarray, rotations: np.ndarray | None = None
     ) -> RigState | None:
-        """Consume frame ``frame``: ``images`` one per camera, ``pose`` camera 0's metric camera-to-world pose (4, 4),
+        """Consume frame ``frame``: ``images`` one per camera (None will do where not :attr:`keyframe_next`), ``pose`` camera 0's metric camera-to-world pose (4, 4),
         or (C, 4, 4) the rig's pose when each camera captured its image (cameras without a shared trigger: the
         trajectory interpolated at each one's capture time); ``rotations`` (C - 1, 3, 3) the on-line head's latest
         rotations of cameras 1.., taken by those waiting since the start. Returns the state after a keyframe, None

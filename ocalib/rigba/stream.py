@@ -60,12 +60,7 @@ class OnlineRigStage:
     def __call__(self, t: int, estimate: Calibration) -> RigState | None:
         if self.estimator is None and not self._started(t, estimate):
             return None
-        images = []
-        for cam in self.sequence.cameras:
-            image = cv2.imread(str(cam.images[t]), cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                raise InputError(f"{cam.images[t]}: not an image OpenCV can read")
-            images.append(image)
+        images = self._images(t) if self.estimator.keyframe_next else None
         rotations = estimate.rotation[0].double().cpu().numpy()
         state = self.estimator.update(t, images, self.capture[t], rotations)
         if state is not None:
@@ -78,6 +73,16 @@ class OnlineRigStage:
                     + ("" if self.options.metric_noise else HELD_HINT)
                 )
         return state
+
+    def _images(self, t: int) -> list[np.ndarray]:
+        """Frame t of every camera, grayscale (H, W) uint8."""
+        images = []
+        for cam in self.sequence.cameras:
+            image = cv2.imread(str(cam.images[t]), cv2.IMREAD_GRAYSCALE)
+            if image is None:
+                raise InputError(f"{cam.images[t]}: not an image OpenCV can read")
+            images.append(image)
+        return images
 
     def _started(self, t: int, estimate: Calibration) -> bool:
         """Start the estimator at the head's rotations from ``START_FRAME`` on, once they are finite."""

@@ -97,7 +97,7 @@ def test_a_change_found_with_the_trajectory_held_says_so(noise, tmp_path):
     sequence = SimpleNamespace(cameras=cameras, names=["cam0", "cam1"], times=None, pairing=None)
     stream = OnlineRigStage(sequence, _trajectory(np.zeros(1)), OnlineRigOptions(metric_noise=noise))
     state = SimpleNamespace(changes=[(1, Change(40, 44, 1.0, 0.05))])
-    stream.estimator = SimpleNamespace(update=lambda t, images, pose, rotations: state)
+    stream.estimator = SimpleNamespace(update=lambda t, images, pose, rotations: state, keyframe_next=True)
     stream(0, SimpleNamespace(rotation=torch.eye(3, dtype=torch.float64)[None, None]))
     [said] = stream.warnings
     assert said.startswith("on-line rig estimator: cam1: its extrinsic changed at frame 40 (noticed at frame 44)")
