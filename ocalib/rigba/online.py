@@ -169,11 +169,11 @@ class OnlineRigEstimator:
     def update(
         self, frame: int, images: list[np.ndarray] | None, pose: np.ndarray, rotations: np.ndarray | None = None
     ) -> RigState | None:
-        """Consume frame ``frame``: ``images`` one per camera (None will do where not :attr:`keyframe_next`), ``pose`` camera 0's metric camera-to-world pose (4, 4),
-        or (C, 4, 4) the rig's pose when each camera captured its image (cameras without a shared trigger: the
-        trajectory interpolated at each one's capture time); ``rotations`` (C - 1, 3, 3) the on-line head's latest
-        rotations of cameras 1.., taken by those waiting since the start. Returns the state after a keyframe, None
-        for the frames between."""
+        """Consume frame ``frame``: ``images`` one per camera (None will do where not :attr:`keyframe_next`),
+        ``pose`` camera 0's metric camera-to-world pose (4, 4), or (C, 4, 4) the rig's pose when each camera captured
+        its image (cameras without a shared trigger: the trajectory interpolated at each one's capture time);
+        ``rotations`` (C - 1, 3, 3) the on-line head's latest rotations of cameras 1.., taken by those waiting since
+        the start. Returns the state after a keyframe, None for the frames between."""
         self.frames_seen += 1
         if (self.frames_seen - 1) % self.options.keyframe_step:
             return None
