@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from common import write_json
+from common import shown_path, write_json
 from scipy.spatial.transform import Rotation
 
 from ocalib.calib.drivers.sequence import calibrate_sequence
@@ -138,7 +138,8 @@ def main() -> None:
                       f"{frame:>12} {rot:>34} {tr:>28}", flush=True)  # fmt: skip
     write_json(args.out, {"frames": FRAMES, "change_at": AT, "noise": args.noise, "seeds": args.seeds,
                           "summary": summary(rows), "rows": rows,
-                          "baseline": args.baseline, "knocks": knocks, "trajectories": args.trajectory})  # fmt: skip
+                          "baseline": args.baseline, "knocks": knocks,
+                          "trajectories": [shown_path(f) for f in args.trajectory or []]})  # fmt: skip
 
 
 if __name__ == "__main__":
