@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from ocalib.calib.drivers.sequence import calibrate_sequence
 from ocalib.calib.poses.pipeline import RigPoses, calibrate_rig
-from ocalib.io.poses import read_kitti, read_tum
+from ocalib.io.poses import read_poses
 from ocalib.sim.trajectory import add_noise, car_trajectory, knocked, lds_trajectory, random_rig, rig_trajectories
 
 FRAMES, AT = 1000, 500
@@ -38,9 +38,9 @@ def rig(seed: int, trajectory, model: str, noise: float, at: int, baseline: floa
 
 
 def from_file(path: str):
-    """A trajectory function ``(n, generator) -> (n, 4, 4)``: the first n poses of a pose file (TUM or KITTI),
-    re-referenced to the first."""
-    poses = read_tum(path).poses if path.endswith(".tum") else read_kitti(path)
+    """A trajectory function ``(n, generator) -> (n, 4, 4)``: the first n poses of a pose file (KITTI, TUM or EuRoC,
+    told apart as ``calibrate-poses`` does), re-referenced to the first."""
+    poses = read_poses(path).poses
     poses = torch.from_numpy(np.linalg.inv(poses[:1]) @ poses)
     if len(poses) < FRAMES:
         raise SystemExit(f"{path}: {len(poses)} poses, fewer than the {FRAMES} a rig takes")
