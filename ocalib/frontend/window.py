@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy import sparse
 
 from ocalib.geometry.se3 import cross_matrix
 
@@ -24,6 +25,20 @@ def _project(R, c, frame, anchor, b, rho, K):
     Y = np.einsum("mji,mj->mi", Rk, np.einsum("mij,mj->mi", Ra, b) + rho[:, None] * (ca - ck))
     z = np.where(np.abs(Y[:, 2]) > 1e-9, Y[:, 2], 1e-9)
     return Y, np.stack([K[0, 0] * Y[:, 0] / z + K[0, 2], K[1, 1] * Y[:, 1] / z + K[1, 2]], 1)
+
+
+def _inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A^T B`` (M, p, q) of A (M, 2, p) and B (M, 2, q), its two terms written out (a third of einsum's time)."""
+    out = A[:, 0, :, None] * B[:, 0, None, :]
+    out += A[:, 1, :, None] * B[:, 1, None, :]
+    return out if B.shape[2] > 1 else out[..., 0]
+
+
+def _summing(keys: list[np.ndarray], size: int) -> sparse.csr_matrix:
+    """The sparse (size, N) matrix that sums rows (N, D) of arrays stacked in the order of ``keys`` (each (M,)) by
+    their keys, each sum in the rows' order: what ``np.add.at`` into zeros gives, many times faster."""
+    keys = np.concatenate(keys)
+    return sparse.csr_matrix((np.ones(len(keys)), (keys, np.arange(len(keys)))), shape=(size, len(keys)))
 
 
 def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, rho, K, c: float = 1.0,
@@ -49,6 +64,9 @@ def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, r
     def cost(r):
         return 0.5 * c * c * np.log1p((r * r).sum(1) / (c * c)).sum()
 
+    sides = (frame, a)  # the observing frame's and the anchor's blocks, summed by frame (pair) and landmark
+    sum_g, sum_pl = _summing(list(sides), F), _summing([f * L + landmark for f in sides], F * L)
+    sum_b = _summing([f * F + f2 for f in sides for f2 in sides], F * F)
     r = residual(R, cen, rho)
     best, lam = cost(r), 1e-3
     for _ in range(iterations):
@@ -62,16 +80,13 @@ def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, r
         J_k = np.concatenate([P @ cross_matrix(Y), -rho[landmark, None, None] * PRkT], 2)  # observing frame
         J_a = np.concatenate([-(PRkT @ R[a] @ cross_matrix(b)), rho[landmark, None, None] * PRkT], 2)  # anchor
         w = 1.0 / (1.0 + (r * r).sum(1) / (c * c))  # Cauchy IRLS weight per observation
-        # Normal equations, accumulated per observation in 6x6 blocks (einsum and add.at: no BLAS threads,
-        # which spin badly on a busy machine), then the Schur complement on the inverse depths.
-        Hb, gb, Hpl = np.zeros((F, F, 6, 6)), np.zeros((F, 6)), np.zeros((F, L, 6))
-        wr = w[:, None] * r
-        for J, f in ((J_k, frame), (J_a, a)):
-            Jw = J * w[:, None, None]
-            np.add.at(gb, f, np.einsum("mip,mi->mp", J, wr))
-            np.add.at(Hpl, (f, landmark), np.einsum("mip,mi->mp", Jw, J_rho[:, :, 0]))
-            for J2, f2 in ((J_k, frame), (J_a, a)):
-                np.add.at(Hb, (f, f2), np.einsum("mip,miq->mpq", Jw, J2))
+        # Normal equations, accumulated per observation in 6x6 blocks (products written out and sparse sums: no
+        # BLAS threads, which spin badly on a busy machine), then the Schur complement on the inverse depths.
+        Js, wr = (J_k, J_a), w[:, None] * r
+        Jw = [J * w[:, None, None] for J in Js]
+        gb = sum_g @ np.concatenate([_inner(J, wr[..., None]) for J in Js])
+        Hpl = (sum_pl @ np.concatenate([_inner(Jwi, J_rho) for Jwi in Jw])).reshape(F, L, 6)
+        Hb = (sum_b @ np.concatenate([_inner(Jwi, J).reshape(M, 36) for Jwi in Jw for J in Js])).reshape(F, F, 6, 6)
         Hpp = Hb[fixed:, fixed:].transpose(0, 2, 1, 3).reshape(6 * free, 6 * free)
         gp = gb[fixed:].reshape(-1)
         Hpl = Hpl[fixed:].transpose(0, 2, 1).reshape(6 * free, L)
