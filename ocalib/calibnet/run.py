@@ -45,6 +45,8 @@ from ocalib.errors import InputError, deferred_interrupts
 from ocalib.eval.calibration_metrics import extrinsic_errors
 from ocalib.eval.pose_metrics import congruence_residual
 from ocalib.frontend import AUTO, AUTO_FRAMES, FRONTENDS, FrontEndOptions, build_frontend
+from ocalib.frontend.base import FrontEnd
+from ocalib.frontend.recorded import RecordedFrontEnd
 from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
@@ -208,9 +210,8 @@ def _replaced_said(warnings: list[str], extrinsics: list[dict]) -> list[str]:
     return out
 
 
-def _trajectories(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int, desc: str) -> np.ndarray:
-    """Every camera's trajectory (frames, C, 4, 4) from the front end of ``frontend`` over the first ``frames``."""
-    front_end = build_frontend(sequence, frontend, device)
+def _trajectories(front_end: FrontEnd, sequence: Sequence, device: str, frames: int, desc: str) -> np.ndarray:
+    """Every camera's trajectory (frames, C, 4, 4) from ``front_end`` over the first ``frames``."""
     net = OnlineCalibrationNet(front_end, OnlineCalibrator(len(sequence.cameras))).to(device)
     net.head.load_kernel()
     return _stream(net, front_end.frames(sequence), frames, None, None, desc)[2]
@@ -219,15 +220,18 @@ def _trajectories(sequence: Sequence, frontend: FrontEndOptions, device: str, fr
 def choose_frontend(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
     """The registered front end whose motions over the first ``frames`` frames best keep the rig's screw congruence
     (:func:`~ocalib.eval.pose_metrics.congruence_residual`: no truth needed) -> (its options, resolved; the
-    residual of every front end tried). ``frontend``: :data:`~ocalib.frontend.AUTO` with the network's settings."""
-    tried = {}
+    residual of every front end tried; the chosen front end with its motions over those frames recorded, to be
+    streamed on from there, or None where its motions depend on the head's estimate and so are to be computed
+    again). ``frontend``: :data:`~ocalib.frontend.AUTO` with the network's settings."""
+    tried, ran = {}, {}
     for name in FRONTENDS:
-        options = replace(frontend, name=name) if name == "network" else FrontEndOptions(name)
+        options = (replace(frontend, name=name) if name == "network" else FrontEndOptions(name)).resolved()
+        ran[name] = RecordedFrontEnd(build_frontend(sequence, options, device))
         desc = f"trying the {name} front end"
-        tried[name] = congruence_residual(_trajectories(sequence, options.resolved(), device, frames, desc))
+        tried[name] = congruence_residual(_trajectories(ran[name], sequence, device, frames, desc))
     best = min(tried, key=lambda name: (np.isnan(tried[name]), tried[name]))
     chosen = replace(frontend, name=best) if best == "network" else FrontEndOptions(best)
-    return chosen.resolved(), tried
+    return chosen.resolved(), tried, None if ran[best].uses_rig_rotation else ran[best]
 
 
 def estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
@@ -236,7 +240,8 @@ def estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str,
     with :data:`~ocalib.frontend.AUTO`, the registry's first front end's."""
     if frontend.name == AUTO:
         frontend = replace(frontend, name=next(iter(FRONTENDS)))
-    trajectory = _trajectories(sequence, frontend.resolved(), device, frames, "finding time offsets")
+    front_end = build_frontend(sequence, frontend.resolved(), device)
+    trajectory = _trajectories(front_end, sequence, device, frames, "finding time offsets")
     stamps = clocks(sequence)
     found = [
         find_time_offset(stamps[0][:frames], trajectory[:, 0], t[:frames], trajectory[:, k], (sequence.names[0], name))
@@ -279,11 +284,12 @@ def calibrate_images(
     if frames < MIN_FRAMES or len(sequence.cameras) < 2:
         raise InputError(f"{path}: {frames} frames of {len(sequence.cameras)} camera(s): too little to calibrate")
     check_motion(sequence)
-    choice = {}
+    choice, front_end = {}, None
     if frontend.name == AUTO:
-        frontend, tried = choose_frontend(sequence, frontend, device, min(frames, AUTO_FRAMES))
+        frontend, tried, front_end = choose_frontend(sequence, frontend, device, min(frames, AUTO_FRAMES))
         choice = {"frontend_choice": {"frames": min(frames, AUTO_FRAMES), "congruence_residual": finite_or_null(tried)}}
-    front_end = build_frontend(sequence, frontend, device)
+    if front_end is None:
+        front_end = build_frontend(sequence, frontend, device)
     C = len(sequence.cameras)
     net = OnlineCalibrationNet(front_end, OnlineCalibrator(C, **head.head_kwargs())).to(device)
     net.head.load_kernel()

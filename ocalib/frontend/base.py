@@ -20,6 +20,8 @@ class FrontEnd(nn.Module):
     what :meth:`forward` takes, frame by frame), :meth:`reset` and :meth:`forward`; :meth:`report` is optional.
     """
 
+    uses_rig_rotation: bool = True  # whether forward's motions depend on its rig_rotation (the head's estimate)
+
     @classmethod
     def for_sequence(cls, sequence: Sequence, options, device: str = "cpu") -> FrontEnd:
         """The front end for ``sequence``'s cameras (``options``: :class:`~ocalib.frontend.FrontEndOptions`)."""

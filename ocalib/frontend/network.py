@@ -79,6 +79,7 @@ class NetworkFrontEnd(FrontEnd):
             raise ValueError("align needs the cameras' intrinsics at the model's resolution")
         self.model, self.scale, self.scale_momentum, self.align = model, scale, scale_momentum, align
         self.rig_align = align and rig_align and num_cameras > 1
+        self.uses_rig_rotation = self.rig_align
         if intrinsics is not None:
             intrinsics = torch.as_tensor(intrinsics, dtype=torch.float32)
             if intrinsics.shape not in ((num_cameras, 3, 3), (batch_size, num_cameras, 3, 3)):

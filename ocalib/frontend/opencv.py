@@ -37,6 +37,8 @@ class OpenCVFrontEnd(FrontEnd):
     """One rig of C cameras with intrinsics ``K`` (C, 3, 3) pixels at their images' sizes; ``options``: the VO's
     (:class:`~ocalib.frontend.opencv_vo.OpenCVOdometry`)."""
 
+    uses_rig_rotation = False
+
     def __init__(self, K: np.ndarray, **options):
         super().__init__()
         self.K, self.options = np.asarray(K, dtype=np.float64), options

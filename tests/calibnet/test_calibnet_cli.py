@@ -252,3 +252,25 @@ def test_the_default_front_end_is_chosen_by_the_rigs_rotation_angles(tiny, tmp_p
     assert main(["calibrate", "--sequence", str(seq), "--checkpoint", str(model), "--out", str(out)]) == 0
     settings = json.loads(out.read_text())["settings"]
     assert settings["frontend"] == "network" and "frontend_choice" not in settings
+
+
+@pytest.mark.parametrize("chosen", FRONTENDS)
+def test_the_chosen_front_end_streams_on_from_its_trial(tiny, tmp_path, monkeypatch, chosen):
+    """``auto`` keeps the chosen front end's motions over the frames it was tried on and runs it on from there (each
+    frame computed once; the network, whose motions follow the head, runs again): the trajectories and the result
+    are those of a run with that front end named."""
+    monkeypatch.setattr("ocalib.calibnet.run.AUTO_FRAMES", 5)  # tried on 5 of the 12 frames, 7 streamed on
+    monkeypatch.setattr("ocalib.calibnet.run.FRONTENDS", {chosen: FRONTENDS[chosen]})  # the one tried
+    _, seq, _ = tiny
+    runs = {}
+    for name, frontend in (("auto", []), ("named", None)):
+        out, traj = tmp_path / f"{name}.json", tmp_path / name
+        args = ["calibrate", "--sequence", str(seq), "--no-bundle-adjust", "--out", str(out), "--trajectories", str(traj)]
+        if frontend is None:
+            frontend = ["--frontend", runs["auto"][0]["settings"]["frontend"]]
+        assert main(args + frontend) == 0
+        runs[name] = json.loads(out.read_text()), np.stack([read_kitti(traj / f"cam{c}.txt") for c in (0, 1)], 1)
+    (auto, auto_poses), (named, named_poses) = runs["auto"], runs["named"]
+    assert auto["settings"]["frontend_choice"]["frames"] == 5 and auto["settings"]["frontend"] == chosen
+    np.testing.assert_array_equal(auto_poses, named_poses)
+    assert auto["extrinsics"] == named["extrinsics"]
