@@ -20,6 +20,7 @@ import torch
 from common import shown_path, write_json
 from scipy.spatial.transform import Rotation
 
+from ocalib.calib.drivers.change import ChangeTest
 from ocalib.calib.drivers.sequence import calibrate_sequence
 from ocalib.calib.poses.pipeline import RigPoses, calibrate_rig
 from ocalib.io.poses import read_poses
@@ -54,10 +55,20 @@ def errors(R: np.ndarray, t: np.ndarray, truth: np.ndarray, planar: bool) -> tup
     return float(np.degrees(angle)), float(np.linalg.norm((t - truth[:3, 3])[[0, 2] if planar else [0, 1, 2]]))
 
 
-def run_case(seed: int, trajectory, model: str, noise: float, at: int, baseline: float = 1.0, knock=(2.0, 0.05)):
+def run_case(
+    seed: int,
+    trajectory,
+    model: str,
+    noise: float,
+    at: int,
+    baseline: float = 1.0,
+    knock=(2.0, 0.05),
+    test: ChangeTest = ChangeTest(),
+):
     poses, truth = rig(seed, trajectory, model, noise, at, baseline, knock)
     files = ["cam0.txt", "cam1.txt"]
-    run = calibrate_rig(RigPoses(files, poses.numpy(), None, np.zeros((FRAMES, 2), int), [None] * 2, [None] * 2))
+    rig_poses = RigPoses(files, poses.numpy(), None, np.zeros((FRAMES, 2), int), [None] * 2, [None] * 2)
+    run = calibrate_rig(rig_poses, change_test=test)
     out = {"seed": seed, "changes": [{k: c[k] for k in ("frame", "detected")} for c in run.changes]}
     planar = trajectory is car_trajectory  # a file's path is taken as it comes: its errors in 3-D
     out["detected"] = errors(run.final.rotation[0, 0].numpy(), run.final.translation[0, 0].numpy(), truth, planar)
@@ -94,8 +105,10 @@ def main() -> None:
     p.add_argument("--baseline", type=float, default=1.0, help="camera 1's distance from camera 0 (the file's units)")
     p.add_argument("--knock", nargs=2, type=float, action="append", metavar=("DEG", "M"),
                    help="a knock's rotation and shift (default 2 deg, 0.05); repeat for several")  # fmt: skip
+    p.add_argument("--gap", type=int, default=1, help="the change test's motions over this many frames")
     p.add_argument("--out", default="bench/results/head_change.json")
     args = p.parse_args()
+    test = ChangeTest(gap=args.gap)
     knocks = [tuple(k) for k in args.knock] if args.knock else [(2.0, 0.05)]
     trajectories = (
         {f"{Path(f).parent.name}/{Path(f).stem}": from_file(f) for f in args.trajectory}
@@ -109,7 +122,7 @@ def main() -> None:
     for name, trajectory in trajectories.items():
         for model in ("independent", "drift"):
             for case, at, knock in [("knocked", AT, k) for k in knocks] + [("steady", FRAMES + 1, knocks[0])]:
-                runs = [run_case(seed, trajectory, model, args.noise, at, args.baseline, knock)
+                runs = [run_case(seed, trajectory, model, args.noise, at, args.baseline, knock, test)
                         for seed in range(args.seeds)]  # fmt: skip
                 first = [r["changes"][0] for r in runs if r["changes"]]
                 row = {"trajectory": name, "noise_model": model, "case": case, "runs": runs,

@@ -1,6 +1,7 @@
 """A change of a camera's extrinsic told from noise, on the hand-eye residuals of the on-line head's input.
 
-Each frame's motion pair (camera 0's motion ``A``, camera k's ``B``, consecutive frames) gives the residuals of
+Each frame's motion pair (camera 0's motion ``A``, camera k's ``B``, from ``gap`` frames before: consecutive ones by
+default) gives the residuals of
 ``A X = X B`` under one estimate of the head's, ``X = (R, t)`` and ``s``, taken once it has settled:
 ``r = (rotvec(R_A R R_B^T R^T), (R_A - I) t + t_A - s R t_B)`` (6,). A step of the truth from there,
 ``d = (d_rot, d_t, d_s)``, shows as ``r = J d`` (first order), ``J = [[I - R_A, 0, 0], [-s [R t_B]x, I - R_A, R t_B]]``.
@@ -50,7 +51,9 @@ class ChangeTest:
     (``persistence``), frames before the first test (``warmup``: the estimate settles, and from then on until the
     head's rotation 1-sigma is under ``settled_deg`` about every axis: its estimate is the residuals' reference, and
     one degrees off breaks their first-order model), the frames before a window that it is compared with
-    (``history``, at least ``min_history``)."""
+    (``history``, at least ``min_history``), and the ``gap`` of the motion pairs (1: consecutive frames; a longer
+    gap sees a slowly turning path's knock where each pose's error is its own, but its overlapping pairs' residuals
+    are correlated and the test is not calibrated where errors accumulate: docs/results-change.md)."""
 
     windows: tuple[int, ...] = (30,)
     false_alarm: float = 1e-6
@@ -59,6 +62,7 @@ class ChangeTest:
     history: int = 300
     min_history: int = 120
     settled_deg: float = 0.5
+    gap: int = 1
 
 
 def handeye_residuals(
@@ -97,10 +101,11 @@ def jacobian_basis(s: float) -> np.ndarray:
     return basis
 
 
-def motions(poses: np.ndarray) -> np.ndarray:
-    """Consecutive motions (T, 4, 4) of poses (T, 4, 4) camera-to-world; the first is the identity."""
+def motions(poses: np.ndarray, gap: int = 1) -> np.ndarray:
+    """The motions (T, 4, 4) of poses (T, 4, 4) camera-to-world from ``gap`` frames before to each frame; the first
+    ``gap`` are the identity."""
     out = np.broadcast_to(np.eye(4), poses.shape).copy()
-    out[1:] = np.linalg.inv(poses[:-1]) @ poses[1:]
+    out[gap:] = np.linalg.inv(poses[:-gap]) @ poses[gap:]
     return out
 
 
@@ -137,7 +142,7 @@ def first_change(
 
 def _segment_change(poses0, posesk, R, t, s, settled, test: ChangeTest, first: int) -> Change | None:
     """:func:`first_change` within one segment, counting only detections at frame ``first`` or later."""
-    frames, sums = _referenced_sums(poses0, posesk, R, t, s, test.warmup, settled, test.min_history)
+    frames, sums = _referenced_sums(poses0, posesk, R, t, s, test, settled)
     p = np.ones((len(test.windows), len(frames) + 1))  # per window and end: the p-value (Bonferroni over windows)
     for i, W in enumerate(test.windows):
         ends = np.arange(W + test.min_history, len(frames) + 1)  # window [end - W, end), history before it
@@ -157,14 +162,13 @@ def _segment_change(poses0, posesk, R, t, s, settled, test: ChangeTest, first: i
                   float(np.linalg.norm(step[best, 3:])))  # fmt: skip
 
 
-def _referenced_sums(
-    poses0, posesk, R, t, s, warmup: int, settled, min_history: int
-) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def _referenced_sums(poses0, posesk, R, t, s, test: ChangeTest, settled) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The frames (n,) tested, from the reference on, and the running sums of their residuals (:func:`_cumulative`,
     each frame weighed against glitches: :func:`_outlier_weights` from the first ``min_history``), all taken against
     the estimate of the reference frame (a fixed one: the head's estimate moves): frame ``warmup - 1`` or the first
     after it that is ``settled`` (T,) bool."""
-    A, B = motions(poses0)[1:], motions(posesk)[1:]
+    warmup, min_history, gap = test.warmup, test.min_history, test.gap
+    A, B = motions(poses0, gap)[gap:], motions(posesk, gap)[gap:]
     candidates = np.flatnonzero(settled[min(warmup, len(R)) - 1 :]) + min(warmup, len(R)) - 1
     ref = int(candidates[0]) if len(candidates) else len(R) - 1
     valid = np.isfinite(A).all((1, 2)) & np.isfinite(B).all((1, 2)) & (np.arange(len(A)) >= ref)
@@ -174,7 +178,7 @@ def _referenced_sums(
     r, turn, moved = _residuals(A[valid], B[valid], *reference)
     w = np.sqrt(_outlier_weights(r, min_history))[:, None]
     coefficients = np.concatenate([turn.reshape(-1, 9), moved], 1)  # the Jacobians in jacobian_basis(s[ref])
-    return np.flatnonzero(valid) + 1, _cumulative(r * w, coefficients * w, jacobian_basis(float(s[ref])))
+    return np.flatnonzero(valid) + gap, _cumulative(r * w, coefficients * w, jacobian_basis(float(s[ref])))
 
 
 def _outlier_weights(r: np.ndarray, first: int) -> np.ndarray:
