@@ -156,16 +156,20 @@ def summarise(root: Path, docs: dict[tuple[str, bool], dict]) -> dict:
         stats["false_alarms"], stats["steady_frames"] = alarms, frames
         knocked = {n: d for (n, k), d in docs.items() if k and n.startswith(preset + "-")}
         if knocked:
-            delays = []
+            delays, determined = [], []
             for d in knocked.values():
                 found = [c["detected"] - FRAMES // 2 for c in d.get("changes", []) if c["frame"] >= FRAMES // 2 - 4]
                 delays.append(min(found) if found else math.inf)
+                determined.append(determined_before_knock(d, bool(found)))
             hit = sum(x <= DETECT_WITHIN for x in delays)
             finite = [x for x in delays if math.isfinite(x)]
             stats["knocks"] = {
                 "rigs": len(delays),
                 "detected_within": hit,
                 "interval": wilson(hit, len(delays)),
+                # of the rigs whose knocked camera the estimator had determined before the knock (None: not recorded)
+                "determined_before": None if None in determined else sum(determined),
+                "detected_within_of_determined": sum(x <= DETECT_WITHIN for x, k in zip(delays, determined) if k),
                 "delay_median": float(np.median(finite)) if finite else None,
                 "delay_p90": float(np.percentile(finite, 90)) if finite else None,
                 "false_alarms_before": sum(
@@ -174,6 +178,19 @@ def summarise(root: Path, docs: dict[tuple[str, bool], dict]) -> dict:
             }
         out[preset] = stats
     return out
+
+
+def determined_before_knock(doc: dict, changed: bool) -> bool | None:
+    """Whether the estimator had determined the knocked camera (camera 1) before the knock at ``FRAMES // 2``: it
+    declared a change of it there (``changed``: it was tracking it), or released it before; None where the run
+    does not record its release (or the estimator never ran)."""
+    cameras = doc.get("rig_estimator", {}).get("extrinsics", [])
+    if changed:
+        return True
+    if not cameras or "released_at_frame" not in cameras[0]:
+        return None
+    released = cameras[0]["released_at_frame"]
+    return released is not None and released < FRAMES // 2
 
 
 def table(summary: dict, mode: str) -> str:
@@ -193,6 +210,8 @@ def table(summary: dict, mode: str) -> str:
         if "knocks" in s:
             k = s["knocks"]
             line += f"  knocks {k['detected_within']}/{k['rigs']} within {DETECT_WITHIN} frames"
+            if k["determined_before"] is not None:
+                line += f" ({k['detected_within_of_determined']} of the {k['determined_before']} determined before it)"
         lines.append(line)
     return "\n".join(lines)
 
