@@ -265,7 +265,8 @@ def test_the_chosen_front_end_streams_on_from_its_trial(tiny, tmp_path, monkeypa
     runs = {}
     for name, frontend in (("auto", []), ("named", None)):
         out, traj = tmp_path / f"{name}.json", tmp_path / name
-        args = ["calibrate", "--sequence", str(seq), "--no-bundle-adjust", "--out", str(out), "--trajectories", str(traj)]
+        args = ["calibrate", "--sequence", str(seq), "--no-bundle-adjust", "--out", str(out)]
+        args += ["--trajectories", str(traj)]
         if frontend is None:
             frontend = ["--frontend", runs["auto"][0]["settings"]["frontend"]]
         assert main(args + frontend) == 0
