@@ -190,3 +190,8 @@ def test_motions_over_a_longer_gap_see_a_knock_on_a_slowly_turning_path():
              for gap in (1, 30)]  # fmt: skip
     assert found[0] is None
     assert found[1].frame == 500 and found[1].detected - 500 <= 30
+
+
+def test_a_gap_under_one_frame_is_refused():
+    with pytest.raises(ValueError, match="gap must be at least 1"):
+        ChangeTest(gap=0)

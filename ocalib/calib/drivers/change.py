@@ -64,6 +64,10 @@ class ChangeTest:
     settled_deg: float = 0.5
     gap: int = 1
 
+    def __post_init__(self):
+        if self.gap < 1:
+            raise ValueError(f"the change test's gap must be at least 1 frame, got {self.gap}")
+
 
 def handeye_residuals(
     A: np.ndarray, B: np.ndarray, R: np.ndarray, t: np.ndarray, s: np.ndarray
