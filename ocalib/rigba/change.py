@@ -1,9 +1,10 @@
 """One camera's extrinsic as the on-line rig estimator keeps it: the window estimates fused, and a change of the
 mounting told from noise.
 
-:meth:`ExtrinsicTrack.fuse` adds a window estimate ``E_w`` with its covariance ``P_w``: information-weighted, each
-window's information divided by ``overlap`` (the number of windows a keyframe appears in: overlapping windows
-share their data). :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement ``E_k`` of the extrinsic
+:meth:`ExtrinsicTrack.fuse` adds a window estimate ``E_w`` with its covariance ``P_w``: the estimate is the windows'
+information-weighted mean, its covariance the inverse of their *mean* information (covariance intersection with
+equal weights, consistent whatever the windows' correlation): overlapping windows share keyframes and points, and
+their errors persist well beyond a window's span, so the fused estimate is stated no better known than its windows. :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement ``E_k`` of the extrinsic
 (camera k resected from its 2-D-3-D inliers, composed with the rig's pose) against the window's: with ``d`` the
 innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the statistic
 ``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
@@ -49,7 +50,6 @@ class ExtrinsicTrack:
     the ``candidate`` change raised last would give (``_disagreeing``: the tested keyframes in a row that disagree
     with the window, frame and measurement)."""
 
-    overlap: float = 1.0
     false_alarm: float = 1e-8
     persistence: int = 2
     min_change: tuple[float, float] = (0.0, 0.0)  # the least step (rotation deg, translation) :meth:`drifted` takes
@@ -58,20 +58,23 @@ class ExtrinsicTrack:
     chi2: float = float("nan")
     changes: list[Change] = field(default_factory=list)
     candidate: np.ndarray | None = None
+    windows: int = 0  # window estimates fused since the start or the last change
+    _information_sum: np.ndarray = field(default_factory=lambda: np.eye(6) / UNINFORMED)
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     _disagreeing: list = field(default_factory=list)
     _drifting: list = field(default_factory=list)
 
     def fuse(self, extrinsic: np.ndarray, covariance: np.ndarray) -> None:
         """Add the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6)."""
-        info_new = _information(covariance * self.overlap)
+        info_new = _information(covariance)
+        self._information_sum = self._information_sum + info_new
+        self.windows += 1
         if self.extrinsic is None:
-            self.extrinsic, self.covariance = extrinsic.copy(), _information(info_new, UNINFORMED)
-            return
-        info = _information(self.covariance) + info_new
-        cov = _information(info, UNINFORMED)  # the inverse, as a covariance
-        self.extrinsic = perturbed(self.extrinsic, cov @ info_new @ innovation(self.extrinsic, extrinsic))
-        self.covariance = cov
+            self.extrinsic = extrinsic.copy()
+        else:
+            step = _information(self._information_sum, UNINFORMED) @ info_new @ innovation(self.extrinsic, extrinsic)
+            self.extrinsic = perturbed(self.extrinsic, step)
+        self.covariance = _information(self._information_sum / self.windows, UNINFORMED)
 
     def drifted(self, frame: int, extrinsic: np.ndarray, covariance: np.ndarray) -> Change | None:
         """Test the window estimate ``extrinsic`` (4, 4) with ``covariance`` (6, 6) at keyframe ``frame`` against the
@@ -139,6 +142,7 @@ class ExtrinsicTrack:
         """The candidate ``change`` is real: record it and restart the track from its extrinsic, uninformed."""
         self.changes.append(change)
         self.extrinsic, self.covariance = self.candidate, np.eye(6) * UNINFORMED
+        self.windows, self._information_sum = 0, np.eye(6) / UNINFORMED
         self._history.clear()
         self.dismiss()
 

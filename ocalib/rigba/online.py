@@ -144,9 +144,8 @@ class OnlineRigEstimator:
         self.extrinsics = np.array(extrinsics, dtype=np.float64)  # the window's working estimate
         self.extrinsics[:, :3, 3] = 0.0
         self.extrinsics[0] = np.eye(4)
-        overlap = options.window / options.adjust_every  # windows a keyframe is adjusted in
         least = (options.min_change_deg, options.min_change_m)
-        tracks = [ExtrinsicTrack(overlap, options.false_alarm, options.persistence, least) for _ in self.K]
+        tracks = [ExtrinsicTrack(options.false_alarm, options.persistence, least) for _ in self.K]
         self.cameras = [CameraState.reference(tracks[0])] + [CameraState(k, t) for k, t in enumerate(tracks) if k]
         self.map = LocalMap(self.K, self.sizes, options, distortions or [None] * len(self.K))
         self.frames_seen = 0
