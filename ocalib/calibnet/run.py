@@ -79,8 +79,9 @@ class ImageCalibration:
         """The JSON of ``calibrate-poses``. ``extrinsics`` hold the best final result per camera, its ``source``
         saying whose: the bundle adjustment's where it is trusted, the camera did not move mid-run and its frames
         pair with camera 0's within ``SYNC_WARNING`` of a frame, else the on-line rig estimator's (which places each
-        image at the rig's pose when it was captured) where it determined the camera, or where only its translation
-        is loose and the estimate it would replace is not determined either (flagged), else the head's; ``online_extrinsics`` the head's,
+        image at the rig's pose when it was captured) where it determined the camera's rotation (a translation it
+        leaves loose is flagged, not replaced by the head's, whose translation rests on monocular scale), else the
+        head's; ``online_extrinsics`` the head's,
         ``rig_estimator`` the on-line estimator's final state and cost, ``changes`` the changes it found,
         ``bundle_adjustment`` the adjustment's figures, ``synchronisation`` how cameras on clocks of their own were
         paired (with the true offset where the layout knows it); ``units`` says what the translations are in."""
@@ -120,17 +121,13 @@ class ImageCalibration:
         moved = {c["camera"] for c in doc.get("changes", [])}
         apart = {self.sequence.names[k] for k in _apart(self.sequence)} if self.sequence is not None else set()
         undetermined = {} if self.rig is None else self.rig.undetermined()
-        loose = {} if self.rig is None else self.rig.loose_translation()
         for k, estimate in enumerate(rig):
             if doc["extrinsics"][k].get("source") != "bundle_adjustment" or estimate["camera"] in moved | apart:
-                whose = SOURCES.get(doc["extrinsics"][k].get("source"), "the on-line head")
-                # a loose translation is still the best estimate where the one it would replace is not determined
-                reason = undetermined.get(k + 1) or (loose.get(k + 1) if not_determined(doc["extrinsics"][k]) is None
-                                                     else None)  # fmt: skip
-                if reason is not None:
+                if k + 1 in undetermined:
+                    whose = SOURCES.get(doc["extrinsics"][k].get("source"), "the on-line head")
                     doc["warnings"].append(
-                        f"on-line rig estimator: {estimate['camera']}: not reported, {reason}; the extrinsic is "
-                        f"{whose}'s"
+                        f"on-line rig estimator: {estimate['camera']}: not reported, {undetermined[k + 1]}; the "
+                        f"extrinsic is {whose}'s"
                     )
                     continue
                 keys = ("rotation", "quaternion_wxyz", "translation", "rotation_std_deg", "translation_std", "source")

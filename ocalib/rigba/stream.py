@@ -154,8 +154,8 @@ class OnlineRigStage:
     def undetermined(self) -> dict[int, str]:
         """Camera k >= 1 -> why its final estimate is not to be reported: the window never determined it (it still
         waits), its rotation's 1-sigma over ``MAX_ROTATION_STD_DEG`` on an axis, or ``UNREGISTERED`` of its
-        keyframes since its release unregistered. Every camera before the first keyframe. (A loose translation is
-        :meth:`loose_translation`'s.)"""
+        keyframes since its release unregistered. Every camera before the first keyframe. (A translation whose
+        1-sigma is over the targets is reported, flagged: ``ocalib.calibnet.run.not_determined``.)"""
         C = len(self.sequence.cameras)
         if self.final is None:
             return {k: "the estimator never started" for k in range(1, C)}
@@ -169,22 +169,6 @@ class OnlineRigStage:
                 out[k] = f"its rotation's 1-sigma is {rotation.max():.2f} deg (over {MAX_ROTATION_STD_DEG:g})"
             elif tried - registered >= UNREGISTERED * tried > 0:
                 out[k] = f"{tried - registered} of its {tried} keyframes since its release did not register"
-        return out
-
-    def loose_translation(self) -> dict[int, str]:
-        """Camera k >= 1 -> why its final translation is not determined: fewer than two axes with a 1-sigma under
-        ``WEAK_SHARE`` of the lever arm (a car's height is never pinned). Such an estimate is still the best one
-        where no other is determined (``calibrate`` then reports it, flagged)."""
-        if self.final is None:
-            return {}
-        out = {}
-        for k in range(1, len(self.sequence.cameras)):
-            std, lever_arm = self.final.std[k, 3:], float(np.linalg.norm(self.final.extrinsics[k, :3, 3]))
-            if np.sum(std <= WEAK_SHARE * lever_arm) < 2:
-                out[k] = (
-                    f"its translation's 1-sigma ({', '.join(f'{v:.3g}' for v in std)} m) leaves fewer than two "
-                    f"axes within {WEAK_SHARE:.0%} of its {lever_arm:.3f} m lever arm"
-                )
         return out
 
     def trace(self, frames: int) -> dict[str, np.ndarray]:
