@@ -4,8 +4,9 @@ mounting told from noise.
 :meth:`ExtrinsicTrack.fuse` adds a window estimate ``E_w`` with its covariance ``P_w``: the estimate is the windows'
 information-weighted mean, its covariance the inverse of their *mean* information (covariance intersection with
 equal weights, consistent whatever the windows' correlation): overlapping windows share keyframes and points, and
-their errors persist well beyond a window's span, so the fused estimate is stated no better known than its windows. :meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement ``E_k`` of the extrinsic
-(camera k resected from its 2-D-3-D inliers, composed with the rig's pose) against the window's: with ``d`` the
+their errors persist well beyond a window's span, so the fused estimate is stated no better known than its windows.
+:meth:`ExtrinsicTrack.observe` tests one keyframe's own measurement ``E_k`` of the extrinsic (camera k resected from
+its 2-D-3-D inliers, composed with the rig's pose) against the window's: with ``d`` the
 innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the statistic
 ``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
 points are estimates, shared by neighbouring keyframes) taken as the median of the recent steady statistics over
