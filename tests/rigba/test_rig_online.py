@@ -516,3 +516,18 @@ def test_a_short_stream_is_released_when_the_window_determines_it_and_states_its
     error = innovation(truth[1], E)
     assert np.degrees(np.linalg.norm(error[:3])) < 0.8  # from 0.98 at the start
     assert np.all(np.abs(error) < 3 * state.std[1]), (error, state.std[1])
+
+
+def test_a_track_restarted_by_a_change_fuses_afresh():
+    """After a change is accepted the windows before it weigh nothing: the first window after it gives the estimate
+    and the covariance (were the old windows' information kept, 50 windows at the old mounting would hold it there)."""
+    covariance = np.diag([1e-6] * 3 + [1e-4] * 3)
+    before, candidate, window = (_mounting([0, 90 + a, 0], [0.9, 0, 0]) for a in (0.0, 2.0, 2.5))
+    track = ExtrinsicTrack()
+    for _ in range(50):
+        track.fuse(before, covariance)
+    track.candidate = candidate
+    track.accept(Change(100, 102, 2.0, 0.0))
+    track.fuse(window, covariance)
+    assert rotation_angle_deg(track.extrinsic[:3, :3].T @ window[:3, :3]) < 1e-3
+    np.testing.assert_allclose(track.covariance, covariance, rtol=1e-3)
