@@ -6,7 +6,8 @@ products of small matrices as OpenBLAS's dgemm and dgemv compute them (each entr
 over the inner index, starting from zero; a matrix times a vector as ``fma(a2, x2, fma(a0, x0, a1 x1))``), the
 contractions of :func:`numpy.einsum` in its order, and each sum of the normal equations in the order of the
 observations, every observing frame's term before every anchor's (a sparse summing product's order). No fast-math:
-the compiler may neither fuse nor reorder.
+the compiler may neither fuse nor reorder. Where numpy's BLAS rounds otherwise (another library, or a CPU for which
+OpenBLAS picks other kernels), the two agree to rounding only.
 
 Convention: as :func:`ocalib.frontend.window.bundle_adjust`: rotations R (F, 3, 3) and centres c (F, 3)
 camera-to-world; per observation (M,) its frame, landmark and anchor frame, the bearing (M, 3) of its landmark in
