@@ -14,31 +14,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import sparse
 
-from ocalib.geometry.se3 import cross_matrix
-
-
-def _project(R, c, frame, anchor, b, rho, K):
-    """Homogeneous points Y (M, 3) in the observing frames and their pixels (M, 2)."""
-    Ra, ca, Rk, ck = R[anchor], c[anchor], R[frame], c[frame]
-    Y = np.einsum("mji,mj->mi", Rk, np.einsum("mij,mj->mi", Ra, b) + rho[:, None] * (ca - ck))
-    z = np.where(np.abs(Y[:, 2]) > 1e-9, Y[:, 2], 1e-9)
-    return Y, np.stack([K[0, 0] * Y[:, 0] / z + K[0, 2], K[1, 1] * Y[:, 1] / z + K[1, 2]], 1)
-
-
-def _inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A^T B`` (M, p, q) of A (M, 2, p) and B (M, 2, q), its two terms written out (a third of einsum's time)."""
-    out = A[:, 0, :, None] * B[:, 0, None, :]
-    out += A[:, 1, :, None] * B[:, 1, None, :]
-    return out if B.shape[2] > 1 else out[..., 0]
-
-
-def _summing(keys: list[np.ndarray], size: int) -> sparse.csr_matrix:
-    """The sparse (size, N) matrix that sums rows (N, D) of arrays stacked in the order of ``keys`` (each (M,)) by
-    their keys, each sum in the rows' order: what ``np.add.at`` into zeros gives, many times faster."""
-    keys = np.concatenate(keys)
-    return sparse.csr_matrix((np.ones(len(keys)), (keys, np.arange(len(keys)))), shape=(size, len(keys)))
+from ocalib.frontend.window_kernel import normal_equations, project
 
 
 def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, rho, K, c: float = 1.0,
@@ -53,45 +30,29 @@ def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, r
         ``(poses (F, 4, 4), rho (L,), residual (M,) pixel error per observation)``.
     """
     R, cen, rho = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), rho.astype(np.float64).copy()
-    F, L, M = len(poses), len(rho), len(frame)
+    F, L = len(poses), len(rho)
     free = F - fixed
-    a = anchor[landmark]
-    b = bearing[landmark]
+    frame, landmark = np.ascontiguousarray(frame, np.int64), np.ascontiguousarray(landmark, np.int64)
+    a = np.ascontiguousarray(anchor, np.int64)[landmark]
+    b = np.ascontiguousarray(bearing[landmark], np.float64)
+    K, pixels = np.ascontiguousarray(K, np.float64), np.ascontiguousarray(pixels, np.float64)
 
     def residual(R, cen, rho):
-        return _project(R, cen, frame, a, b, rho[landmark], K)[1] - pixels
+        """The points (M, 3) in the observing frames and the pixel errors (M, 2)."""
+        return project(R, cen, rho, frame, landmark, a, b, K, pixels)
 
     def cost(r):
         return 0.5 * c * c * np.log1p((r * r).sum(1) / (c * c)).sum()
 
-    sides = (frame, a)  # the observing frame's and the anchor's blocks, summed by frame (pair) and landmark
-    sum_g, sum_pl = _summing(list(sides), F), _summing([f * L + landmark for f in sides], F * L)
-    sum_b = _summing([f * F + f2 for f in sides for f2 in sides], F * F)
-    r = residual(R, cen, rho)
+    Y, r = residual(R, cen, rho)
     best, lam = cost(r), 1e-3
     for _ in range(iterations):
-        Y, _ = _project(R, cen, frame, a, b, rho[landmark], K)
-        z = Y[:, 2]
-        P = np.zeros((M, 2, 3))  # d pixel / d Y
-        P[:, 0, 0], P[:, 0, 2] = K[0, 0] / z, -K[0, 0] * Y[:, 0] / z**2
-        P[:, 1, 1], P[:, 1, 2] = K[1, 1] / z, -K[1, 1] * Y[:, 1] / z**2
-        PRkT = P @ np.swapaxes(R[frame], 1, 2)
-        J_rho = PRkT @ (cen[a] - cen[frame])[..., None]  # (M, 2, 1)
-        J_k = np.concatenate([P @ cross_matrix(Y), -rho[landmark, None, None] * PRkT], 2)  # observing frame
-        J_a = np.concatenate([-(PRkT @ R[a] @ cross_matrix(b)), rho[landmark, None, None] * PRkT], 2)  # anchor
-        w = 1.0 / (1.0 + (r * r).sum(1) / (c * c))  # Cauchy IRLS weight per observation
-        # Normal equations, accumulated per observation in 6x6 blocks (products written out and sparse sums: no
-        # BLAS threads, which spin badly on a busy machine), then the Schur complement on the inverse depths.
-        Js, wr = (J_k, J_a), w[:, None] * r
-        Jw = [J * w[:, None, None] for J in Js]
-        gb = sum_g @ np.concatenate([_inner(J, wr[..., None]) for J in Js])
-        Hpl = (sum_pl @ np.concatenate([_inner(Jwi, J_rho) for Jwi in Jw])).reshape(F, L, 6)
-        Hb = (sum_b @ np.concatenate([_inner(Jwi, J).reshape(M, 36) for Jwi in Jw for J in Js])).reshape(F, F, 6, 6)
+        # Normal equations (compiled: projection, Jacobians and Cauchy IRLS weights per observation, summed in 6x6
+        # blocks per frame pair and frame-landmark pair), then the Schur complement on the inverse depths.
+        gb, Hpl, Hb, Hll, gl = normal_equations(R, cen, rho, frame, landmark, a, b, K, Y, r, float(c), F)
         Hpp = Hb[fixed:, fixed:].transpose(0, 2, 1, 3).reshape(6 * free, 6 * free)
         gp = gb[fixed:].reshape(-1)
         Hpl = Hpl[fixed:].transpose(0, 2, 1).reshape(6 * free, L)
-        Hll = np.bincount(landmark, w * (J_rho[:, :, 0] ** 2).sum(1), L)
-        gl = np.bincount(landmark, w * (J_rho[:, :, 0] * r).sum(1), L)
         improved = False
         while not improved and lam < 1e6:
             Hll_d = Hll * (1 + lam) + 1e-9
@@ -105,14 +66,14 @@ def bundle_adjust(poses, fixed: int, frame, landmark, pixels, anchor, bearing, r
                 R1[f] = R[f] @ cv2.Rodrigues(d[:3])[0]
                 c1[f] = cen[f] + d[3:]
             rho1 = rho + dl
-            r1 = residual(R1, c1, rho1)
+            Y1, r1 = residual(R1, c1, rho1)
             new = cost(r1)
             improved = new < best
             lam = max(lam / 10, 1e-7) if improved else lam * 10
         if not improved:
             break
         done = best - new < 1e-6 * best
-        R, cen, rho, r, best = R1, c1, rho1, r1, new
+        R, cen, rho, Y, r, best = R1, c1, rho1, Y1, r1, new
         if done:
             break
     out = poses.copy()

@@ -8,7 +8,7 @@ import pytest
 from ocalib.eval.pose_metrics import step_errors
 from ocalib.frontend.refine import refine_motion
 from ocalib.frontend.twoview import bearings, parallax_px, rotation_from_bearings, scale_along, triangulate
-from ocalib.frontend.window import _inner, _summing, bundle_adjust, window_problem
+from ocalib.frontend.window import bundle_adjust, window_problem
 
 K = np.array([[208.0, 0, 207.5], [0, 204.8, 63.5], [0, 0, 1]])
 
@@ -116,17 +116,3 @@ def test_motion_errors_measure_known_perturbations(scene):
     e = step_errors(bent, gt, valid=np.arange(8) != 6)
     assert e["rotation_deg"][3] == pytest.approx(2.0) and np.delete(e["rotation_deg"], 3).max() < 1e-6
     assert e["valid"].tolist() == [True] * 5 + [False, True]
-
-
-def test_window_sums_equal_add_at_to_the_last_bit():
-    """The adjustment's normal equations are summed by a sparse product in the observations' order: the same
-    floating-point sums as ``np.add.at`` (so the trajectories do not move by a bit)."""
-    rng = np.random.default_rng(3)
-    keys = [rng.integers(0, 7, 500), rng.integers(0, 7, 300)]
-    values = [rng.normal(size=(500, 36)) * 10.0 ** rng.integers(-8, 8, (500, 1)), rng.normal(size=(300, 36))]
-    expected = np.zeros((9, 36))
-    for k, v in zip(keys, values):
-        np.add.at(expected, k, v)
-    np.testing.assert_array_equal(_summing(keys, 9) @ np.concatenate(values), expected)
-    A, B = rng.normal(size=(50, 2, 6)), rng.normal(size=(50, 2, 6))
-    np.testing.assert_array_equal(_inner(A, B), np.einsum("mip,miq->mpq", A, B))
