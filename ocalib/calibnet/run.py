@@ -246,10 +246,28 @@ def _front_end(sequence: Sequence, frontend: FrontEndOptions, device: str, frame
     return front_end or build_frontend(sequence, chosen, device), chosen.settings() | choice
 
 
+def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, head: HeadOptions) -> str:
+    """The :func:`~ocalib.frontend.recorded.ego_motion_fingerprint` of a run of ``frames`` frames of ``sequence``."""
+    pairing = sequence.pairing
+    run = {
+        "sequence": str(sequence.path),
+        "cameras": sequence.names,
+        "frames": frames,
+        "frontend": frontend.settings(),
+        "head": head.settings(),
+        "pairing": None if pairing is None else pairing.frames[:frames].tolist(),
+    }
+    return ego_motion_fingerprint(run, frontend.checkpoint)
+
+
 def _recording(path: str | Path | None, fingerprint: str | None) -> EgoMotion | None:
     """The ego-motion kept at ``path`` where it is this run's (``fingerprint``), else None (a line on stderr says
-    why it is not used)."""
-    if not path or not Path(path).exists():
+    why it is not used); an :class:`InputError` where ``path`` is no recording or could not be written."""
+    if not path:
+        return None
+    if not Path(path).exists():
+        if not Path(path).resolve().parent.is_dir():
+            raise InputError(f"{path}: its folder does not exist")
         return None
     recording = EgoMotion.load(path)
     if recording.fingerprint != fingerprint:
@@ -311,9 +329,7 @@ def calibrate_images(
     if frames < MIN_FRAMES or len(sequence.cameras) < 2:
         raise InputError(f"{path}: {frames} frames of {len(sequence.cameras)} camera(s): too little to calibrate")
     check_motion(sequence)
-    run = {"sequence": str(path), "cameras": sequence.names, "frames": frames, "frontend": frontend.settings(),
-           "head": head.settings(), "pairing": None if sequence.pairing is None else sequence.pairing.frames[:frames].tolist()}  # fmt: skip
-    fingerprint = ego_motion_fingerprint(run, frontend.checkpoint) if ego_motion else None
+    fingerprint = _fingerprint(sequence, frames, frontend, head) if ego_motion else None
     recording = _recording(ego_motion, fingerprint)
     if recording is not None:
         front_end, front_settings = ReplayedFrontEnd(recording), recording.settings

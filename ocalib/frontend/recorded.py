@@ -118,11 +118,20 @@ def _plain(x):
 
 def ego_motion_fingerprint(run: dict, checkpoint: str | None) -> str:
     """The SHA-256 of what a run's ego-motion depends on: ``run`` (the sequence, its frames and cameras, the front
-    end's and the head's settings, as JSON), the package's :data:`EGO_MOTION_CODE` and the network's ``checkpoint``
-    file (None: the shipped one)."""
+    end's and the head's settings, as JSON), the versions of the libraries that compute it, the package's
+    :data:`EGO_MOTION_CODE` and the network's ``checkpoint`` file (None: the shipped one)."""
+    import cv2
+    import scipy
+
     from ocalib.models import DEFAULT_CHECKPOINT
 
-    digest = hashlib.sha256(json.dumps(run, sort_keys=True, default=str).encode())
+    versions = {
+        "numpy": np.__version__,
+        "torch": torch.__version__,
+        "opencv": cv2.__version__,
+        "scipy": scipy.__version__,
+    }
+    digest = hashlib.sha256(json.dumps([run, versions], sort_keys=True, default=str).encode())
     root = Path(__file__).resolve().parents[1]
     for part in EGO_MOTION_CODE:
         for file in sorted((root / part).rglob("*.py")) if (root / part).is_dir() else [root / part]:
