@@ -8,6 +8,9 @@ Each rig is rendered once under ``--root`` (outside git) and calibrated by ``oca
 ``online``) or with the defaults (mode ``default``); each run's JSON is kept under ``ROOT/runs/MODE/`` and reused, so
 the split is filled over several sittings. Knocked rigs (``NAME-knocked``: camera 1 turned by 2 deg at mid-stream,
 cars also moved 5 cm) give the detection rate and delay; every change reported on a steady rig is a false alarm.
+Each rig's ego-motion is kept under ``ROOT/runs/ego-motion/`` (``calibrate --ego-motion``): a run whose front end,
+head and their code are those of the recording takes its motions from there (the same JSON, without the front end's
+time: both modes and every later run of the rig estimator share one front-end run).
 
     python bench/bench_calibrate_split.py --split test --modes online [--presets front-left handheld] [--limit N]
     python bench/bench_calibrate_split.py --split test --summary-only      # the table from the runs kept
@@ -61,8 +64,11 @@ def run(root: Path, name: str, knocked: bool, mode: str) -> dict:
         return json.loads(out.read_text())
     path = ensure_knocked(root, name, FRAMES) if knocked else ensure(root, name, FRAMES)
     cam0 = open_sequence(path).cameras[0].name
+    ego_motion = root / "runs" / "ego-motion" / f"{name}{'-knocked' * knocked}.npz"
+    ego_motion.parent.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, "-m", "ocalib", "calibrate", "--sequence", str(path), "--metric-trajectory",
-               str(path / cam0 / "poses.txt"), "--out", str(out.with_suffix(".tmp"))]  # fmt: skip
+               str(path / cam0 / "poses.txt"), "--out", str(out.with_suffix(".tmp")), "--ego-motion",
+               str(ego_motion)]  # fmt: skip
     command += ["--no-bundle-adjust"] if mode == "online" else []
     out.parent.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()

@@ -46,7 +46,7 @@ from ocalib.eval.calibration_metrics import extrinsic_errors
 from ocalib.eval.pose_metrics import congruence_residual
 from ocalib.frontend import AUTO, AUTO_FRAMES, FRONTENDS, FrontEndOptions, build_frontend
 from ocalib.frontend.base import FrontEnd
-from ocalib.frontend.recorded import RecordedFrontEnd
+from ocalib.frontend.recorded import EgoMotion, RecordedFrontEnd, ReplayedFrontEnd, ego_motion_fingerprint
 from ocalib.io.jsonable import finite_or_null
 
 if typing.TYPE_CHECKING:
@@ -236,6 +236,46 @@ def choose_frontend(sequence: Sequence, frontend: FrontEndOptions, device: str, 
     return chosen.resolved(), tried, None if ran[best].uses_rig_rotation else ran[best]
 
 
+def _front_end(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
+    """The front end of ``frontend`` for the run (with :data:`~ocalib.frontend.AUTO`, the one
+    :func:`choose_frontend` picks on the first frames) -> (it, the result JSON's front-end entries)."""
+    if frontend.name != AUTO:
+        return build_frontend(sequence, frontend, device), frontend.settings()
+    chosen, tried, front_end = choose_frontend(sequence, frontend, device, min(frames, AUTO_FRAMES))
+    choice = {"frontend_choice": {"frames": min(frames, AUTO_FRAMES), "congruence_residual": finite_or_null(tried)}}
+    return front_end or build_frontend(sequence, chosen, device), chosen.settings() | choice
+
+
+def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, head: HeadOptions) -> str:
+    """The :func:`~ocalib.frontend.recorded.ego_motion_fingerprint` of a run of ``frames`` frames of ``sequence``."""
+    pairing = sequence.pairing
+    run = {
+        "sequence": str(sequence.path),
+        "cameras": sequence.names,
+        "frames": frames,
+        "frontend": frontend.settings(),
+        "head": head.settings(),
+        "pairing": None if pairing is None else pairing.frames[:frames].tolist(),
+    }
+    return ego_motion_fingerprint(run, frontend.checkpoint)
+
+
+def _recording(path: str | Path | None, fingerprint: str | None) -> EgoMotion | None:
+    """The ego-motion kept at ``path`` where it is this run's (``fingerprint``), else None (a line on stderr says
+    why it is not used); an :class:`InputError` where ``path`` is no recording or could not be written."""
+    if not path:
+        return None
+    if not Path(path).exists():
+        if not Path(path).resolve().parent.is_dir():
+            raise InputError(f"{path}: its folder does not exist")
+        return None
+    recording = EgoMotion.load(path)
+    if recording.fingerprint != fingerprint:
+        print(f"{path}: recorded from other frames, settings or code: the front end runs again", file=sys.stderr)
+        return None
+    return recording
+
+
 def estimate_offsets(sequence: Sequence, frontend: FrontEndOptions, device: str, frames: int):
     """Each camera k's clock offset from the front end's rotations over the first ``frames`` frames as they are
     -> (offsets, OffsetQuality) per camera k >= 1 (see :func:`ocalib.calib.drivers.clock.find_time_offset`);
@@ -263,6 +303,7 @@ def calibrate_images(
     progress: bool | None = None,
     on_frame=None,
     time_offset: list[float | str] | None = None,
+    ego_motion: str | Path | None = None,
 ) -> ImageCalibration:
     """Calibrate cameras 1..C-1 of the sequence at ``path`` against camera 0 (the first of ``cameras``).
 
@@ -274,7 +315,9 @@ def calibrate_images(
     :data:`~ocalib.calib.stages.solve.REFINE_MODES`). max_frames: use only the first frames. intrinsics: a file for
     layouts without them. time_offset: for cameras without a shared clock (see :func:`open_calibration_sequence`).
     on_frame(t, estimate): called after every frame (e.g. TensorBoard). progress: a tqdm bar with the current
-    estimate (None: on a terminal; elsewhere a line on stderr every ``TRACE_EVERY`` frames).
+    estimate (None: on a terminal; elsewhere a line on stderr every ``TRACE_EVERY`` frames). ego_motion: a file
+    that keeps the front end's motions: given again where it holds this run's (the same frames, front end, head and
+    code: :class:`~ocalib.frontend.recorded.EgoMotion`), else written after the front end has run.
     """
     frontend, head = frontend.resolved(), head.checked(solvers=("exact", "rls"))
     if head.motion not in MOTION_CHOICES:
@@ -286,12 +329,14 @@ def calibrate_images(
     if frames < MIN_FRAMES or len(sequence.cameras) < 2:
         raise InputError(f"{path}: {frames} frames of {len(sequence.cameras)} camera(s): too little to calibrate")
     check_motion(sequence)
-    choice, front_end = {}, None
-    if frontend.name == AUTO:
-        frontend, tried, front_end = choose_frontend(sequence, frontend, device, min(frames, AUTO_FRAMES))
-        choice = {"frontend_choice": {"frames": min(frames, AUTO_FRAMES), "congruence_residual": finite_or_null(tried)}}
-    if front_end is None:
-        front_end = build_frontend(sequence, frontend, device)
+    fingerprint = _fingerprint(sequence, frames, frontend, head) if ego_motion else None
+    recording = _recording(ego_motion, fingerprint)
+    if recording is not None:
+        front_end, front_settings = ReplayedFrontEnd(recording), recording.settings
+    else:
+        front_end, front_settings = _front_end(sequence, frontend, device, frames)
+        if ego_motion:
+            front_end = RecordedFrontEnd(front_end)  # every motion kept, to be written after the stream
     C = len(sequence.cameras)
     net = OnlineCalibrationNet(front_end, OnlineCalibrator(C, **head.head_kwargs())).to(device)
     net.head.load_kernel()
@@ -311,9 +356,10 @@ def calibrate_images(
         offset_quality=[None] * C if pairing is None else list(pairing.estimates or [None] * C),
     )
     notes, warnings = front_end.report(sequence.names, frames, final)
-    settings = (
-        frontend.settings() | choice | head.settings() | {"frames": frames, "max_dt": None, "sequence": str(path)}
-    )
+    if ego_motion and recording is None:
+        motions = np.stack([m.cpu().numpy() for m in front_end.motions])
+        EgoMotion(motions, front_settings, (notes, warnings), fingerprint).save(ego_motion)
+    settings = front_settings | head.settings() | {"frames": frames, "max_dt": None, "sequence": str(path)}
     run = CalibrationRun(rig, final, trace, settings | notes, [])
     run.warnings = run_warnings(run) + warnings
     errors = None

@@ -34,6 +34,13 @@ def add_parser(subparsers, name: str) -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="PNG", help="plot the per-frame estimates here")
     p.add_argument("--tensorboard", metavar="DIR", help="write per-frame TensorBoard scalars here")
     p.add_argument("--trajectories", metavar="DIR", help="write each camera's front-end trajectory (KITTI) here")
+    p.add_argument(
+        "--ego-motion",
+        metavar="FILE",
+        help="keep the front end's ego-motion in FILE, and take it from there when FILE holds this run's (the same "
+        "frames, front end, head and ocalib): the same result without running the front end again, e.g. to try "
+        "other rig-estimator or bundle-adjustment settings",
+    )
     p.add_argument("--device", default="cpu", help="torch device of the network and the head (cpu, cuda)")
     add_head_arguments(
         p,
@@ -215,7 +222,7 @@ def _calibrate(args, warnings: list[str] = ()) -> int:
     try:
         result = calibrate_images(
             sequence, None, frontend, head, args.device, args.max_frames, progress=None,
-            on_frame=on_frame if rig is not None or writer is not None else None,
+            on_frame=on_frame if rig is not None or writer is not None else None, ego_motion=args.ego_motion,
         )  # fmt: skip
     finally:
         if writer:

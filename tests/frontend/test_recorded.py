@@ -1,35 +1,74 @@
-"""RecordedFrontEnd: a second stream gets the recorded motions and then the front end's own, as one fresh run."""
+"""A run's ego-motion kept in a file and given again (``calibrate --ego-motion``): the same result without the front
+end, and a recording of another run never taken for this one's."""
 
+import json
+
+import pytest
 import torch
 
-from ocalib.frontend.base import FrontEnd
-from ocalib.frontend.recorded import RecordedFrontEnd
+from ocalib.cli import main
+from ocalib.synth import preset
+
+torch.set_num_threads(1)
 
 
-class Counting(FrontEnd):
-    """A front end with state: its motion moves along x by the number of frames it has seen, times the frame's value."""
-
-    def reset(self) -> None:
-        self.seen = 0
-
-    def forward(self, frame, rig_rotation):
-        self.seen += 1
-        motion = torch.eye(4, dtype=torch.float64).expand(1, 2, 4, 4).clone()
-        motion[..., 0, 3] = self.seen * frame
-        return motion
+@pytest.fixture(scope="module")
+def rig(render):
+    """A 16-frame hand-held rig at 48x144 with its metric trajectory (the rig estimator runs too)."""
+    return render(preset("handheld").with_overrides(frames=16, height=48, width=144, seed=1011))
 
 
-def test_a_rewound_stream_equals_a_fresh_run():
-    frames, rig = [0.5, 2.0, 3.0, 1.5, 4.0, 0.25], torch.eye(3).expand(1, 1, 3, 3)
-    fresh = Counting()
-    fresh.reset()
-    expected = [fresh(f, rig) for f in frames]
-    recorded = RecordedFrontEnd(Counting())
-    recorded.reset()
-    first = [recorded(f, rig) for f in frames[:4]]  # e.g. a trial over the first frames
-    recorded.reset()  # the second stream: the four recorded, then on from frame 4
-    second = [recorded(f, rig) for f in frames]
-    for got, want in zip(first + second, expected[:4] + expected):
-        torch.testing.assert_close(got, want, rtol=0, atol=0)
-    assert len(recorded.motions) == 4  # nothing recorded after the rewind: memory flat in the stream
-    assert recorded.uses_rig_rotation  # a front end says nothing: taken as following the head
+def _calibrate(seq, out, ego, *extra) -> int:
+    argv = ["calibrate", "--sequence", str(seq), "--metric-trajectory", str(seq / "cam0" / "poses.txt"),
+            "--no-bundle-adjust", "--out", str(out), "--ego-motion", str(ego), *extra]  # fmt: skip
+    return main(argv)
+
+
+def _without_times(doc):
+    """The result JSON without its wall-clock entries (every key naming seconds)."""
+    if isinstance(doc, dict):
+        return {k: _without_times(v) for k, v in doc.items() if "seconds" not in k}
+    if isinstance(doc, list):
+        return [_without_times(v) for v in doc]
+    return doc
+
+
+def test_a_recorded_run_is_given_again_without_the_front_end(rig, tmp_path, monkeypatch, capsys):
+    ego = tmp_path / "ego.npz"
+    assert _calibrate(rig, tmp_path / "first.json", ego) == 0
+    assert ego.exists()
+    import ocalib.calibnet.run as run
+
+    def no_front_end(*args, **kwargs):
+        raise AssertionError("the front end ran again")
+
+    monkeypatch.setattr(run, "choose_frontend", no_front_end)
+    monkeypatch.setattr(run, "build_frontend", no_front_end)
+    assert _calibrate(rig, tmp_path / "again.json", ego) == 0
+    first, again = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("first", "again"))
+    assert first["settings"]["frontend_choice"]  # the choice of the default front end is kept too
+    assert _without_times(again) == _without_times(first)
+
+
+def test_a_recording_of_other_settings_is_made_again(rig, tmp_path, capsys):
+    ego = tmp_path / "ego.npz"
+    assert _calibrate(rig, tmp_path / "a.json", ego, "--frontend", "opencv") == 0
+    before = ego.read_bytes()
+    assert _calibrate(rig, tmp_path / "b.json", ego, "--frontend", "opencv", "--max-frames", "12") == 0
+    assert "the front end runs again" in capsys.readouterr().err
+    assert ego.read_bytes() != before
+    assert json.loads((tmp_path / "b.json").read_text())["settings"]["frames"] == 12
+
+
+@pytest.mark.parametrize("case", ["not a recording", "no folder"])
+def test_bad_recording_paths_are_one_line_and_exit_2(rig, tmp_path, capsys, case):
+    ego = tmp_path / "result.json"
+    if case == "not a recording":
+        ego.write_text('{"extrinsics": []}')  # e.g. a result JSON given by mistake: never overwritten
+    else:
+        ego = tmp_path / "missing" / "ego.npz"
+    assert _calibrate(rig, tmp_path / "r.json", ego, "--frontend", "opencv") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(ego) in err[0]
+    if case == "not a recording":
+        assert ego.read_text() == '{"extrinsics": []}'
