@@ -90,9 +90,11 @@ def project(R, cen, rho, frame, landmark, anchor, bearing, K, pixels):
 
 
 @jit_inline
-def _jacobians(R, cen, rho, f, a, rl, bearing_m, K, Y_m, P, RkT, PRkT, C, Q, Ra_cb, J_k, J_a, J_rho):
+def _jacobians(R, cen, f, a, rl, bearing_m, K, Y_m, scratch, J_k, J_a, J_rho):
     """One observation's Jacobians of its pixels (2,): ``J_k`` (2, 6) in its frame's unknowns, ``J_a`` (2, 6) in
-    its anchor's, ``J_rho`` (2,) in its landmark's inverse depth (the rest: (2, 3) and (3, 3) scratch)."""
+    its anchor's, ``J_rho`` (2,) in its landmark's inverse depth; ``rl`` its inverse depth, ``scratch`` (6, 3, 3)."""
+    P, PRkT, Q, Ra_cb = scratch[0, :2], scratch[1, :2], scratch[2, :2], scratch[3, :2]
+    RkT, C = scratch[4], scratch[5]
     z = Y_m[2]
     P[0, 0], P[0, 1], P[0, 2] = K[0, 0] / z, 0.0, -K[0, 0] * Y_m[0] / (z * z)
     P[1, 0], P[1, 1], P[1, 2] = 0.0, K[1, 1] / z, -K[1, 1] * Y_m[1] / (z * z)
@@ -139,41 +141,38 @@ def normal_equations(R, cen, rho, frame, landmark, anchor, bearing, K, Y, r, c, 
     J_a = np.empty((M, 2, 6))
     J_rho = np.empty((M, 2))
     w = np.empty(M)
-    P, RkT, PRkT = np.empty((2, 3)), np.empty((3, 3)), np.empty((2, 3))
-    C, Q, Ra_cb = np.empty((3, 3)), np.empty((2, 3)), np.empty((2, 3))
-    Jw, wr = np.empty((2, 6)), np.empty(2)
+    scratch = np.empty((6, 3, 3))
     for m in range(M):  # the observing frames' terms
         f, a, lm = frame[m], anchor[m], landmark[m]
-        _jacobians(R, cen, rho, f, a, rho[lm], bearing[m], K, Y[m], P, RkT, PRkT, C, Q, Ra_cb, J_k[m], J_a[m],
-                   J_rho[m])  # fmt: skip
+        _jacobians(R, cen, f, a, rho[lm], bearing[m], K, Y[m], scratch, J_k[m], J_a[m], J_rho[m])
         r0, r1 = r[m, 0], r[m, 1]
         w[m] = 1.0 / (1.0 + (r0 * r0 + r1 * r1) / cc)
-        _accumulate(J_k[m], J_k[m], J_a[m], J_rho[m], w[m], r0, r1, f, f, a, lm, Jw, wr, gb, Hpl, Hb)
+        _accumulate(J_k[m], J_k[m], J_a[m], J_rho[m], w[m], r[m], (f, f, a, lm), gb, Hpl, Hb)
         j0, j1 = J_rho[m, 0], J_rho[m, 1]
         Hll[lm] += w[m] * (j0 * j0 + j1 * j1)
         gl[lm] += w[m] * (j0 * r0 + j1 * r1)
     for m in range(M):  # the anchors' terms
         a = anchor[m]
-        _accumulate(J_a[m], J_k[m], J_a[m], J_rho[m], w[m], r[m, 0], r[m, 1], a, frame[m], a, landmark[m], Jw, wr,
-                    gb, Hpl, Hb)  # fmt: skip
+        _accumulate(J_a[m], J_k[m], J_a[m], J_rho[m], w[m], r[m], (a, frame[m], a, landmark[m]), gb, Hpl, Hb)
     return gb, Hpl, Hb, Hll, gl
 
 
 @jit_inline
-def _accumulate(J, J_k, J_a, J_rho, w, r0, r1, f, fk, fa, lm, Jw, wr, gb, Hpl, Hb):
-    """Add one observation's terms of one side, its Jacobian ``J`` (2, 6) (``J_k`` or ``J_a``) in frame ``f``:
-    ``J^T w r`` to ``gb[f]``, ``(w J)^T J_rho`` to ``Hpl[f, lm]``, ``(w J)^T J_k`` to ``Hb[f, fk]`` (the observing
-    frame's block) and ``(w J)^T J_a`` to ``Hb[f, fa]`` (the anchor's); ``Jw`` (2, 6) and ``wr`` (2,) scratch."""
-    wr[0], wr[1] = w * r0, w * r1
-    for i in range(2):
-        for p in range(6):
-            Jw[i, p] = J[i, p] * w
+def _accumulate(J, J_k, J_a, J_rho, w, r_m, at, gb, Hpl, Hb):
+    """Add one observation's terms of one side, its Jacobian ``J`` (2, 6) (``J_k`` or ``J_a``) in frame ``f``, its
+    weight ``w`` and residual ``r_m`` (2,), ``at`` = (f, its observing frame fk, its anchor fa, its landmark lm):
+    ``J^T w r`` to ``gb[f]``, ``(w J)^T J_rho`` to ``Hpl[f, lm]``, ``(w J)^T J_k`` to ``Hb[f, fk]`` and
+    ``(w J)^T J_a`` to ``Hb[f, fa]``."""
+    f, fk, fa, lm = at
+    wr0, wr1 = w * r_m[0], w * r_m[1]
     for p in range(6):
-        gb[f, p] += J[0, p] * wr[0] + J[1, p] * wr[1]
-        Hpl[f, lm, p] += Jw[0, p] * J_rho[0] + Jw[1, p] * J_rho[1]
+        gb[f, p] += J[0, p] * wr0 + J[1, p] * wr1
+        Hpl[f, lm, p] += (J[0, p] * w) * J_rho[0] + (J[1, p] * w) * J_rho[1]
     for p in range(6):
+        Jw0, Jw1 = J[0, p] * w, J[1, p] * w
         for q in range(6):
-            Hb[f, fk, p, q] += Jw[0, p] * J_k[0, q] + Jw[1, p] * J_k[1, q]
+            Hb[f, fk, p, q] += Jw0 * J_k[0, q] + Jw1 * J_k[1, q]
     for p in range(6):
+        Jw0, Jw1 = J[0, p] * w, J[1, p] * w
         for q in range(6):
-            Hb[f, fa, p, q] += Jw[0, p] * J_a[0, q] + Jw[1, p] * J_a[1, q]
+            Hb[f, fa, p, q] += Jw0 * J_a[0, q] + Jw1 * J_a[1, q]
