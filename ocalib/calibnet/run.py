@@ -247,17 +247,37 @@ def _front_end(sequence: Sequence, frontend: FrontEndOptions, device: str, frame
 
 
 def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, head: HeadOptions) -> str:
-    """The :func:`~ocalib.frontend.recorded.ego_motion_fingerprint` of a run of ``frames`` frames of ``sequence``."""
+    """The :func:`~ocalib.frontend.recorded.ego_motion_fingerprint` of a run of ``frames`` frames of ``sequence``:
+    its cameras' intrinsics, lenses and image files (names, sizes, modification times) among what it holds."""
     pairing = sequence.pairing
+    cameras = [
+        {
+            "name": c.name,
+            "K": c.K.tolist(),
+            "size": list(c.size),
+            "lens": c.distortion and c.distortion.as_dict(),
+            "images": [(str(f), *_stamp(f)) for f in c.images],
+        }  # fmt: skip
+        for c in sequence.cameras
+    ]
     run = {
         "sequence": str(sequence.path),
-        "cameras": sequence.names,
+        "cameras": cameras,
         "frames": frames,
         "frontend": frontend.settings(),
         "head": head.settings(),
         "pairing": None if pairing is None else pairing.frames[:frames].tolist(),
     }
     return ego_motion_fingerprint(run, frontend.checkpoint)
+
+
+def _stamp(path) -> tuple[int, int]:
+    """A file's size and modification time (ns); (-1, -1) where it is not a file (e.g. an image in a bag)."""
+    try:
+        stat = Path(path).stat()
+    except (OSError, TypeError):
+        return -1, -1
+    return stat.st_size, stat.st_mtime_ns
 
 
 def _recording(path: str | Path | None, fingerprint: str | None) -> EgoMotion | None:

@@ -2,9 +2,11 @@
 end, and a recording of another run never taken for this one's."""
 
 import json
+import shutil
 
 import pytest
 import torch
+import yaml
 
 from ocalib.cli import main
 from ocalib.synth import preset
@@ -72,3 +74,16 @@ def test_bad_recording_paths_are_one_line_and_exit_2(rig, tmp_path, capsys, case
     assert len(err) == 1 and str(ego) in err[0]
     if case == "not a recording":
         assert ego.read_text() == '{"extrinsics": []}'
+
+
+def test_a_recording_is_not_given_again_to_other_intrinsics(rig, tmp_path, capsys):
+    """The same frames with another K in rig.yaml: the OpenCV front end's motions would differ, so it runs again."""
+    seq = tmp_path / "seq"
+    shutil.copytree(rig, seq)
+    ego = tmp_path / "ego.npz"
+    assert _calibrate(seq, tmp_path / "a.json", ego, "--frontend", "opencv") == 0
+    config = yaml.safe_load((seq / "rig.yaml").read_text())
+    config["cameras"][1]["K"][0][0] *= 1.01
+    (seq / "rig.yaml").write_text(yaml.safe_dump(config))
+    assert _calibrate(seq, tmp_path / "b.json", ego, "--frontend", "opencv") == 0
+    assert "the front end runs again" in capsys.readouterr().err
