@@ -12,6 +12,7 @@ the scale that multiplies camera k's front-end units into camera 0's.
 
 from __future__ import annotations
 
+import inspect
 import sys
 import time
 import typing
@@ -260,7 +261,9 @@ def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, hea
         }  # fmt: skip
         for c in sequence.cameras
     ]
+    streaming = (_trajectories, choose_frontend, _front_end, calibrate_images, _stream)  # this module's part in it
     run = {
+        "code": [inspect.getsource(f) for f in streaming],
         "sequence": str(sequence.path),
         "cameras": cameras,
         "frames": frames,

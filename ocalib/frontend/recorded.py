@@ -69,9 +69,10 @@ class RecordedFrontEnd(FrontEnd):
 
 
 # The package's code that makes a front end's motions (the head's estimate too: the network's motions follow it);
-# a recording made by other code is not given again. Paths relative to the package, folders whole.
+# a recording made by other code is not given again. Paths relative to the package, folders whole (the stream's
+# functions of ocalib.calibnet.run are added by its caller, not the module: the result's reporting is not in it).
 EGO_MOTION_CODE = ("frontend", "calib", "data", "geometry", "models", "losses", "eval", "io", "calibnet/net.py",
-                   "calibnet/run.py", "errors.py")  # fmt: skip
+                   "errors.py")  # fmt: skip
 
 
 @dataclass
