@@ -261,9 +261,8 @@ def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, hea
         }  # fmt: skip
         for c in sequence.cameras
     ]
-    streaming = (_trajectories, choose_frontend, _front_end, calibrate_images, _stream)  # this module's part in it
     run = {
-        "code": [inspect.getsource(f) for f in streaming],
+        "code": [inspect.getsource(f) for f in _STREAMING],
         "sequence": str(sequence.path),
         "cameras": cameras,
         "frames": frames,
@@ -427,3 +426,6 @@ def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame,
     values = {f.name: getattr(last, f.name) for f in fields(Calibration)}
     last = Calibration(**{k: None if v is None else v.cpu() for k, v in values.items()})
     return last, trace, torch.stack(trajectory).cpu().double().numpy()
+
+
+_STREAMING = (_trajectories, choose_frontend, _front_end, calibrate_images, _stream)  # this module's part in ego-motion
