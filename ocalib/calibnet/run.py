@@ -258,7 +258,7 @@ def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, hea
             "size": list(c.size),
             "lens": c.distortion and c.distortion.as_dict(),
             "images": [(str(f), *_stamp(f)) for f in c.images],
-        }  # fmt: skip
+        }
         for c in sequence.cameras
     ]
     run = {
