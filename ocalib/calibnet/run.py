@@ -13,6 +13,7 @@ the scale that multiplies camera k's front-end units into camera 0's.
 from __future__ import annotations
 
 import inspect
+import os
 import sys
 import time
 import typing
@@ -249,7 +250,8 @@ def _front_end(sequence: Sequence, frontend: FrontEndOptions, device: str, frame
 
 def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, head: HeadOptions) -> str:
     """The :func:`~ocalib.frontend.recorded.ego_motion_fingerprint` of a run of ``frames`` frames of ``sequence``:
-    its cameras' intrinsics, lenses and image files (names, sizes, modification times) among what it holds."""
+    its cameras' intrinsics, lenses and image files (absolute names, sizes, modification times) among what it holds
+    (a folder given as a relative or an absolute path is the same run)."""
     pairing = sequence.pairing
     cameras = [
         {
@@ -257,13 +259,13 @@ def _fingerprint(sequence: Sequence, frames: int, frontend: FrontEndOptions, hea
             "K": c.K.tolist(),
             "size": list(c.size),
             "lens": c.distortion and c.distortion.as_dict(),
-            "images": [(str(f), *_stamp(f)) for f in c.images],
+            "images": [(str(Path(f).resolve()), *_stamp(f)) for f in c.images],
         }
         for c in sequence.cameras
     ]
     run = {
         "code": [inspect.getsource(f) for f in _STREAMING],
-        "sequence": str(sequence.path),
+        "sequence": str(Path(sequence.path).resolve()),
         "cameras": cameras,
         "frames": frames,
         "frontend": frontend.settings(),
@@ -287,9 +289,12 @@ def _recording(path: str | Path | None, fingerprint: str | None) -> EgoMotion | 
     why it is not used); an :class:`InputError` where ``path`` is no recording or could not be written."""
     if not path:
         return None
+    folder = Path(path).resolve().parent
+    if not folder.is_dir():
+        raise InputError(f"{path}: its folder does not exist")
+    if not os.access(folder, os.W_OK):  # found now, not after the stream
+        raise InputError(f"{path}: its folder is not writable")
     if not Path(path).exists():
-        if not Path(path).resolve().parent.is_dir():
-            raise InputError(f"{path}: its folder does not exist")
         return None
     recording = EgoMotion.load(path)
     if recording.fingerprint != fingerprint:

@@ -62,13 +62,15 @@ def test_a_recording_of_other_settings_is_made_again(rig, tmp_path, capsys):
     assert json.loads((tmp_path / "b.json").read_text())["settings"]["frames"] == 12
 
 
-@pytest.mark.parametrize("case", ["not a recording", "no folder"])
-def test_bad_recording_paths_are_one_line_and_exit_2(rig, tmp_path, capsys, case):
+@pytest.mark.parametrize("case", ["not a recording", "no folder", "read-only folder"])
+def test_bad_recording_paths_are_one_line_and_exit_2(rig, tmp_path, capsys, monkeypatch, case):
     ego = tmp_path / "result.json"
     if case == "not a recording":
         ego.write_text('{"extrinsics": []}')  # e.g. a result JSON given by mistake: never overwritten
-    else:
+    elif case == "no folder":
         ego = tmp_path / "missing" / "ego.npz"
+    else:  # said before the stream, not lost after it (the tests may run as root, who may write anywhere)
+        monkeypatch.setattr("ocalib.calibnet.run.os.access", lambda path, mode: False)
     assert _calibrate(rig, tmp_path / "r.json", ego, "--frontend", "opencv") == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(ego) in err[0]
