@@ -109,17 +109,28 @@ def adjust_window(
     """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity;
     so do those of the cameras in ``held``). The keyframes' poses are held, or with ``prior_noise`` (metres per
     axis, > 0) solved too where every keyframe's cameras share one pose (:func:`solves_poses`). K (C, 3, 3) and
-    ``sizes`` (C,) of (height, width) per camera. Outlying observations are dropped from the keyframes afterwards
-    (their ``point_ids`` set to -1)."""
+    ``sizes`` (C,) of (height, width) per camera. A held camera's observations place only its own points, after
+    the rest is solved without them: a camera held where it is not (waiting, at the head's rotation and no lever
+    arm) would otherwise bend the rig's poses and, through them, every free camera's extrinsic. Outlying
+    observations are dropped from the keyframes afterwards (their ``point_ids`` set to -1)."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
-    xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, obs, list(range(C)), held, prior_noise)
-    for pid, x in zip(obs["ids"], xyz):
-        points[int(pid)] = x
-    for kf, pose in zip(keyframes, poses):
-        kf.poses = pose.copy()
+    free = ~np.isin(obs["camera"], list(held))
+    placed = np.bincount(obs["point"], weights=free, minlength=len(obs["ids"])) >= 2  # points the free cameras fix
+    first = _subset(obs, placed[obs["point"]] & free)
+    if len(first["ids"]):
+        xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, first, list(range(C)), held, prior_noise)
+        points.update(zip(first["ids"].tolist(), xyz))
+        for kf, pose in zip(keyframes, poses):
+            kf.poses = pose.copy()
+    rest = _subset(obs, ~placed[obs["point"]])
+    if len(rest["ids"]):  # the held cameras' own points, everything else as solved
+        xyz, _ = _solve(keyframes, points, extrinsics, K, sizes, rest, list(range(C)), frozenset(range(1, C)))
+        points.update(zip(rest["ids"].tolist(), xyz))
+    xyz = np.stack([points[int(pid)] for pid in obs["ids"]])
+    poses = np.stack([kf.poses for kf in keyframes])
     error = reprojection_errors(obs, poses[obs["frame"], obs["camera"]], extrinsics, xyz, K)
     outlier = ~(error < MAX_ERROR_PX)
     for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
@@ -186,6 +197,14 @@ def split_statistic(
     cap = SPLIT_TRUNCATION * variance
     statistic = float((np.minimum(errors[0], cap).sum() - np.minimum(errors[1], cap).sum()) / variance)
     return SplitTest(statistic, innovation(E[camera], E[C]))
+
+
+def _subset(obs: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, np.ndarray]:
+    """The observations ``obs`` (:func:`observations`) where ``keep`` (N,) bool, their points indexed anew."""
+    out = {key: value[keep] for key, value in obs.items() if key != "ids"}
+    used, out["point"] = np.unique(out["point"], return_inverse=True)
+    out["ids"] = obs["ids"][used]
+    return out
 
 
 def solves_poses(keyframes: list[Keyframe], prior_noise: float | None) -> bool:
