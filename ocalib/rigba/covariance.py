@@ -82,9 +82,13 @@ def extrinsic_uncertainty(rec: pycolmap.Reconstruction, camera_ids: list[int]) -
     return observations_uncertainty(_observations(rec, camera_ids))
 
 
-def observations_uncertainty(obs: Observations, weak_share: float = WEAK_SHARE) -> list[ExtrinsicUncertainty]:
+def observations_uncertainty(
+    obs: Observations, weak_share: float = WEAK_SHARE, fitted: np.ndarray | None = None
+) -> list[ExtrinsicUncertainty]:
     """The uncertainty of cameras 1..C-1 of the bundle-adjustment problem ``obs``; ``weak_share``: see
-    :data:`WEAK_SHARE` (0: a translation direction is unobservable only where its information vanishes)."""
+    :data:`WEAK_SHARE` (0: a translation direction is unobservable only where its information vanishes);
+    ``fitted`` (N,) bool: the observations whose residuals give sigma^2 (None: all; those of a camera held where it
+    may not be are misfit, not noise)."""
     C, F = len(obs.sensor_from_rig), len(obs.rig_from_world)
     Je, Jf, Jp, r = _jacobians(obs)
     N = len(obs.camera)
@@ -115,6 +119,8 @@ def observations_uncertainty(obs: Observations, weak_share: float = WEAK_SHARE) 
     ne = 6 * (C - 1)
     S_ff = S[ne:, ne:]
     info = S[:ne, :ne] - S[:ne, ne:] @ np.linalg.solve(S_ff, S[ne:, :ne])
+    if fitted is not None and fitted.any():  # the mean squared residual of the fitted, scaled as the whole's
+        r = r.reshape(N, 2)[fitted].ravel() * np.sqrt(N / fitted.sum())
     sigma2 = float(r @ r) / max(1, 2 * N - S.shape[0] - 3 * P)
     out = []
     for k in range(1, C):

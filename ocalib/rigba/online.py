@@ -28,7 +28,10 @@ camera's extrinsic. The local map (keyframes and points) is :mod:`ocalib.rigba.l
    1-sigma of its extrinsic, from the window's observations as if it were free (:mod:`ocalib.rigba.covariance`),
    under ``release_rotation_deg`` about every axis and under ``release_translation_m`` along the two
    best-determined directions (a car's height is never pinned by planar motion): released sooner, a window over a
-   short stretch of motion throws the lever arm metres off; later, the stream is spent waiting.
+   short stretch of motion throws the lever arm metres off; later, the stream is spent waiting. A waiting camera is
+   solved apart from the rest (:func:`~ocalib.rigba.window.adjust_window`'s ``apart``): held at the head's
+   rotation and no lever arm, its observations would bend the rig's poses and the other cameras' extrinsics; it is
+   released where the window, trying it free against the rest, puts it, with its points.
 
 The estimator starts from the on-line head's rotations and zero lever arms; while a camera waits at the start, its
 rotation follows the head's latest estimate (``update``'s ``rotations``); its translations are in metres.
@@ -227,17 +230,21 @@ class OnlineRigEstimator:
         ]
 
     def _adjust(self, frame: int) -> list[tuple[int, Change]]:
-        """Adjust the window (the cameras held as :attr:`CameraState.held`); release each waiting camera the window
-        determines; fuse each other one's estimate into its track, after the drift test, which restarts the
-        camera where the window followed a move -> the changes the drift test found."""
+        """Adjust the window (the cameras held as :attr:`CameraState.held`, the waiting ones apart); release each
+        waiting camera the window determines, where its try puts it; fuse each other one's estimate into its track,
+        after the drift test, which restarts the camera where the window followed a move -> the changes the drift
+        test found."""
         held = frozenset(k for k, cam in enumerate(self.cameras) if cam.held)
+        apart = frozenset(k for k, cam in enumerate(self.cameras) if cam.waiting and cam.candidate is None)
         window = adjust_window(list(self.map.keyframes), self.map.points, self.extrinsics, self.K, self.sizes, held,
-                               self.options.metric_noise)  # fmt: skip
+                               self.options.metric_noise, apart)  # fmt: skip
         changes = []
         for k, u in enumerate(window.uncertainty, start=1):
             cam = self.cameras[k]
-            if u is not None and cam.waiting and self._determines(u):
-                cam.release(frame)  # the next window moves it
+            if u is not None and cam.waiting and k in window.trials and self._determines(u):
+                self.extrinsics[k], placed = window.trials[k]  # where the window, trying it free, puts it
+                self.map.points.update(placed)
+                cam.release(frame)
             elif u is not None and k not in held:
                 cam.window_covariance = with_unobservable(u.covariance, u.unobservable)
                 drift = cam.track.drifted(frame, self.extrinsics[k], cam.window_covariance)

@@ -19,7 +19,7 @@ COLMAP's +0.5 added here, once.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pycolmap
@@ -54,12 +54,14 @@ class Keyframe:
 class WindowResult:
     """The adjustment's outcome: ``uncertainty`` per camera k >= 1 (None where it could not be computed),
     ``reprojection_px`` the RMS error of the observations kept, ``observations`` their count, ``dropped`` the
-    count dropped as outliers."""
+    count dropped as outliers; ``trials`` per camera solved apart (:func:`adjust_window`) its extrinsic (4, 4) and
+    its points' positions (point id -> (3,)) when the window tries it free."""
 
     uncertainty: list[ExtrinsicUncertainty | None]
     reprojection_px: float
     observations: int
     dropped: int
+    trials: dict[int, tuple[np.ndarray, dict[int, np.ndarray]]] = field(default_factory=dict)
 
 
 def observations(keyframes: list[Keyframe], points: dict[int, np.ndarray]) -> dict[str, np.ndarray]:
@@ -105,30 +107,33 @@ def adjust_window(
     sizes: list[tuple[int, int]],
     held: frozenset[int] = frozenset(),
     prior_noise: float | None = None,
+    apart: frozenset[int] = frozenset(),
 ) -> WindowResult:
     """Bundle-adjust the window in place: ``points`` and ``extrinsics`` (C, 4, 4) (camera 0's stays the identity;
     so do those of the cameras in ``held``). The keyframes' poses are held, or with ``prior_noise`` (metres per
     axis, > 0) solved too where every keyframe's cameras share one pose (:func:`solves_poses`). K (C, 3, 3) and
-    ``sizes`` (C,) of (height, width) per camera. A held camera's observations place only its own points, after
-    the rest is solved without them: a camera held where it is not (waiting, at the head's rotation and no lever
-    arm) would otherwise bend the rig's poses and, through them, every free camera's extrinsic. Outlying
-    observations are dropped from the keyframes afterwards (their ``point_ids`` set to -1)."""
+    ``sizes`` (C,) of (height, width) per camera.
+
+    The cameras in ``apart`` (held ones the window has not determined yet) are solved after the rest, against it:
+    the rest without their observations (held where it is not, a camera's misfit would bend the rig's poses and
+    every other camera's extrinsic with them), then their points, everything else fixed, and then each of them tried
+    free with its points (the result's ``trials``); their residuals do not count in the noise of the uncertainty.
+    Outlying observations are dropped from the keyframes afterwards (their ``point_ids`` set to -1)."""
     obs = observations(keyframes, points)
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
-    free = ~np.isin(obs["camera"], list(held))
-    placed = np.bincount(obs["point"], weights=free, minlength=len(obs["ids"])) >= 2  # points the free cameras fix
+    free = ~np.isin(obs["camera"], list(apart))
+    placed = np.bincount(obs["point"], weights=free, minlength=len(obs["ids"])) >= 2  # points the others fix
     first = _subset(obs, placed[obs["point"]] & free)
     if len(first["ids"]):
         xyz, poses = _solve(keyframes, points, extrinsics, K, sizes, first, list(range(C)), held, prior_noise)
         points.update(zip(first["ids"].tolist(), xyz))
         for kf, pose in zip(keyframes, poses):
             kf.poses = pose.copy()
-    rest = _subset(obs, ~placed[obs["point"]])
-    if len(rest["ids"]):  # the held cameras' own points, everything else as solved
-        xyz, _ = _solve(keyframes, points, extrinsics, K, sizes, rest, list(range(C)), frozenset(range(1, C)))
-        points.update(zip(rest["ids"].tolist(), xyz))
+    trials = {}
+    if not placed.all():
+        trials = _solve_apart(keyframes, points, extrinsics, K, sizes, obs, placed, apart)
     xyz = np.stack([points[int(pid)] for pid in obs["ids"]])
     poses = np.stack([kf.poses for kf in keyframes])
     error = reprojection_errors(obs, poses[obs["frame"], obs["camera"]], extrinsics, xyz, K)
@@ -136,9 +141,30 @@ def adjust_window(
     for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
         keyframes[i].point_ids[k][j] = -1
     inlier = ~outlier
-    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K)
+    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted=free)
     rms = float(np.sqrt(np.mean(error[inlier] ** 2))) if inlier.any() else float("nan")
-    return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()))
+    return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()), trials)
+
+
+def _solve_apart(keyframes, points, extrinsics, K, sizes, obs, placed, tried):
+    """:func:`adjust_window`'s second step: the points the first did not fix (not ``placed`` (P,) bool), everything
+    else held (``points`` updated in place); then each camera of ``tried`` free with its points -> per camera tried
+    its extrinsic (4, 4) and its points' positions (point id -> (3,)) so solved. Camera 0's observations of placed
+    points come along, held: COLMAP leaves a rig's sensors unadjusted where its reference sensor observes nothing."""
+    C = len(extrinsics)
+    second = _subset(obs, ~placed[obs["point"]] | (placed[obs["point"]] & (obs["camera"] == 0)))
+    constant = placed[np.isin(obs["ids"], second["ids"])]
+    ids = second["ids"][~constant]
+    cameras = frozenset(range(1, C))
+    xyz, _ = _solve(keyframes, points, extrinsics, K, sizes, second, list(range(C)), cameras, constant=constant)
+    points.update(zip(ids.tolist(), xyz[~constant]))
+    trials = {}
+    for k in sorted(tried):
+        E = extrinsics.copy()
+        xyz, _ = _solve(keyframes, points, E, K, sizes, second, list(range(C)), cameras - {k}, constant=constant)
+        own = np.isin(ids, obs["ids"][obs["point"][obs["camera"] == k]])
+        trials[k] = (E[k], dict(zip(ids[own].tolist(), xyz[~constant][own])))
+    return trials
 
 
 @dataclass
@@ -218,16 +244,19 @@ def shares_pose(kf: Keyframe) -> bool:
     return bool((kf.poses == kf.poses[0]).all())
 
 
-def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(), prior_noise=None):
-    """Adjust the window's points and rig sensors (robust loss; sensor k sees camera ``source[k]``; those in ``held``
-    stay), the intrinsics held, the rig's poses held or solved (:func:`solves_poses`), camera 0's metric positions
-    then priors of ``prior_noise`` metres: ``extrinsics`` (S, 4, 4) updated in place -> the points (P, 3) of
-    ``obs["ids"]`` and the keyframes' poses (F, C, 4, 4) after it."""
+def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(), prior_noise=None, constant=None):
+    """Adjust the window's points (those ``constant`` (P,) bool stay) and rig sensors (robust loss; sensor k sees
+    camera ``source[k]``; those in ``held`` stay), the intrinsics held, the rig's poses held or solved
+    (:func:`solves_poses`), camera 0's metric positions then priors of ``prior_noise`` metres: ``extrinsics``
+    (S, 4, 4) updated in place -> the points (P, 3) of ``obs["ids"]`` and the keyframes' poses (F, C, 4, 4) after
+    it."""
     shared = solves_poses(keyframes, prior_noise)
     rec = _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared)
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.images:
         config.add_image(image_id)
+    for p in np.flatnonzero(constant) if constant is not None else ():
+        config.add_constant_point(int(p) + 1)
     for k in range(len(extrinsics)):
         config.set_constant_cam_intrinsics(k + 1)
     if not shared:
@@ -326,8 +355,9 @@ def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared
     return rec
 
 
-def _uncertainty(obs, inlier, poses, extrinsics, xyz, K) -> list[ExtrinsicUncertainty | None]:
-    """The extrinsics' uncertainty from the inlying observations (see :mod:`ocalib.rigba.covariance`)."""
+def _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted) -> list[ExtrinsicUncertainty | None]:
+    """The extrinsics' uncertainty from the inlying observations (see :mod:`ocalib.rigba.covariance`), the noise
+    from those ``fitted`` (N,) bool."""
     C = len(extrinsics)
     used, point = np.unique(obs["point"][inlier], return_inverse=True)
     frames, frame = np.unique(obs["frame"][inlier], return_inverse=True)
@@ -344,7 +374,7 @@ def _uncertainty(obs, inlier, poses, extrinsics, xyz, K) -> list[ExtrinsicUncert
         pinhole=np.array([pinhole_params(k) for k in K]),
     )
     try:
-        return observations_uncertainty(problem, weak_share=0.0)
+        return observations_uncertainty(problem, weak_share=0.0, fitted=fitted[inlier])
     except np.linalg.LinAlgError:
         return [None] * (C - 1)
 

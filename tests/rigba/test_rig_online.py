@@ -44,22 +44,23 @@ def _rig_pose(i: float) -> np.ndarray:
 
 
 def _window(rng, truth, moved=None, at: int = 8, sigma_px: float = 0.3, late: float = 0.0):
-    """12 keyframes of a two-camera rig (extrinsics ``truth`` (2, 4, 4)), 150 points in front of each camera at
+    """12 keyframes of a rig (extrinsics ``truth`` (C, 4, 4)), 150 points in front of each camera at
     the first, seen only by it, observed with ``sigma_px`` noise; camera 1 at ``moved`` from keyframe ``at`` on,
     capturing ``late`` keyframes after camera 0 (each keyframe holds both capture poses).
     -> keyframes, points (their positions off by 5 cm)."""
     poses = [_rig_pose(i) for i in range(12)]
     points, keyframes = {}, []
     world = []
-    for k in range(2):
+    for k in range(len(truth)):
         depth, uv = rng.uniform(3, 8, 150), rng.uniform([0, 0], [416, 128], (150, 2))
         rays = (np.linalg.inv(K) @ np.c_[uv, np.ones(150)].T).T * depth[:, None]
         cam = poses[0] @ truth[k]
         world.append(rays @ cam[:3, :3].T + cam[:3, 3])
         points.update({150 * k + j: X + rng.normal(0, 0.05, 3) for j, X in enumerate(world[k])})
     for i, pose in enumerate(poses):
-        features, ids, captured = [], [], np.stack([pose, _rig_pose(i + late)])
-        for k in range(2):
+        features, ids = [], []
+        captured = np.stack([pose, _rig_pose(i + late)] + [pose] * (len(truth) - 2))
+        for k in range(len(truth)):
             mounting = moved if (k == 1 and moved is not None and i >= at) else truth[k]
             T = np.linalg.inv(captured[k] @ mounting)
             p = world[k] @ T[:3, :3].T + T[:3, 3]
@@ -108,6 +109,41 @@ def test_a_held_camera_keeps_its_extrinsic_while_the_others_are_adjusted():
     np.testing.assert_allclose(held, start, atol=1e-12)
     adjust_window(*_window(np.random.default_rng(2), truth), free, np.stack([K, K]), [(128, 416)] * 2)
     assert np.linalg.norm(free[1, :3, 3] - truth[1, :3, 3]) < 0.5 * np.linalg.norm(truth[1, :3, 3])
+
+
+def test_a_camera_solved_apart_neither_bends_the_others_nor_inflates_their_uncertainty():
+    """Camera 2 waits 2 deg and its whole 1.1 m lever arm off while the window solves the rig's poses. Solved apart,
+    camera 1 comes out as from the same window without camera 2's observations (the reference), near its truth,
+    with about the variance it has where camera 2 is held at its truth (the waiting camera's misfit is not taken for
+    noise); camera 2 stays where it is held, and the window's try of it free (``WindowResult.trials``) is nearer its
+    truth. Held in the joint adjustment instead, its misfit bends the rig's poses and camera 1 with them."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05]), _mounting([0, -150, 0], [-0.4, 0, -1.0])])
+    Ks, sizes = np.stack([K] * 3), [(128, 416)] * 3
+    wrong = truth.copy()
+    wrong[2, :3, :3] = Rotation.from_euler("y", 2, degrees=True).as_matrix() @ truth[2, :3, :3]
+    wrong[2, :3, 3] = 0.0
+
+    def adjusted(start, apart=frozenset({2}), without_camera_2=False):
+        keyframes, points = _window(np.random.default_rng(4), truth)
+        for kf in keyframes if without_camera_2 else ():
+            kf.point_ids[2][:] = -1
+        E = start.copy()
+        return E, adjust_window(keyframes, points, E, Ks, sizes, frozenset({2}), 0.01, apart)
+
+    held, result = adjusted(wrong)
+    reference, at_truth = adjusted(wrong, without_camera_2=True)[0], adjusted(truth)[1]
+    np.testing.assert_allclose(held[1], reference[1], atol=1e-9)
+    assert float(rotation_angle_deg(held[1, :3, :3].T @ truth[1, :3, :3])) < 0.3
+    assert np.linalg.norm(held[1, :3, 3] - truth[1, :3, 3]) < 0.05
+    ratio = np.diag(result.uncertainty[0].covariance) / np.diag(at_truth.uncertainty[0].covariance)
+    assert np.all(ratio < 1.5), ratio  # 8x were the misfit taken for noise; the rest: camera 2's outliers dropped
+    np.testing.assert_allclose(held[2], wrong[2], atol=1e-12)
+    tried, placed = result.trials[2]
+    assert float(rotation_angle_deg(tried[:3, :3].T @ truth[2, :3, :3])) < 0.5
+    assert np.linalg.norm(tried[:3, 3] - truth[2, :3, 3]) < 0.5 * np.linalg.norm(truth[2, :3, 3])
+    assert set(placed) <= set(range(300, 450)) and len(placed) > 100  # its own points, as the try places them
+    joint, _ = adjusted(wrong, apart=frozenset())
+    assert float(rotation_angle_deg(joint[1, :3, :3].T @ truth[1, :3, :3])) > 2.0
 
 
 def test_a_camera_captured_late_is_adjusted_at_its_own_capture_pose():
