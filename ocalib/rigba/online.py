@@ -31,7 +31,8 @@ camera's extrinsic. The local map (keyframes and points) is :mod:`ocalib.rigba.l
    short stretch of motion throws the lever arm metres off; later, the stream is spent waiting. A waiting camera is
    solved apart from the rest (:func:`~ocalib.rigba.window.adjust_window`'s ``apart``): held at the head's
    rotation and no lever arm, its observations would bend the rig's poses and the other cameras' extrinsics; it is
-   released where the window, trying it free against the rest, puts it, with its points.
+   released where the window, trying it free against the rest, puts it, with its points (not while a candidate
+   change of it awaits the split test: that camera stays in the joint adjustment, held at the estimate it had).
 
 The estimator starts from the on-line head's rotations and zero lever arms; while a camera waits at the start, its
 rotation follows the head's latest estimate (``update``'s ``rotations``); its translations are in metres.
