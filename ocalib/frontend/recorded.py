@@ -73,6 +73,7 @@ class RecordedFrontEnd(FrontEnd):
 # functions of ocalib.calibnet.run are added by its caller, not the module: the result's reporting is not in it).
 EGO_MOTION_CODE = ("frontend", "calib", "data", "geometry", "models", "losses", "eval", "io", "calibnet/net.py",
                    "errors.py")  # fmt: skip
+EGO_MOTION_KIND = "ocalib ego-motion 1"  # a recording's header says it is one
 
 
 @dataclass
@@ -101,13 +102,12 @@ class EgoMotion:
                 header, motions = json.loads(str(z["header"])), z["motions"]
         except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as e:
             raise InputError(f"{path}: not an ego-motion recording of ocalib calibrate ({e})") from None
-        if not isinstance(header, dict) or header.get("kind") != EGO_MOTION_KIND or motions.ndim != 5:
+        entries = header if isinstance(header, dict) else {}
+        report, settings, fingerprint = entries.get("report"), entries.get("settings"), entries.get("fingerprint")
+        if not (entries.get("kind") == EGO_MOTION_KIND and motions.ndim == 5 and isinstance(settings, dict)
+                and isinstance(fingerprint, str) and isinstance(report, list) and len(report) == 2):  # fmt: skip
             raise InputError(f"{path}: not an ego-motion recording of ocalib calibrate")
-        notes, warnings = header["report"]
-        return cls(motions, header["settings"], (notes, warnings), header["fingerprint"])
-
-
-EGO_MOTION_KIND = "ocalib ego-motion 1"
+        return cls(motions, settings, tuple(report), fingerprint)
 
 
 def _plain(x):

@@ -4,11 +4,13 @@ end, and a recording of another run never taken for this one's."""
 import json
 import shutil
 
+import numpy as np
 import pytest
 import torch
 import yaml
 
 from ocalib.cli import main
+from ocalib.frontend.recorded import EGO_MOTION_KIND
 from ocalib.synth import preset
 
 torch.set_num_threads(1)
@@ -62,11 +64,15 @@ def test_a_recording_of_other_settings_is_made_again(rig, tmp_path, capsys):
     assert json.loads((tmp_path / "b.json").read_text())["settings"]["frames"] == 12
 
 
-@pytest.mark.parametrize("case", ["not a recording", "no folder", "read-only folder"])
+@pytest.mark.parametrize("case", ["not a recording", "a header without its entries", "no folder", "read-only folder"])
 def test_bad_recording_paths_are_one_line_and_exit_2(rig, tmp_path, capsys, monkeypatch, case):
     ego = tmp_path / "result.json"
     if case == "not a recording":
         ego.write_text('{"extrinsics": []}')  # e.g. a result JSON given by mistake: never overwritten
+    elif case == "a header without its entries":  # of the right kind, cut short
+        header = json.dumps({"kind": EGO_MOTION_KIND, "settings": {}, "fingerprint": "x"})
+        with open(ego, "wb") as f:
+            np.savez(f, motions=np.zeros((1, 1, 2, 4, 4)), header=np.array(header))
     elif case == "no folder":
         ego = tmp_path / "missing" / "ego.npz"
     else:  # said before the stream, not lost after it (the tests may run as root, who may write anywhere)
