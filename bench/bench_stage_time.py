@@ -12,7 +12,9 @@ many small calls (the head's) more than the few large ones (SIFT, the adjustment
 
 Beside the profile, the cost of a frame in the stream without the profiler and without the start (imports, the
 model, the first calls): ``calibrate`` run as a user runs it, in a fresh process, on the first ``frames`` and on the
-first half of them (medians of ``--repeats``); the difference of their wall times over the difference of their frames.
+first half of them (medians of ``--repeats``); the difference of their wall times over the difference of their frames,
+and the same of their CPU times (every core's, the loader's worker process included): the work a frame costs, which
+over the machine's cores bounds the wall time from below.
 
 Writes ``bench/results/stage_time.json`` (one entry per ``--label``, kept across runs).
 """
@@ -25,6 +27,7 @@ import cProfile
 import io
 import json
 import pstats
+import resource
 import subprocess
 import sys
 import tempfile
@@ -32,7 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import write_json
+from common import shown_path, write_json
 
 from ocalib.cli import main as ocalib_main
 
@@ -60,19 +63,30 @@ def stage_seconds(stats: pstats.Stats) -> dict[str, float]:
     return out
 
 
-def streaming_ms(argv: list[str], frames: int, repeats: int) -> tuple[float, float]:
-    """(ms a frame in the stream, ms a frame of the whole command) of ``ocalib calibrate`` ``argv`` (its
-    ``--max-frames`` appended), from fresh processes on ``frames // 2`` and ``frames`` frames, alternated
-    ``repeats`` times after one run that is not counted (it compiles and caches): the medians' difference."""
+def streaming_ms(argv: list[str], frames: int, repeats: int) -> tuple[float, float, float]:
+    """(ms a frame in the stream, CPU ms a frame in the stream, ms a frame of the whole command) of ``ocalib
+    calibrate`` ``argv`` (its ``--max-frames`` appended), from fresh processes on ``frames // 2`` and ``frames``
+    frames, alternated ``repeats`` times after one run that is not counted (it compiles and caches): the medians'
+    difference."""
     walls: dict[int, list[float]] = {frames // 2: [], frames: []}
+    cpus: dict[int, list[float]] = {frames // 2: [], frames: []}
     for n in [frames // 2] + [frames // 2, frames] * repeats:
-        start = time.perf_counter()
+        start, used = time.perf_counter(), _children_cpu()
         done = subprocess.run([sys.executable, "-m", "ocalib", *argv, "--max-frames", str(n)], capture_output=True)
         walls[n].append(time.perf_counter() - start)
+        cpus[n].append(_children_cpu() - used)
         if done.returncode != 0:
             raise SystemExit(f"ocalib calibrate failed ({done.returncode}): {done.stderr.decode()[-300:]}")
     half, full = (float(np.median(walls[n][-repeats:])) for n in (frames // 2, frames))
-    return (full - half) / (frames - frames // 2) * 1000, full / frames * 1000
+    cpu_half, cpu_full = (float(np.median(cpus[n][-repeats:])) for n in (frames // 2, frames))
+    per_frame = 1000 / (frames - frames // 2)
+    return (full - half) * per_frame, (cpu_full - cpu_half) * per_frame, full / frames * 1000
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user and system) of this process's finished children and their own."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def main() -> None:
@@ -88,7 +102,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         argv = ["calibrate", "--sequence", args.sequence, "--metric-trajectory", args.metric_trajectory,
                 "--no-bundle-adjust", "--frontend", args.frontend, "--out", str(Path(tmp) / "out.json")]  # fmt: skip
-        streaming, whole = streaming_ms(argv, args.frames, args.repeats)
+        streaming, cpu, whole = streaming_ms(argv, args.frames, args.repeats)
         profile = cProfile.Profile()
         start = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):
@@ -101,15 +115,17 @@ def main() -> None:
     frames = result.get("settings", {}).get("frames", args.frames)
     print(f"{args.label}: {frames} frames, {wall:.1f} s under the profiler ({wall / frames * 1000:.0f} ms a frame)")
     print(f"  {'a frame in the stream (no profiler)':34} {streaming:8.1f} ms; the whole command {whole:.1f} ms a frame")
+    print(f"  {'CPU time of a frame in the stream':34} {cpu:8.1f} ms (all cores)")
     for stage, s in seconds.items():
         print(f"  {stage:34} {s / frames * 1000:8.1f} ms a frame")
     path = Path(args.out)
     doc = json.loads(path.read_text()) if path.exists() else {"cases": {}}
     doc["cases"][args.label] = {
-        "sequence": args.sequence,
+        "sequence": shown_path(args.sequence),
         "frames": frames,
         "wall_seconds_profiled": wall,
         "streaming_ms_per_frame": streaming,
+        "streaming_cpu_ms_per_frame": cpu,
         "command_ms_per_frame": whole,
         "ms_per_frame": {stage: s / frames * 1000 for stage, s in seconds.items()},
         "frontend": result.get("settings", {}).get("frontend"),

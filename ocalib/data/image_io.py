@@ -67,6 +67,16 @@ def image_tensor(array: np.ndarray) -> Tensor:
     return image.permute(2, 0, 1).contiguous() if image.ndim == 3 else image.expand(3, -1, -1).contiguous()
 
 
+def grey_image(array: np.ndarray) -> np.ndarray:
+    """A decoded image (:func:`decode_image`) -> (H, W) uint8 grey: 16-bit scaled to 8 as :func:`image_tensor`'s
+    [0, 1] times 255, rounded half to even; colour by OpenCV's RGB -> grey weights. The same pixels as
+    :func:`image_tensor`'s, converted so, without the float copy."""
+    if array.dtype != np.uint8:
+        scale = np.float32(_PIXEL_SCALE[array.dtype.type])
+        array = np.round(array.astype(np.float32) / scale * np.float32(255.0)).astype(np.uint8)
+    return cv2.cvtColor(array, cv2.COLOR_RGB2GRAY) if array.ndim == 3 else array
+
+
 def read_depth(
     path: str | Path, scale: float = 256.0, size: tuple[int, int] | None = None, out_size: tuple[int, int] | None = None
 ) -> Tensor:

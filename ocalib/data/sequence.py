@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ocalib.data.distortion import Distortion, undistort_image
-from ocalib.data.image_io import decode_image, image_tensor, read_image, resize_image
+from ocalib.data.image_io import decode_image, grey_image, image_tensor, read_image, resize_image
 from ocalib.data.rig import ExtrinsicChange
 from ocalib.errors import InputError
 
@@ -78,6 +78,11 @@ class Camera:
             return read_image(self.images[t], self.size, out_size)
         array = undistort_image(decode_image(self.images[t], self.size), self.K, self.distortion)
         return image_tensor(resize_image(array, out_size))
+
+    def read_grey(self, t: int) -> np.ndarray:
+        """Frame t as :meth:`read` gives it at its own size, in 8-bit grey -> (H, W) uint8 (:func:`grey_image`)."""
+        array = decode_image(self.images[t], self.size)
+        return grey_image(array if self.distortion is None else undistort_image(array, self.K, self.distortion))
 
 
 @dataclass

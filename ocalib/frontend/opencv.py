@@ -6,7 +6,6 @@ Convention: as :mod:`ocalib.frontend.base`; each camera at its own image size an
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import torch
 from torch import Tensor
@@ -29,8 +28,7 @@ class GreyFrames(Dataset):
         return len(self.sequence)
 
     def __getitem__(self, t: int) -> list[Tensor]:
-        rgb = [(c.read(t) * 255).round().byte().permute(1, 2, 0) for c in self.sequence.cameras]
-        return [torch.from_numpy(cv2.cvtColor(image.numpy(), cv2.COLOR_RGB2GRAY)) for image in rgb]
+        return [torch.from_numpy(c.read_grey(t)) for c in self.sequence.cameras]
 
 
 class OpenCVFrontEnd(FrontEnd):

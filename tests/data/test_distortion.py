@@ -78,7 +78,8 @@ def test_the_undistortion_maps_follow_the_model_and_are_cached(lens):
 
 
 def test_the_front_ends_read_the_undistorted_view(tmp_path):
-    """Camera.read is the one loading point: the undistorted image of a camera with a lens, the file otherwise."""
+    """Camera.read is the one loading point: the undistorted image of a camera with a lens, the file otherwise; its
+    grey (read_grey) the same view."""
     write_rig(tmp_path, n=2)
     text = yaml.safe_load((tmp_path / "rig.yaml").read_text())
     text["cameras"][1]["distortion"] = LENSES[2].as_dict()
@@ -91,6 +92,9 @@ def test_the_front_ends_read_the_undistorted_view(tmp_path):
     expected = undistort_image(raw, lens.K, lens.distortion).astype(np.float32) / 255
     np.testing.assert_array_equal(lens.read(1).permute(1, 2, 0).numpy(), expected)
     assert lens.read(1, (12, 40)).shape == (3, 12, 40)
+    for camera in (pinhole, lens):  # the OpenCV front end's grey: the same view
+        rgb = (camera.read(1) * 255).round().byte().permute(1, 2, 0).numpy()
+        np.testing.assert_array_equal(camera.read_grey(1), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY))
 
 
 def test_rig_yaml_round_trip(tmp_path):
