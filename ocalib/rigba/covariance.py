@@ -83,17 +83,19 @@ def extrinsic_uncertainty(rec: pycolmap.Reconstruction, camera_ids: list[int]) -
 
 
 def observations_uncertainty(
-    obs: Observations, weak_share: float = WEAK_SHARE, fitted: np.ndarray | None = None
+    obs: Observations, weak_share: float = WEAK_SHARE, fitted: np.ndarray | None = None, poses_held: bool = False
 ) -> list[ExtrinsicUncertainty]:
     """The uncertainty of cameras 1..C-1 of the bundle-adjustment problem ``obs``; ``weak_share``: see
     :data:`WEAK_SHARE` (0: a translation direction is unobservable only where its information vanishes);
     ``fitted`` (N,) bool: the observations whose residuals give sigma^2 (None: all; those of a camera held where it
-    may not be are misfit, not noise)."""
+    may not be are misfit, not noise); ``poses_held``: the frames' poses are given, not estimated (no frame columns,
+    no gauge: the poses fix it)."""
     C, F = len(obs.sensor_from_rig), len(obs.rig_from_world)
     Je, Jf, Jp, r = _jacobians(obs)
     N = len(obs.camera)
     rows = np.arange(2 * N).reshape(N, 2)
-    # Columns: extrinsics of cameras 1..C-1 (6 each), then frames (6 each); the gauge's 7 columns dropped.
+    # Columns: extrinsics of cameras 1..C-1 (6 each), then frames (6 each; none where held); the gauge's 7 columns
+    # dropped.
     cols_e = 6 * (obs.camera - 1)[:, None] + np.arange(6)
     cols_f = 6 * (C - 1) + 6 * obs.frame[:, None] + np.arange(6)
     J_c = sp.csr_matrix(
@@ -106,7 +108,8 @@ def observations_uncertainty(
         ),
         shape=(2 * N, 6 * (C - 1 + F)),
     )
-    keep = np.setdiff1d(np.arange(6 * (C - 1 + F)), _gauge_columns(obs, C))
+    ne = 6 * (C - 1)
+    keep = np.arange(ne) if poses_held else np.setdiff1d(np.arange(6 * (C - 1 + F)), _gauge_columns(obs, C))
     J_c = J_c[:, keep]
     P = len(obs.xyz)
     J_p = sp.csr_matrix(
@@ -116,9 +119,7 @@ def observations_uncertainty(
     H_pp = _block_diagonal(J_p, P)
     H_cp = (J_c.T @ J_p).tocsr()
     S = (J_c.T @ J_c).toarray() - (H_cp @ H_pp @ H_cp.T).toarray()
-    ne = 6 * (C - 1)
-    S_ff = S[ne:, ne:]
-    info = S[:ne, :ne] - S[:ne, ne:] @ np.linalg.solve(S_ff, S[ne:, :ne])
+    info = S[:ne, :ne] - S[:ne, ne:] @ np.linalg.solve(S[ne:, ne:], S[ne:, :ne])
     if fitted is not None and fitted.any():  # the mean squared residual of the fitted, scaled as the whole's
         r = r.reshape(N, 2)[fitted].ravel() * np.sqrt(N / fitted.sum())
     sigma2 = float(r @ r) / max(1, 2 * N - S.shape[0] - 3 * P)

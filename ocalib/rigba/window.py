@@ -141,7 +141,7 @@ def adjust_window(
     for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
         keyframes[i].point_ids[k][j] = -1
     inlier = ~outlier
-    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted=free)
+    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, free, not solves_poses(keyframes, prior_noise))
     rms = float(np.sqrt(np.mean(error[inlier] ** 2))) if inlier.any() else float("nan")
     return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()), trials)
 
@@ -355,9 +355,9 @@ def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared
     return rec
 
 
-def _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted) -> list[ExtrinsicUncertainty | None]:
+def _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted, poses_held) -> list[ExtrinsicUncertainty | None]:
     """The extrinsics' uncertainty from the inlying observations (see :mod:`ocalib.rigba.covariance`), the noise
-    from those ``fitted`` (N,) bool."""
+    from those ``fitted`` (N,) bool; ``poses_held``: the window held the rig's poses (they carry no uncertainty)."""
     C = len(extrinsics)
     used, point = np.unique(obs["point"][inlier], return_inverse=True)
     frames, frame = np.unique(obs["frame"][inlier], return_inverse=True)
@@ -374,7 +374,7 @@ def _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted) -> list[Extrins
         pinhole=np.array([pinhole_params(k) for k in K]),
     )
     try:
-        return observations_uncertainty(problem, weak_share=0.0, fitted=fitted[inlier])
+        return observations_uncertainty(problem, weak_share=0.0, fitted=fitted[inlier], poses_held=poses_held)
     except np.linalg.LinAlgError:
         return [None] * (C - 1)
 

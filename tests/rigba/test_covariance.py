@@ -85,12 +85,13 @@ def _numeric_jacobian(obs: Observations) -> np.ndarray:
     return J
 
 
-def _dense_covariance(obs: Observations) -> np.ndarray:
+def _dense_covariance(obs: Observations, poses_held: bool = False) -> np.ndarray:
     """Camera 1's 6x6 covariance (sensor_from_rig's left perturbation) from a central-difference Jacobian of every
-    parameter, the same gauge columns removed, inverted densely."""
+    parameter, the same gauge columns removed (or, with ``poses_held``, every frame's), inverted densely."""
     J = _numeric_jacobian(obs)
     n = J.shape[1]
-    keep = np.setdiff1d(np.arange(n), _gauge_columns(obs, 2))
+    frames = 6 + np.arange(6 * len(obs.rig_from_world))
+    keep = np.setdiff1d(np.arange(n), frames if poses_held else _gauge_columns(obs, 2))
     J = J[:, keep]
     r = _residuals(obs, np.zeros(n))
     sigma2 = r @ r / (len(r) - J.shape[1])
@@ -110,11 +111,12 @@ def test_jacobians_match_central_differences():
         np.testing.assert_allclose(Jp[o], numeric[o, :, 6 + 6 * F + 3 * p : 9 + 6 * F + 3 * p], rtol=1e-5, atol=1e-6)
 
 
-def test_covariance_equals_dense_inverse():
+@pytest.mark.parametrize("poses_held", [False, True])
+def test_covariance_equals_dense_inverse(poses_held):
     obs = _problem(planar=False)
-    [u] = observations_uncertainty(obs)
+    [u] = observations_uncertainty(obs, poses_held=poses_held)
     assert len(u.unobservable) == 0
-    dense = _dense_covariance(obs)
+    dense = _dense_covariance(obs, poses_held)
     # Reported for E = inverse(sensor_from_rig) in camera 0's axes: rotation -R w, translation -R v (first order).
     R = np.linalg.inv(obs.sensor_from_rig[1])[:3, :3]
     A = np.zeros((6, 6))
@@ -147,3 +149,10 @@ def test_a_translation_variance_rounded_below_zero_gives_no_warning():
         warnings.simplefilter("error")
         np.testing.assert_allclose(u.translation_std, [0.02, np.inf, 0.03])
         assert ExtrinsicUncertainty(cov, np.zeros((0, 3))).translation_std[1] == 0
+
+
+def test_held_poses_know_the_extrinsic_better():
+    """Poses given, not estimated: every variance of the extrinsic is smaller than with the poses free."""
+    obs = _problem(planar=False)
+    [free], [held] = observations_uncertainty(obs), observations_uncertainty(obs, poses_held=True)
+    assert np.all(np.diag(held.covariance) < np.diag(free.covariance))

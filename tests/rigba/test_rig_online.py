@@ -377,18 +377,20 @@ def test_a_trajectory_off_as_a_real_one_is_needs_its_noise_stated(knocked_rig):
     """Camera 0's trajectory off as GNSS/INS or odometry is (its rotation by a random walk of 0.05 deg a frame, its
     positions by 1 cm): with its noise stated the window solves the rig's poses with the images, only the knock at
     frame 70 is found, and the extrinsic is within 0.75 deg before and after it; held, the trajectory's error goes
-    into the extrinsic (over 1 deg off after the knock)."""
+    into the extrinsic: over 1 deg off after the knock, or read as a change that did not happen."""
     after = np.linalg.inv(knocked_rig.cameras[0].T_cam0_cam) @ knocked_rig.cameras[1].change.T_cam0_cam
-    errors = {}
+    errors, changes = {}, {}
     for name, options in (("held", EXACT), ("stated", OnlineRigOptions(metric_noise=0.01))):
         _, states, truth = _run(knocked_rig, range(120), options, trajectory_error=0.05)
-        changes = [c.frame for s in states for k, c in s.changes]
-        assert len(changes) == 1 and 70 <= changes[0] <= 74, (name, changes)
+        changes[name] = [c.frame for s in states for k, c in s.changes]
         before = [s for s in states if s.frame < 70][-1].extrinsics[1]
         final = states[-1].extrinsics[1]
         errors[name] = [float(rotation_angle_deg(E[:3, :3].T @ T[:3, :3])) for E, T in ((before, truth[1]),
                                                                                         (final, after))]  # fmt: skip
-    assert max(errors["stated"]) < 0.75 and errors["held"][1] > 1.0, errors
+    assert len(changes["stated"]) == 1 and 70 <= changes["stated"][0] <= 74, changes
+    assert max(errors["stated"]) < 0.75, errors
+    assert any(70 <= f <= 74 for f in changes["held"]), changes
+    assert errors["held"][1] > 1.0 or len(changes["held"]) > 1, (errors, changes)
 
 
 def test_the_windows_solved_poses_take_the_metric_positions_as_priors(knocked_rig):
