@@ -7,8 +7,9 @@ Each rig is rendered once under ``--root`` (outside git) and calibrated by ``oca
 --metric-trajectory CAM0/poses.txt`` (its front end chosen as by default), with ``--no-bundle-adjust`` (mode
 ``online``), that and ``--metric-noise 0`` (mode ``online-exact``: the user says the trajectory is exact, as a
 render's is, and the estimator holds it) or with the defaults (mode ``default``); each run's JSON is kept under
-``ROOT/runs/MODE/`` and reused, so the split is filled over several sittings. Knocked rigs (``NAME-knocked``: camera 1 turned by 2 deg at mid-stream,
-cars also moved 5 cm) give the detection rate and delay; every change reported on a steady rig is a false alarm.
+``ROOT/runs/MODE/`` and reused, so the split is filled over several sittings. Knocked rigs (``NAME-knocked``: camera
+1 turned by 2 deg at mid-stream, cars also moved 5 cm) give the detection rate and delay; every change reported on a
+steady rig is a false alarm.
 Each rig's ego-motion is kept under ``ROOT/runs/ego-motion/`` (``calibrate --ego-motion``): a run whose front end,
 head and their code are those of the recording takes its motions from there (the same JSON, without the front end's
 time: both modes and every later run of the rig estimator share one front-end run).

@@ -94,8 +94,8 @@ def observations_uncertainty(
     Je, Jf, Jp, r = _jacobians(obs)
     N = len(obs.camera)
     rows = np.arange(2 * N).reshape(N, 2)
-    # Columns: extrinsics of cameras 1..C-1 (6 each), then frames (6 each; none where held); the gauge's 7 columns
-    # dropped.
+    # Columns: extrinsics of cameras 1..C-1 (6 each), then, unless the poses are held, frames (6 each) less the
+    # gauge's 7.
     cols_e = 6 * (obs.camera - 1)[:, None] + np.arange(6)
     cols_f = 6 * (C - 1) + 6 * obs.frame[:, None] + np.arange(6)
     J_c = sp.csr_matrix(
