@@ -98,6 +98,27 @@ def test_the_window_recovers_an_extrinsic_from_exact_observations():
     assert np.linalg.norm(error) < 0.25 * np.linalg.norm(truth[1, :3, 3])
 
 
+def test_a_window_that_holds_the_poses_counts_them_given():
+    """The same window with the rig's poses held (an exact trajectory) and solved (a noise stated): held, every
+    variance of the extrinsic is smaller (the poses carry no uncertainty into it), and its 1-sigma still covers its
+    error (3-sigma on every axis)."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    start = truth.copy()
+    start[1, :3, 3] = 0.0
+    start[1, :3, :3] = Rotation.from_rotvec(np.radians([0.3, 0.2, -0.2])).as_matrix() @ truth[1, :3, :3]
+    out = {}
+    for name, noise in (("held", None), ("solved", 0.01)):
+        keyframes, points = _window(np.random.default_rng(1), truth)
+        E = start.copy()
+        for _ in range(3):
+            result = adjust_window(keyframes, points, E, np.stack([K, K]), [(128, 416)] * 2, prior_noise=noise)
+        out[name] = E[1], result.uncertainty[0].covariance
+    (E, held), (_, solved) = out["held"], out["solved"]
+    assert np.all(np.diag(held) < np.diag(solved)), (np.diag(held), np.diag(solved))
+    error = innovation(truth[1], E)
+    assert np.all(np.abs(error) < 3 * np.sqrt(np.diag(held))), (error, np.sqrt(np.diag(held)))
+
+
 def test_a_held_camera_keeps_its_extrinsic_while_the_others_are_adjusted():
     """``held``: camera 1's extrinsic stays where it was (the estimator holds a camera whose observations span too
     few keyframes); the same window without it moves camera 1 towards the truth."""
