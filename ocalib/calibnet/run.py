@@ -399,12 +399,19 @@ def calibrate_images(
     return ImageCalibration(run, errors, None if errors is None else np.stack(extrinsics[1:]), sequence)
 
 
+def _quiet_worker(worker_id: int) -> None:
+    """The loader worker's start: its ``sys.excepthook`` made silent. Its helper thread (multiprocessing's resource
+    sharer, which serves the frames' tensors and reports through that hook) breaks when the main process stops
+    reading, as Ctrl-C makes it, and the main process says so in one line; an error of the worker's own work reaches
+    the main process through the loader, not through the hook."""
+    sys.excepthook = lambda *exc_info: None
+
+
 def _stream(net: OnlineCalibrationNet, dataset, frames: int, progress, on_frame, desc: str = "calibrating"):
     """Run ``net`` on items 0..frames-1 of ``dataset`` -> (last estimate, trace columns, trajectories (T, C, 4, 4));
     ``desc`` names the work on the progress bar."""
-    loader = DataLoader(
-        torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1, prefetch_factor=4
-    )
+    loader = DataLoader(torch.utils.data.Subset(dataset, range(frames)), batch_size=None, num_workers=1,
+                        prefetch_factor=4, worker_init_fn=_quiet_worker)  # fmt: skip
     chunks, pending, trajectory = [], [], []
     start = time.perf_counter()
     with (

@@ -86,11 +86,15 @@ def _interrupted(args: argparse.Namespace, start: float, err: KeyboardInterrupt)
     """Say that ``args.command`` was interrupted and what it had written (or the message of ``err``) -> 130."""
     written = written_since(args, start)
     what = str(err) or (f"written so far (incomplete): {', '.join(written)}" if written else "nothing written")
+    sys.excepthook = _quiet
     print(f"\nocalib {args.command}: interrupted; {what}", file=sys.stderr)
-    # the loader's helper thread (multiprocessing's resource sharer, which reports through sys.excepthook) breaks as
-    # Ctrl-C winds the workers down: its error after this line is the interruption's echo, not news
-    sys.excepthook = lambda *exc_info: None
     return 130
+
+
+def _quiet(*exc_info) -> None:
+    """``sys.excepthook`` once Ctrl-C is pressed: the loader's helper thread (multiprocessing's resource sharer,
+    which reports through it) breaks as the interruption winds the workers down, and its error, printed from then on
+    to the process's end, is the interruption's echo, not news."""
 
 
 @contextlib.contextmanager
@@ -101,6 +105,7 @@ def _noting_interrupts():
 
     def handler(signum, frame):
         noted.append(signum)
+        sys.excepthook = _quiet  # from the moment the workers start winding down, not only once the line is out
         raise KeyboardInterrupt
 
     try:
