@@ -83,14 +83,21 @@ def extrinsic_uncertainty(rec: pycolmap.Reconstruction, camera_ids: list[int]) -
 
 
 def observations_uncertainty(
-    obs: Observations, weak_share: float = WEAK_SHARE, fitted: np.ndarray | None = None, poses_held: bool = False
+    obs: Observations,
+    weak_share: float = WEAK_SHARE,
+    fitted: np.ndarray | None = None,
+    poses_held: bool = False,
+    position_noise: float | None = None,
 ) -> list[ExtrinsicUncertainty]:
     """The uncertainty of cameras 1..C-1 of the bundle-adjustment problem ``obs``; ``weak_share``: see
     :data:`WEAK_SHARE` (0: a translation direction is unobservable only where its information vanishes);
     ``fitted`` (N,) bool: the observations whose residuals give sigma^2 (None: all; those of a camera held where it
-    may not be are misfit, not noise); ``poses_held``: the frames' poses are given, not estimated (no frame columns,
-    no gauge: the poses fix it)."""
+    may not be are misfit, not noise). The frames' poses: ``poses_held``, given (no frame columns, no gauge: the
+    poses fix it); else with ``position_noise`` (> 0, the reconstruction's units per axis) solved with each frame's
+    camera-0 position a prior of that noise (the priors fix the gauge: what they leave free, a rotation about the
+    line of collinear positions, moves no extrinsic); else solved with the gauge fixed as COLMAP's BA fixes it."""
     C, F = len(obs.sensor_from_rig), len(obs.rig_from_world)
+    priors = not poses_held and bool(position_noise)
     Je, Jf, Jp, r = _jacobians(obs)
     N = len(obs.camera)
     rows = np.arange(2 * N).reshape(N, 2)
@@ -109,7 +116,10 @@ def observations_uncertainty(
         shape=(2 * N, 6 * (C - 1 + F)),
     )
     ne = 6 * (C - 1)
-    keep = np.arange(ne) if poses_held else np.setdiff1d(np.arange(6 * (C - 1 + F)), _gauge_columns(obs, C))
+    if poses_held:
+        keep = np.arange(ne)
+    else:
+        keep = np.setdiff1d(np.arange(6 * (C - 1 + F)), _gauge_columns(obs, C))
     J_c = J_c[:, keep]
     P = len(obs.xyz)
     J_p = sp.csr_matrix(
@@ -119,10 +129,13 @@ def observations_uncertainty(
     H_pp = _block_diagonal(J_p, P)
     H_cp = (J_c.T @ J_p).tocsr()
     S = (J_c.T @ J_c).toarray() - (H_cp @ H_pp @ H_cp.T).toarray()
-    info = S[:ne, :ne] - S[:ne, ne:] @ np.linalg.solve(S[ne:, ne:], S[ne:, :ne])
     if fitted is not None and fitted.any():  # the mean squared residual of the fitted, scaled as the whole's
         r = r.reshape(N, 2)[fitted].ravel() * np.sqrt(N / fitted.sum())
     sigma2 = float(r @ r) / max(1, 2 * N - S.shape[0] - 3 * P)
+    if priors:
+        info = _marginal_with_position_priors(S, obs, keep[ne:] - ne, sigma2 / position_noise**2)
+    else:
+        info = S[:ne, :ne] - S[:ne, ne:] @ np.linalg.solve(S[ne:, ne:], S[ne:, :ne])
     out = []
     for k in range(1, C):
         block = info[6 * (k - 1) : 6 * k, 6 * (k - 1) : 6 * k] / sigma2
@@ -147,6 +160,39 @@ def _in_camera0(info: np.ndarray, R: np.ndarray, weak: float) -> ExtrinsicUncert
     sub = basis[:, np.concatenate([np.ones(3, bool), ~weak])]  # the inverse restricted to the observable directions
     cov = sub @ np.linalg.inv(sub.T @ info @ sub) @ sub.T
     return ExtrinsicUncertainty(cov, V[:, weak].T.copy())
+
+
+def _marginal_with_position_priors(S: np.ndarray, obs: Observations, frame_columns: np.ndarray, weight: float):
+    """The extrinsics' information from ``S`` (their ``ne`` columns, then the frames' kept ``frame_columns`` of 6
+    per frame: the gauge fixed) with each frame's camera-0 position a prior of information ``weight`` per axis (in
+    the units of ``S``). The priors act through a similarity of the gauge-fixed window onto their frame (rotation,
+    translation, log scale: 7 columns the images know nothing of, so none of their information is left in a
+    direction they do not fix); its scale also carries the extrinsics' translations into the priors' units, its
+    rotation and translation move no extrinsic. To first order at the identity a position ``c = -R^T t`` moves by
+    ``-R^T v`` under its frame's perturbation (w, v) and by ``-[c]x omega + tau + lambda c`` under the
+    similarity's; an extrinsic's ``v`` by ``lambda t`` (``t`` its sensor_from_rig's translation)."""
+    T, ne = obs.rig_from_world, len(S) - len(frame_columns)
+    F = len(T)
+    centres = -np.einsum("fji,fj->fi", T[:, :3, :3], T[:, :3, 3])
+    J = np.zeros((3 * F, 6 * F + 7))
+    for f in range(F):
+        J[3 * f : 3 * f + 3, 6 * f + 3 : 6 * f + 6] = -T[f, :3, :3].T
+        J[3 * f : 3 * f + 3, 6 * F :] = np.concatenate([-cross_matrix(centres[f]), np.eye(3), centres[f][:, None]], 1)
+    J = J[:, np.concatenate([frame_columns, 6 * F + np.arange(7)])]
+    full = np.zeros((len(S) + 7, len(S) + 7))  # extrinsics, frames, similarity (its log scale last)
+    full[: len(S), : len(S)] = S
+    full[ne:, ne:] += weight * J.T @ J
+    turn = len(S) + np.arange(3)  # the similarity's rotation: about the line of collinear positions free, and inert
+    full[turn, turn] += DAMPING * np.trace(full[np.ix_(turn, turn)])
+    kept = np.append(np.arange(ne), len(full) - 1)
+    rest = np.setdiff1d(np.arange(len(full)), kept)
+    info = full[np.ix_(kept, kept)] - full[np.ix_(kept, rest)] @ np.linalg.solve(
+        full[np.ix_(rest, rest)], full[np.ix_(rest, kept)]
+    )
+    M = np.eye(ne + 1)  # (extrinsics in the priors' units, log scale) -> (in the window's, log scale)
+    M[:ne, ne] = -np.concatenate([np.append(np.zeros(3), sensor[:3, 3]) for sensor in obs.sensor_from_rig[1:]])
+    info = M.T @ info @ M
+    return info[:ne, :ne] - np.outer(info[:ne, ne], info[ne, :ne]) / info[ne, ne]
 
 
 def _block_diagonal(J_p: sp.csr_matrix, P: int) -> sp.csr_matrix:

@@ -141,7 +141,8 @@ def adjust_window(
     for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
         keyframes[i].point_ids[k][j] = -1
     inlier = ~outlier
-    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, free, not solves_poses(keyframes, prior_noise))
+    noise = prior_noise if solves_poses(keyframes, prior_noise) else None
+    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, free, noise)
     rms = float(np.sqrt(np.mean(error[inlier] ** 2))) if inlier.any() else float("nan")
     return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()), trials)
 
@@ -355,9 +356,10 @@ def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared
     return rec
 
 
-def _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted, poses_held) -> list[ExtrinsicUncertainty | None]:
+def _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted, prior_noise) -> list[ExtrinsicUncertainty | None]:
     """The extrinsics' uncertainty from the inlying observations (see :mod:`ocalib.rigba.covariance`), the noise
-    from those ``fitted`` (N,) bool; ``poses_held``: the window held the rig's poses (they carry no uncertainty)."""
+    from those ``fitted`` (N,) bool; ``prior_noise``: the window solved the rig's poses with camera 0's positions
+    priors of this noise (metres per axis), or None: it held them (they carry no uncertainty)."""
     C = len(extrinsics)
     used, point = np.unique(obs["point"][inlier], return_inverse=True)
     frames, frame = np.unique(obs["frame"][inlier], return_inverse=True)
@@ -374,7 +376,8 @@ def _uncertainty(obs, inlier, poses, extrinsics, xyz, K, fitted, poses_held) -> 
         pinhole=np.array([pinhole_params(k) for k in K]),
     )
     try:
-        return observations_uncertainty(problem, weak_share=0.0, fitted=fitted[inlier], poses_held=poses_held)
+        return observations_uncertainty(problem, weak_share=0.0, fitted=fitted[inlier], poses_held=prior_noise is None,
+                                        position_noise=prior_noise)  # fmt: skip
     except np.linalg.LinAlgError:
         return [None] * (C - 1)
 

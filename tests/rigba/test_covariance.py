@@ -98,6 +98,42 @@ def _dense_covariance(obs: Observations, poses_held: bool = False) -> np.ndarray
     return sigma2 * np.linalg.inv(J.T @ J)[:6, :6]
 
 
+def _dense_covariance_with_priors(obs: Observations, noise: float) -> np.ndarray:
+    """As :func:`_dense_covariance`, every parameter free and each frame's camera-0 position ``-R^T t`` a prior of
+    ``noise`` per axis, its Jacobian by central differences too."""
+    J = _numeric_jacobian(obs)
+    n, F = J.shape[1], len(obs.rig_from_world)
+    r = _residuals(obs, np.zeros(n))
+    sigma2 = r @ r / (len(r) - J.shape[1] + 7)  # the images fix all but the gauge's 7
+
+    def centres(x):
+        frames = [_exp(x[6 + 6 * f : 12 + 6 * f]) @ obs.rig_from_world[f] for f in range(F)]
+        return np.concatenate([-T[:3, :3].T @ T[:3, 3] for T in frames])
+
+    P = np.zeros((3 * F, n))
+    for i in range(6, 6 + 6 * F):
+        e = np.zeros(n)
+        e[i] = 1e-6
+        P[:, i] = (centres(e) - centres(-e)) / 2e-6
+    return np.linalg.inv(J.T @ J / sigma2 + P.T @ P / noise**2)[:6, :6]
+
+
+def _in_camera0(obs: Observations, cov: np.ndarray) -> np.ndarray:
+    """Camera 1's covariance of sensor_from_rig's left perturbation as reported, for ``E = inverse`` in camera 0's
+    axes: rotation -R w, translation -R v (first order)."""
+    R = np.linalg.inv(obs.sensor_from_rig[1])[:3, :3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = A[3:, 3:] = -R
+    return A @ cov @ A.T
+
+
+def _assert_covariances_equal(actual: np.ndarray, expected: np.ndarray) -> None:
+    """In units of the standard deviations (a correlation scale): a small off-diagonal entry's relative error is set
+    by the finite differences' rounding, not by the Schur complement."""
+    std = np.sqrt(np.diag(expected))
+    np.testing.assert_allclose((actual - expected) / np.outer(std, std), 0, atol=1e-3)
+
+
 def test_jacobians_match_central_differences():
     obs = _problem(planar=False, frames=3, points=4)
     Je, Jf, Jp, _ = _jacobians(obs)
@@ -116,17 +152,31 @@ def test_covariance_equals_dense_inverse(poses_held):
     obs = _problem(planar=False)
     [u] = observations_uncertainty(obs, poses_held=poses_held)
     assert len(u.unobservable) == 0
-    dense = _dense_covariance(obs, poses_held)
-    # Reported for E = inverse(sensor_from_rig) in camera 0's axes: rotation -R w, translation -R v (first order).
-    R = np.linalg.inv(obs.sensor_from_rig[1])[:3, :3]
-    A = np.zeros((6, 6))
-    A[:3, :3] = A[3:, 3:] = -R
-    expected = A @ dense @ A.T
-    # in units of the standard deviations (a correlation scale): a small off-diagonal entry's relative error is set by
-    # the finite differences' rounding, not by the Schur complement
-    std = np.sqrt(np.diag(expected))
-    np.testing.assert_allclose((u.covariance - expected) / np.outer(std, std), 0, atol=1e-3)
+    _assert_covariances_equal(u.covariance, _in_camera0(obs, _dense_covariance(obs, poses_held)))
     assert np.all(np.isfinite(u.translation_std)) and np.all(u.translation_std > 0)
+
+
+@pytest.mark.parametrize("noise", [0.01, 0.3])
+def test_covariance_with_position_priors_equals_dense_inverse(noise):
+    """Poses solved with camera 0's positions as priors (no gauge fixed): as a dense inverse of every parameter's
+    information, the priors' rows included."""
+    obs = _problem(planar=False)
+    [u] = observations_uncertainty(obs, weak_share=0.0, position_noise=noise)
+    _assert_covariances_equal(u.covariance, _in_camera0(obs, _dense_covariance_with_priors(obs, noise)))
+
+
+def test_tighter_position_priors_know_the_extrinsic_better():
+    """Each variance falls as the priors tighten, and stays above the held poses' (which also give the rotations);
+    on a planar drive, whose collinear positions leave a rotation of the whole free, the height stays unobservable."""
+    obs = _problem(planar=False)
+    [held] = observations_uncertainty(obs, weak_share=0.0, poses_held=True)
+    variances = [
+        np.diag(observations_uncertainty(obs, weak_share=0.0, position_noise=n)[0].covariance) for n in (1.0, 0.1, 0.01)
+    ]
+    assert np.all(np.diff(variances, axis=0) < 0) and np.all(variances[-1] > np.diag(held.covariance))
+    [planar] = observations_uncertainty(_problem(planar=True), position_noise=0.05)
+    assert planar.unobservable.shape == (1, 3) and np.isinf(planar.translation_std[1])
+    assert np.all(np.isfinite(planar.translation_std[[0, 2]])) and np.all(np.isfinite(planar.rotation_std))
 
 
 def test_planar_motion_leaves_the_height_unobservable():
