@@ -171,7 +171,8 @@ def _marginal_with_position_priors(S: np.ndarray, obs: Observations, frame_colum
     rotation and translation move no extrinsic. To first order at the identity a position ``c = -R^T t`` moves by
     ``-R^T v`` under its frame's perturbation (w, v) and by ``-[c]x omega + tau + lambda c`` under the
     similarity's; an extrinsic's ``v`` by ``lambda t`` (``t`` its sensor_from_rig's translation)."""
-    T, ne = obs.rig_from_world, len(S) - len(frame_columns)
+    T = obs.rig_from_world if obs.rig_from_world.ndim == 3 else obs.rig_from_world[:, 0]  # camera 0's
+    ne = len(S) - len(frame_columns)
     F = len(T)
     centres = -np.einsum("fji,fj->fi", T[:, :3, :3], T[:, :3, 3])
     J = np.zeros((3 * F, 6 * F + 7))
