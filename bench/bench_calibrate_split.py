@@ -6,7 +6,8 @@ on-line rig estimator's normalised estimation error squared (NEES) against the c
 Each rig is rendered once under ``--root`` (outside git) and calibrated by ``ocalib calibrate --sequence DIR
 --metric-trajectory CAM0/poses.txt`` (its front end chosen as by default), with ``--no-bundle-adjust`` (mode
 ``online``), that and ``--metric-noise 0`` (mode ``online-exact``: the user says the trajectory is exact, as a
-render's is, and the estimator holds it) or with the defaults (mode ``default``); each run's JSON is kept under
+render's is, and the estimator holds it) or a noise of 1 cm or 1 mm (``online-1cm``, ``online-1mm``: the poses
+still solved, the positions priors of that noise) or with the defaults (mode ``default``); each run's JSON is kept under
 ``ROOT/runs/MODE/`` and reused, so the split is filled over several sittings. Knocked rigs (``NAME-knocked``: camera
 1 turned by 2 deg at mid-stream, cars also moved 5 cm) give the detection rate and delay; every change reported on a
 steady rig is a false alarm.
@@ -47,7 +48,13 @@ COUNTS = {"handheld": 20, "front-left": 20, "surround": 10}  # rigs per preset
 KNOCKED = 10  # of the first presets' rigs, knocked too
 FRAMES = 300
 DETECT_WITHIN = 30  # frames after the knock a change must be noticed in
-MODES = {"online": ["--no-bundle-adjust"], "online-exact": ["--no-bundle-adjust", "--metric-noise", "0"], "default": []}
+MODES = {
+    "online": ["--no-bundle-adjust"],
+    "online-1cm": ["--no-bundle-adjust", "--metric-noise", "0.01"],
+    "online-1mm": ["--no-bundle-adjust", "--metric-noise", "0.001"],
+    "online-exact": ["--no-bundle-adjust", "--metric-noise", "0"],
+    "default": [],
+}
 
 
 def rigs(split: str, presets: list[str]) -> list[tuple[str, bool]]:

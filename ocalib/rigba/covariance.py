@@ -3,7 +3,9 @@
 The bundle adjustment's Gauss-Newton information ``J^T J / sigma^2`` over every rig frame's pose, every 3-D point
 and every extrinsic is reduced to the extrinsics by Schur complements (points first, then frames), so each
 camera's 6x6 information holds what the whole reconstruction knows of it. The gauge is fixed as COLMAP's BA fixes
-it: the first registered frame's pose, and the scale through one coordinate of the frame farthest from it.
+it: the first registered frame's pose, and the scale through one coordinate of the frame farthest from it; where
+camera 0's positions are priors (a metric trajectory of a stated noise), they fix it instead, with the uncertainty
+they leave in the scale.
 Directions of the translation that the data do not pin are reported unobservable instead of given a number: those
 whose information vanishes against the best-known one, and those whose 1-sigma exceeds a tenth of the lever arm's
 length (a car's camera height on planar motion: shifting camera k and its points along the common rotation axis

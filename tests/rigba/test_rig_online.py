@@ -119,6 +119,24 @@ def test_a_window_that_holds_the_poses_counts_them_given():
     assert np.all(np.abs(error) < 3 * np.sqrt(np.diag(held))), (error, np.sqrt(np.diag(held)))
 
 
+def test_a_window_that_solves_the_poses_counts_the_stated_noise_of_their_positions():
+    """The rig's poses solved with camera 0's positions as priors: the tighter their stated noise, the better the
+    window states the lever arm (the priors carry the scale into it), and its 3-sigma still covers the error."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    variances = []
+    for noise in (0.05, 0.001):
+        keyframes, points = _window(np.random.default_rng(1), truth)
+        E = truth.copy()
+        for _ in range(3):
+            result = adjust_window(keyframes, points, E, np.stack([K, K]), [(128, 416)] * 2, prior_noise=noise)
+        covariance = result.uncertainty[0].covariance
+        variances.append(np.diag(covariance)[3:])
+        error = innovation(truth[1], E[1])
+        assert np.all(np.abs(error) < 3 * np.sqrt(np.diag(covariance))), (error, np.sqrt(np.diag(covariance)))
+    loose, tight = variances
+    assert np.all(tight < loose), (loose, tight)
+
+
 def test_a_held_camera_keeps_its_extrinsic_while_the_others_are_adjusted():
     """``held``: camera 1's extrinsic stays where it was (the estimator holds a camera whose observations span too
     few keyframes); the same window without it moves camera 1 towards the truth."""
