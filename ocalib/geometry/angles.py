@@ -68,4 +68,5 @@ def rpy_radians(R: np.ndarray) -> np.ndarray:
     yaw = np.arctan2(R[1, 0], R[0, 0]) if np.hypot(R[0, 0], R[1, 0]) > GIMBAL_LOCK else 0.0
     c, s = np.cos(yaw), np.sin(yaw)
     M = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ R
-    return np.array([np.arctan2(-M[1, 2], M[1, 1]), np.arctan2(-M[2, 0], M[0, 0]), yaw])
+    # cos(pitch) = M[0, 0] >= 0; at the lock its rounding may go below 0, which would put pitch an ulp past pi/2
+    return np.array([np.arctan2(-M[1, 2], M[1, 1]), np.arctan2(-M[2, 0], abs(M[0, 0])), yaw])

@@ -154,6 +154,8 @@ class OnlineRigEstimator:
         self.map = LocalMap(self.K, self.sizes, options, distortions or [None] * len(self.K))
         self.frames_seen = 0
         self.keyframes_unregistered = 0
+        self.windows_solved = 0  # adjustments of the window that solved the rig's poses
+        self.windows_without_priors = 0  # of those, the ones COLMAP anchored at three points instead (window.aligns)
         self.dismissed: list[tuple[int, int, SplitTest]] = []  # candidates the window did not confirm: camera, frame
 
     @property
@@ -239,6 +241,8 @@ class OnlineRigEstimator:
         apart = frozenset(k for k, cam in enumerate(self.cameras) if cam.waiting and cam.candidate is None)
         window = adjust_window(list(self.map.keyframes), self.map.points, self.extrinsics, self.K, self.sizes, held,
                                self.options.metric_noise, apart)  # fmt: skip
+        self.windows_solved += window.priors_used is not None
+        self.windows_without_priors += window.priors_used is False
         changes = []
         for k, u in enumerate(window.uncertainty, start=1):
             cam = self.cameras[k]

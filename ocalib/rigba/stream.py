@@ -114,6 +114,13 @@ class OnlineRigStage:
                 f"{change.frame} ({change.rotation_change_deg:.2f} deg, {change.translation_change:.3f} m), too close "
                 "to the stream's end to be judged; the estimate is the camera's before it: record more frames to tell"
             )
+        if self.estimator is not None and self.estimator.windows_without_priors:
+            self.warnings.append(
+                f"on-line rig estimator: {self.estimator.windows_without_priors} of {self.estimator.windows_solved} "
+                "windows could not take the metric trajectory's positions as priors (COLMAP aligns no similarity to "
+                "positions on a line or in a plane, as on level ground, nor to a window farther than three sigmas from "
+                "them): those were anchored at three points instead, keeping the scale they had"
+            )
         if self.final is None:
             self.warnings.append(
                 f"on-line rig estimator: never started (the sequence is shorter than {START_FRAME + 1} frames, or the "
@@ -234,6 +241,8 @@ class OnlineRigStage:
             "window_keyframes": self.options.window,
             "keyframe_step": self.options.keyframe_step,
             "rig_poses": "solved" if self.solves_poses else "held",
+            "windows_solved": 0 if self.estimator is None else self.estimator.windows_solved,
+            "windows_without_priors": 0 if self.estimator is None else self.estimator.windows_without_priors,
             "metric_noise_m": self.options.metric_noise or 0.0,
             "unjudged_changes": [
                 {

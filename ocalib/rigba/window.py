@@ -33,6 +33,7 @@ LOSS_SCALE_PX = 1.0  # the Cauchy loss's scale: residuals well above a pixel cou
 MAX_ERROR_PX = 4.0  # an observation reprojected farther than this after the adjustment is dropped
 MIN_SPLIT_OBSERVATIONS = 30  # of a camera before and after a split for :func:`split_statistic`
 SPLIT_TRUNCATION = 13.8  # the chi-square's 1e-3 quantile, 2 dof: a squared error counts up to this many variances
+ALIGNMENT_SIGMAS = 3.0  # a window is aligned to its position priors where this many sigmas hold a similarity
 MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts from the last window's solution)
 
 
@@ -55,13 +56,15 @@ class WindowResult:
     """The adjustment's outcome: ``uncertainty`` per camera k >= 1 (None where it could not be computed),
     ``reprojection_px`` the RMS error of the observations kept, ``observations`` their count, ``dropped`` the
     count dropped as outliers; ``trials`` per camera solved apart (:func:`adjust_window`) its extrinsic (4, 4) and
-    its points' positions (point id -> (3,)) when the window tries it free."""
+    its points' positions (point id -> (3,)) when the window tries it free; ``priors_used`` where the window solved
+    the rig's poses, whether COLMAP took the position priors (:func:`aligns`), None where it held them."""
 
     uncertainty: list[ExtrinsicUncertainty | None]
     reprojection_px: float
     observations: int
     dropped: int
     trials: dict[int, tuple[np.ndarray, dict[int, np.ndarray]]] = field(default_factory=dict)
+    priors_used: bool | None = None
 
 
 def observations(keyframes: list[Keyframe], points: dict[int, np.ndarray]) -> dict[str, np.ndarray]:
@@ -123,6 +126,7 @@ def adjust_window(
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
+    used = aligns(keyframes, prior_noise) if solves_poses(keyframes, prior_noise) else None
     free = ~np.isin(obs["camera"], list(apart))
     placed = np.bincount(obs["point"], weights=free, minlength=len(obs["ids"])) >= 2  # points the others fix
     first = _subset(obs, placed[obs["point"]] & free)
@@ -144,7 +148,7 @@ def adjust_window(
     noise = prior_noise if solves_poses(keyframes, prior_noise) else None
     uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, free, noise)
     rms = float(np.sqrt(np.mean(error[inlier] ** 2))) if inlier.any() else float("nan")
-    return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()), trials)
+    return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()), trials, used)
 
 
 def _solve_apart(keyframes, points, extrinsics, K, sizes, obs, placed, tried):
@@ -240,6 +244,17 @@ def solves_poses(keyframes: list[Keyframe], prior_noise: float | None) -> bool:
     return bool(prior_noise) and all(kf.prior is not None and shares_pose(kf) for kf in keyframes)
 
 
+def aligns(keyframes: list[Keyframe], noise: float) -> bool:
+    """Whether COLMAP's pose-prior adjuster takes the priors of a window that solves its poses: its seeded Sim(3)
+    RANSAC (:func:`_prior_adjuster`'s) aligns camera 0's positions (the keyframes' ``poses[0]``) to the priors
+    within three times ``noise``. It does not where they lie on a line or in a plane, or farther off."""
+    options = pycolmap.PosePriorBundleAdjustmentOptions().alignment_ransac
+    options.max_error, options.random_seed = ALIGNMENT_SIGMAS * noise, 0
+    centres = np.stack([kf.poses[0][:3, 3] for kf in keyframes])
+    priors = np.stack([kf.prior[:3, 3] for kf in keyframes])
+    return pycolmap.estimate_sim3d_robust(centres, priors, options) is not None
+
+
 def shares_pose(kf: Keyframe) -> bool:
     """Whether keyframe ``kf``'s cameras captured their images at one pose of the rig (a shared trigger)."""
     return bool((kf.poses == kf.poses[0]).all())
@@ -308,7 +323,7 @@ def _prior_adjuster(rec, config, options, keyframes, noise: float):
         for i, kf in enumerate(keyframes)
     ]
     prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
-    prior_options.alignment_ransac.max_error = 3 * noise
+    prior_options.alignment_ransac.max_error = ALIGNMENT_SIGMAS * noise
     prior_options.alignment_ransac.random_seed = 0
     return pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec)
 

@@ -437,6 +437,7 @@ def test_the_windows_solved_poses_take_the_metric_positions_as_priors(knocked_ri
     (COLMAP's pose-prior adjuster): the estimator's window on the rendered rig, given positions 0.3 m off along x,
     ends with its poses 0.3 m off along x and its extrinsic where it was."""
     estimator, _, _ = _run(knocked_rig, range(40), OnlineRigOptions(metric_noise=0.01))
+    assert estimator.windows_solved > 0 and estimator.windows_without_priors == 0
     solved = []
     for shift in (0.0, 0.3):
         keyframes = [
@@ -446,12 +447,32 @@ def test_the_windows_solved_poses_take_the_metric_positions_as_priors(knocked_ri
         for kf in keyframes:
             kf.prior[:3, 3] += [shift, 0.0, 0.0]
         extrinsics = estimator.extrinsics.copy()
-        adjust_window(keyframes, dict(estimator.map.points), extrinsics, estimator.K, estimator.sizes, prior_noise=0.01)
+        result = adjust_window(keyframes, dict(estimator.map.points), extrinsics, estimator.K, estimator.sizes,
+                               prior_noise=0.01)  # fmt: skip
+        assert result.priors_used
         solved.append((np.stack([kf.poses[0, :3, 3] for kf in keyframes]), extrinsics[1]))
     (before, E_before), (after, E_after) = solved
     np.testing.assert_allclose(after - before, np.tile([0.3, 0.0, 0.0], (len(before), 1)), atol=2e-3)
     assert float(rotation_angle_deg(E_after[:3, :3].T @ E_before[:3, :3])) < 0.01
     np.testing.assert_allclose(E_after[:3, 3], E_before[:3, 3], atol=2e-3)
+
+
+def test_a_window_whose_positions_lie_on_a_line_says_it_did_not_take_its_priors():
+    """COLMAP's alignment to the position priors rejects positions on a line (as in a plane: a drive on level
+    ground), and its adjuster then anchors the window at three points: the window says so, and indeed its solved
+    positions do not follow priors moved 0.3 m, as they do where it takes them (the test above)."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    solved = []
+    for shift in (0.0, 0.3):
+        keyframes, points = _window(np.random.default_rng(0), truth)
+        for kf in keyframes:
+            kf.prior[:3, 3] += [shift, 0.0, 0.0]
+        result = adjust_window(keyframes, points, truth.copy(), np.stack([K, K]), [(128, 416)] * 2, prior_noise=0.01)
+        assert result.priors_used is False
+        solved.append(np.stack([kf.poses[0, :3, 3] for kf in keyframes]))
+    np.testing.assert_allclose(solved[1], solved[0], atol=1e-9)
+    held = adjust_window(*_window(np.random.default_rng(0), truth), truth.copy(), np.stack([K, K]), [(128, 416)] * 2)
+    assert held.priors_used is None  # the poses held: no priors to take
 
 
 def test_a_candidate_waits_for_four_keyframes_and_its_camera_is_held_meanwhile():
