@@ -126,7 +126,8 @@ def adjust_window(
     C = len(extrinsics)
     if not len(obs["ids"]):
         return WindowResult([None] * (C - 1), float("nan"), 0, 0)
-    used = aligns(keyframes, prior_noise) if solves_poses(keyframes, prior_noise) else None
+    solved = solves_poses(keyframes, prior_noise)
+    used = aligns(keyframes, prior_noise) if solved else None
     free = ~np.isin(obs["camera"], list(apart))
     placed = np.bincount(obs["point"], weights=free, minlength=len(obs["ids"])) >= 2  # points the others fix
     first = _subset(obs, placed[obs["point"]] & free)
@@ -145,8 +146,7 @@ def adjust_window(
     for i, k, j in zip(obs["frame"][outlier], obs["camera"][outlier], obs["keypoint"][outlier]):
         keyframes[i].point_ids[k][j] = -1
     inlier = ~outlier
-    noise = prior_noise if solves_poses(keyframes, prior_noise) else None
-    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, free, noise)
+    uncertainty = _uncertainty(obs, inlier, poses, extrinsics, xyz, K, free, prior_noise if solved else None)
     rms = float(np.sqrt(np.mean(error[inlier] ** 2))) if inlier.any() else float("nan")
     return WindowResult(uncertainty, rms, int(inlier.sum()), int(outlier.sum()), trials, used)
 
@@ -248,11 +248,16 @@ def aligns(keyframes: list[Keyframe], noise: float) -> bool:
     """Whether COLMAP's pose-prior adjuster takes the priors of a window that solves its poses: its seeded Sim(3)
     RANSAC (:func:`_prior_adjuster`'s) aligns camera 0's positions (the keyframes' ``poses[0]``) to the priors
     within three times ``noise``. It does not where they lie on a line or in a plane, or farther off."""
-    options = pycolmap.PosePriorBundleAdjustmentOptions().alignment_ransac
-    options.max_error, options.random_seed = ALIGNMENT_SIGMAS * noise, 0
     centres = np.stack([kf.poses[0][:3, 3] for kf in keyframes])
     priors = np.stack([kf.prior[:3, 3] for kf in keyframes])
-    return pycolmap.estimate_sim3d_robust(centres, priors, options) is not None
+    return pycolmap.estimate_sim3d_robust(centres, priors, _alignment(noise)) is not None
+
+
+def _alignment(noise: float) -> pycolmap.RANSACOptions:
+    """The seeded RANSAC options of the window's Sim(3) alignment to position priors of ``noise`` metres."""
+    options = pycolmap.PosePriorBundleAdjustmentOptions().alignment_ransac
+    options.max_error, options.random_seed = ALIGNMENT_SIGMAS * noise, 0
+    return options
 
 
 def shares_pose(kf: Keyframe) -> bool:
@@ -323,8 +328,7 @@ def _prior_adjuster(rec, config, options, keyframes, noise: float):
         for i, kf in enumerate(keyframes)
     ]
     prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
-    prior_options.alignment_ransac.max_error = ALIGNMENT_SIGMAS * noise
-    prior_options.alignment_ransac.random_seed = 0
+    prior_options.alignment_ransac = _alignment(noise)
     return pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec)
 
 
