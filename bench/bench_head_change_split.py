@@ -8,7 +8,7 @@ on a steady rig is a false alarm; a knocked rig's (camera 1 turned by 2 deg at f
 counts when the knocked camera's change is named from frame 146 on and noticed within 30 frames. Cameras whose
 head never settled are counted as untested (the test does not run on them).
 
-    python bench/bench_head_change_split.py --split test [--root data/eval] [--presets front-left handheld]
+    python bench/bench_head_change_split.py --split test [--root data/eval] [--presets front-left handheld] [--rendered]
 """
 
 from __future__ import annotations
@@ -56,11 +56,14 @@ def main() -> None:
     p.add_argument("--split", default="test")
     p.add_argument("--root", default="data/eval")
     p.add_argument("--presets", nargs="+", default=["front-left", "handheld", "surround"])
+    p.add_argument("--rendered", action="store_true", help="only the rigs already rendered under --root")
     p.add_argument("--out", default="bench/results/head_change_split.json")
     args = p.parse_args()
     root, rows = Path(args.root), []
     for name, knocked in rigs(args.split, args.presets):
         rig = name + "-knocked" * knocked
+        if args.rendered and not (root / rig).is_dir():
+            continue
         names, poses = trajectories(root, rig)
         changes, untested = head_changes(names, poses)
         rows.append({"rig": rig, "knocked": knocked, "frames": len(poses), "cameras": len(names) - 1,

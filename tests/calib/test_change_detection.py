@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import torch
+from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
 from ocalib.calib.drivers.change import ChangeTest, _cumulative, _split_ratio, first_change, handeye_residuals, motions
@@ -115,6 +116,21 @@ def test_an_estimate_degrees_off_is_no_reference_until_its_rotation_has_settled(
     std = np.where(np.arange(len(args[2]))[:, None] < 300, 10.0, 0.05) * np.ones(3)
     assert first_change(*args) is not None
     assert first_change(*args, rotation_std=std) is None
+
+
+def test_nothing_is_declared_before_the_overdispersion_is_known():
+    """Camera 1's trajectory wanders (a rotation error of 1 deg, smooth over some 15 frames, as a visual-inertial
+    path's is) on a steady rig: the ratios are several times the chi-square's. The first tests, at frame 210 (60
+    frames of warm-up, 120 of history, a window of 30), have no earlier tests to take their overdispersion from; they
+    decide nothing until 60 tests (two windows) have given it, from frame 270 on."""
+    for seed in range(4):
+        poses, _, _ = knocked_rig(30 + seed, frames=400, at=10**6)
+        rng = np.random.default_rng(seed)
+        wander = gaussian_filter1d(rng.normal(size=(len(poses), 3)), 15, axis=0)
+        wander *= np.radians(1.0) / wander.std()
+        poses[:, 1, :3, :3] = poses[:, 1, :3, :3] @ torch.from_numpy(Rotation.from_rotvec(wander).as_matrix())
+        change = head_change(poses)
+        assert change is None or change.detected >= 270
 
 
 def test_a_jump_of_one_frame_is_no_change_and_a_knock_still_is():

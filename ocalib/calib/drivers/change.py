@@ -9,9 +9,9 @@ Each frame tests a two-sample generalized likelihood ratio: do the last ``window
 the ``history`` before them? With the rows weighed by the inverse covariance of the history's residuals (once its own
 step is fitted), the ratio is chi-square with rank(H) degrees of freedom while nothing changed; it is divided by
 its overdispersion (the median ratio of the earlier tests over the chi-square median, at least 1: the residuals are
-neither white nor Gaussian). A p-value under ``false_alarm`` on ``persistence`` frames in a row is a change; its
-first frame is the split of the window that explains it best. Fitting each side's own step absorbs a lasting error
-of the reference estimate.
+neither white nor Gaussian); the first tests, before two windows of tests have given it, decide nothing. A p-value
+under ``false_alarm`` on ``persistence`` frames in a row is a change; its first frame is the split of the window
+that explains it best. Fitting each side's own step absorbs a lasting error of the reference estimate.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``, camera-0 units), ``s`` camera-k units into camera-0 units;
 poses camera-to-world; a step ``d`` = (rotation rad, translation, scale) with its vectors in camera 0's axes.
@@ -289,9 +289,9 @@ def _contract(St: np.ndarray, Xt: np.ndarray, pairing: tuple) -> np.ndarray:
 
 def _dispersion(relative: np.ndarray, lag: int) -> np.ndarray:
     """Each test's overdispersion (E,): the median of the ``relative`` ratios (E,) (ratio over its chi-square median)
-    of the tests that ended ``lag`` to ``2 lag`` or more tests before it (updated every ``lag`` tests), at least 1 (1
-    where there are none)."""
-    out = np.ones(len(relative))
+    of the tests that ended ``lag`` to ``2 lag`` or more tests before it (updated every ``lag`` tests), at least 1;
+    infinite where there are none (the first ``2 lag`` tests), so that those decide nothing."""
+    out = np.full(len(relative), np.inf)
     for e in range(2 * lag, len(relative), lag):
         out[e : e + lag] = max(float(np.median(relative[: e - lag])), 1.0)
     return out
