@@ -196,6 +196,25 @@ def summarise(root: Path, docs: dict[tuple[str, bool], dict]) -> dict:
     return out
 
 
+def rig_row(root: Path, name: str, knocked: bool, doc: dict) -> dict:
+    """One run's outcome, to compare runs rig by rig: within the targets, said not determined, each camera's errors
+    and the source of its reported extrinsic, the changes declared, the estimator's NEES terms and releases."""
+    kind = "handheld" if name.startswith("handheld-") else "car"
+    errors = doc.get("ground_truth_errors", [])
+    keys = ("rotation_error_deg", "translation_direction_error_deg", "translation_error_rel_baseline")
+    return {
+        "rig": f"{name}{'-knocked' * knocked}",
+        "within": all(within(e, kind) for e in errors or [{}]),
+        "said": any(not_determined(x) is not None for x in doc["extrinsics"]),
+        "errors": [{k: e.get(k) for k in keys} for e in errors],
+        "sources": [x.get("source") for x in doc["extrinsics"]],
+        "changes": [{k: c[k] for k in ("frame", "detected", "rotation_change_deg", "translation_change")}
+                    for c in doc.get("changes", [])],  # fmt: skip
+        "nees": nees(doc, root / f"{name}{'-knocked' * knocked}"),
+        "released_at": [x.get("released_at_frame") for x in doc.get("rig_estimator", {}).get("extrinsics", [])],
+    }
+
+
 def determined_before_knock(doc: dict, changed: bool) -> bool | None:
     """Whether the estimator had determined the knocked camera (camera 1) before the knock at ``FRAMES // 2``: it
     declared a change of it there (``changed``: it was tracking it), or released it before; None where the run
@@ -258,7 +277,8 @@ def main() -> None:
             docs[(name, knocked)] = run(root, name, knocked, mode)
         summary = summarise(root, docs)
         print(table(summary, mode))
-        doc["modes"][mode] = {"summary": summary, "rigs": sorted(f"{n}{'-knocked' * k}" for n, k in docs)}
+        rows = [rig_row(root, n, k, d) for (n, k), d in sorted(docs.items())]
+        doc["modes"][mode] = {"summary": summary, "rigs": [r["rig"] for r in rows], "rows": rows}
     write_json(args.out or f"bench/results/calibrate_{args.split}.json", doc)
 
 
