@@ -208,8 +208,10 @@ def rig_row(root: Path, name: str, knocked: bool, doc: dict) -> dict:
         "said": any(not_determined(x) is not None for x in doc["extrinsics"]),
         "errors": [{k: e.get(k) for k in keys} for e in errors],
         "sources": [x.get("source") for x in doc["extrinsics"]],
-        "changes": [{k: c[k] for k in ("frame", "detected", "rotation_change_deg", "translation_change")}
-                    for c in doc.get("changes", [])],  # fmt: skip
+        "changes": [
+            {k: c[k] for k in ("frame", "detected", "rotation_change_deg", "translation_change")}
+            for c in doc.get("changes", [])
+        ],  # fmt: skip
         "nees": nees(doc, root / f"{name}{'-knocked' * knocked}"),
         "released_at": [x.get("released_at_frame") for x in doc.get("rig_estimator", {}).get("extrinsics", [])],
     }
