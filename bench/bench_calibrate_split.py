@@ -211,7 +211,7 @@ def rig_row(root: Path, name: str, knocked: bool, doc: dict) -> dict:
         "changes": [
             {k: c[k] for k in ("frame", "detected", "rotation_change_deg", "translation_change")}
             for c in doc.get("changes", [])
-        ],  # fmt: skip
+        ],
         "nees": nees(doc, root / f"{name}{'-knocked' * knocked}"),
         "released_at": [x.get("released_at_frame") for x in doc.get("rig_estimator", {}).get("extrinsics", [])],
     }
