@@ -9,9 +9,10 @@ Each frame tests a two-sample generalized likelihood ratio: do the last ``window
 the ``history`` before them? With the rows weighed by the inverse covariance of the history's residuals (once its own
 step is fitted), the ratio is chi-square with rank(H) degrees of freedom while nothing changed; it is divided by
 its overdispersion (the median ratio of the earlier tests over the chi-square median, at least 1: the residuals are
-neither white nor Gaussian); the first tests, before two windows of tests have given it, decide nothing. A p-value
-under ``false_alarm`` on ``persistence`` frames in a row is a change; its first frame is the split of the window
-that explains it best. Fitting each side's own step absorbs a lasting error of the reference estimate.
+neither white nor Gaussian); tests over shorter histories than ``min_history`` (from one window on) decide nothing
+but give the first decisions theirs. A p-value under ``false_alarm`` on ``persistence`` frames in a row is a change;
+its first frame is the split of the window that explains it best. Fitting each side's own step absorbs a lasting
+error of the reference estimate.
 
 Convention: ``T_cam0_camk`` (``p_cam0 = R p_camk + t``, camera-0 units), ``s`` camera-k units into camera-0 units;
 poses camera-to-world; a step ``d`` = (rotation rad, translation, scale) with its vectors in camera 0's axes.
@@ -67,6 +68,12 @@ class ChangeTest:
     def __post_init__(self):
         if self.gap < 1:
             raise ValueError(f"the change test's gap must be at least 1 frame, got {self.gap}")
+
+    def first_decision(self, reference: int) -> int:
+        """The first frame a test can decide at, its residuals referenced at frame ``reference``: a full window after
+        ``min_history`` frames, and two windows of tests before it that give its overdispersion (:func:`_dispersion`;
+        those from a history of one window on)."""
+        return reference + self.gap + max(self.min_history + max(self.windows), 4 * max(self.windows)) - 1
 
 
 def handeye_residuals(
@@ -149,11 +156,13 @@ def _segment_change(poses0, posesk, R, t, s, settled, test: ChangeTest, first: i
     frames, sums = _referenced_sums(poses0, posesk, R, t, s, test, settled)
     p = np.ones((len(test.windows), len(frames) + 1))  # per window and end: the p-value (Bonferroni over windows)
     for i, W in enumerate(test.windows):
-        ends = np.arange(W + test.min_history, len(frames) + 1)  # window [end - W, end), history before it
+        # window [end - W, end), history before it; those with under min_history of it only learn the overdispersion
+        ends = np.arange(2 * W, len(frames) + 1)
         if len(ends):
             ratio, dof, _ = _split_ratio(sums, np.maximum(ends - W - test.history, 0), ends - W, ends)
             ratio = ratio / _dispersion(ratio / chi2_median(dof), W)
-            p[i, ends] = np.minimum(chi2_sf(ratio, dof) * len(test.windows), 1)
+            decide = ends >= W + test.min_history
+            p[i, ends[decide]] = np.minimum(chi2_sf(ratio[decide], dof[decide]) * len(test.windows), 1)
     over = np.convolve(p.min(0) < test.false_alarm, np.ones(test.persistence), "valid")
     hits = [h + test.persistence - 1 for h in np.flatnonzero(over >= test.persistence)]
     end = next((e for e in hits if frames[e - 1] >= first), None)
@@ -290,7 +299,7 @@ def _contract(St: np.ndarray, Xt: np.ndarray, pairing: tuple) -> np.ndarray:
 def _dispersion(relative: np.ndarray, lag: int) -> np.ndarray:
     """Each test's overdispersion (E,): the median of the ``relative`` ratios (E,) (ratio over its chi-square median)
     of the tests that ended ``lag`` to ``2 lag`` or more tests before it (updated every ``lag`` tests), at least 1;
-    infinite where there are none (the first ``2 lag`` tests), so that those decide nothing."""
+    infinite where there are none (the first ``2 lag`` tests, which then decide nothing)."""
     out = np.full(len(relative), np.inf)
     for e in range(2 * lag, len(relative), lag):
         out[e : e + lag] = max(float(np.median(relative[: e - lag])), 1.0)

@@ -161,16 +161,24 @@ def progress_text(out: Calibration) -> str:
 
 def untested_warnings(run: CalibrationRun, test: ChangeTest = ChangeTest()) -> list[str]:
     """A line per camera whose extrinsic the change ``test`` never tested: the on-line head's rotation 1-sigma never
-    under the test's ``settled_deg`` after its warm-up (its estimate is no reference for the residuals)."""
+    under the test's ``settled_deg`` after its warm-up (its estimate is no reference for the residuals), or the
+    stream ended before the test's first decision after it settled (:meth:`ChangeTest.first_decision`)."""
     std = run.trace.get("rotation_std_deg")
     if std is None or len(std) <= test.warmup:
         return []
-    return [
-        f"{f}: a change of its extrinsic could not be tested: the on-line head's rotation 1-sigma never came under "
-        f"{test.settled_deg} deg (the change test's reference must be that close)"
-        for f, s in zip(run.rig.files[1:], np.moveaxis(std[test.warmup :], 1, 0))
-        if not (s <= test.settled_deg).all(1).any()
-    ]
+    out = []
+    for f, s in zip(run.rig.files[1:], np.moveaxis(std[test.warmup - 1 :], 1, 0)):
+        settled = np.flatnonzero((s <= test.settled_deg).all(1))
+        reference = int(settled[0]) + test.warmup - 1 if len(settled) else None
+        if reference is None:
+            out.append(f"{f}: a change of its extrinsic could not be tested: the on-line head's rotation 1-sigma never "
+                       f"came under {test.settled_deg} deg (the change test's reference must be that close)")  # fmt: skip
+        elif (first := test.first_decision(reference)) >= len(std):
+            out.append(f"{f}: a change of its extrinsic could not be tested: the stream ends at frame {len(std) - 1}, "
+                       f"before the change test's first decision at frame {first} (its head settled at frame "
+                       f"{reference}; the test compares a window of {max(test.windows)} frames with at least "
+                       f"{test.min_history} before it)")  # fmt: skip
+    return out
 
 
 def run_warnings(run: CalibrationRun) -> list[str]:
