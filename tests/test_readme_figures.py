@@ -25,6 +25,7 @@ DECLARED = {
     "docs/simulation.md": 17,
     "docs/results-calibrate.md": 3,
     "docs/benchmarks.md": 17,
+    "docs/results-change.md": 54,
 }
 
 
