@@ -123,7 +123,8 @@ def test_the_first_tests_know_their_overdispersion():
     path's is) on a steady rig: the ratios run several times the chi-square's. The first tests, at frame 210 (60
     frames of warm-up, 120 of history, a window of 30), take their overdispersion from the tests over shorter
     histories before them (with none, three of these four rigs raised a change there, at frames 211-256); none is
-    raised. And a stream that ends before the first decision is said untested."""
+    raised. A knock just before the first decision is noticed at it (:meth:`ChangeTest.first_decision` is what the
+    test does), and a stream that ends before it is said untested."""
     for seed in range(4):
         poses, _, _ = knocked_rig(30 + seed, frames=400, at=10**6)
         rng = np.random.default_rng(seed)
@@ -131,7 +132,10 @@ def test_the_first_tests_know_their_overdispersion():
         wander *= np.radians(0.5) / wander.std()
         poses[:, 1, :3, :3] = poses[:, 1, :3, :3] @ torch.from_numpy(Rotation.from_rotvec(wander).as_matrix())
         assert head_change(poses) is None
-    first = ChangeTest().first_decision(ChangeTest().warmup - 1)  # the head settles within its warm-up here
+    test = ChangeTest()
+    first = test.first_decision(test.warmup - 1)  # the head settles within its warm-up here
+    early = head_change(knocked_rig(0, "car", frames=400, at=180)[0])  # a knock the first decisions see at once
+    assert early is not None and early.detected == first + test.persistence - 1
     for frames, said in ((first, True), (first + 1, False)):
         poses, _, _ = knocked_rig(3, "car", frames=frames, at=10**6)
         rig = RigPoses(["cam0.txt", "cam1.txt"], poses.numpy(), None, np.zeros((frames, 2), int), [None, None],
