@@ -4,7 +4,8 @@ ways:
 
 - :func:`adjust_with_metric_prior`: its positions as weighted priors (COLMAP's pose-prior bundle adjuster, which aligns
   the reconstruction to them by a Sim(3) RANSAC and adjusts points, rig poses and every ``sensor_from_rig`` with each
-  prior's squared Mahalanobis distance beside the reprojection errors, weighed by the noise its user states);
+  prior's squared Mahalanobis distance beside the reprojection errors, weighed by the noise its user states; the
+  positions moved off the origin meanwhile, :func:`off_origin`);
 - :func:`adjust_with_metric_held`: its poses held fixed, only the points and the extrinsics adjusted (the way of
   odometry-based rig calibration, e.g. CamOdoCal): the lever arm is then measured against the trajectory directly.
 
@@ -36,11 +37,19 @@ def adjust_with_metric_prior(
 ) -> bool:
     """Adjust ``rec`` in place with camera 0's positions from ``metric`` (T, 4, 4) as priors on its images of
     ``camera_id`` (``frame_of``: image id -> frame), ``noise`` metres per axis. False (``rec`` unchanged) where too
-    few camera-0 frames registered."""
+    few camera-0 frames registered or no similarity aligns them to the positions within three times ``noise``."""
     images = [i for i, image in rec.images.items() if image.camera_id == camera_id and image.has_pose]
     if len(images) < MIN_PRIORS:
         return False
     positions = metric[[frame_of[i] for i in images], :3, 3]
+    shift = off_origin(positions)
+    positions = positions + shift
+    prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
+    prior_options.alignment_ransac.max_error = 3 * noise  # metres: a camera-0 position this far off is an outlier
+    prior_options.alignment_ransac.random_seed = 0
+    centres = np.stack([rec.images[i].projection_center() for i in images])
+    if pycolmap.estimate_sim3d_robust(centres, positions, prior_options.alignment_ransac) is None:
+        return False
     priors = [
         pycolmap.PosePrior(
             corr_data_id=rec.images[i].data_id,
@@ -50,12 +59,24 @@ def adjust_with_metric_prior(
         )
         for i, p in zip(images, positions)
     ]
-    config = _config(rec)
-    options = _options(threads)
-    prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
-    prior_options.alignment_ransac.max_error = 3 * noise  # metres: a camera-0 position this far off is an outlier
-    pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
+    pycolmap.create_pose_prior_bundle_adjuster(_options(threads), prior_options, _config(rec), priors, rec).solve()
+    rec.transform(translation(-shift))
     return True
+
+
+def off_origin(positions: np.ndarray) -> np.ndarray:
+    """A translation (3,) that takes ``positions`` (N >= 3, 3) off every plane through the origin: their centroid to
+    the origin, then their extent (plus a metre) along the normal of their best plane. COLMAP's Sim(3) estimate
+    rejects a sample whose *uncentred* positions have rank under 3, which every sample of positions in a plane
+    through the origin has: a drive on level ground, its trajectory re-referenced to its first frame."""
+    centre = positions.mean(0)
+    _, s, vt = np.linalg.svd(positions - centre, full_matrices=False)
+    return vt[-1] * (s[0] / np.sqrt(len(positions)) + 1.0) - centre
+
+
+def translation(shift: np.ndarray) -> pycolmap.Sim3d:
+    """The similarity that translates the world by ``shift`` (3,)."""
+    return pycolmap.Sim3d(1.0, pycolmap.Rotation3d(), shift)
 
 
 def adjust_with_metric_held(

@@ -155,7 +155,7 @@ class OnlineRigEstimator:
         self.frames_seen = 0
         self.keyframes_unregistered = 0
         self.windows_solved = 0  # adjustments of the window that solved the rig's poses
-        self.windows_without_priors = 0  # of those, the ones COLMAP anchored at three points instead (window.aligns)
+        self.windows_without_priors = 0  # of those, the ones anchored at two keyframes instead (window.aligns)
         self.dismissed: list[tuple[int, int, SplitTest]] = []  # candidates the window did not confirm: camera, frame
 
     @property

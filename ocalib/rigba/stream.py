@@ -118,8 +118,8 @@ class OnlineRigStage:
             self.warnings.append(
                 f"on-line rig estimator: {self.estimator.windows_without_priors} of {self.estimator.windows_solved} "
                 "windows could not take the metric trajectory's positions as priors (COLMAP aligns no similarity to "
-                "positions on a line or in a plane, as on level ground, nor to a window farther than three sigmas from "
-                "them): those were anchored at three points instead, keeping the scale they had"
+                "positions on a line, nor to a window farther than three sigmas from them): those were anchored at "
+                "two keyframes' poses instead, keeping the scale they had"
             )
         if self.final is None:
             self.warnings.append(

@@ -9,7 +9,7 @@ loss, drops the observations that stay far off, and returns the extrinsics' unce
 (:mod:`ocalib.rigba.covariance`). The rig's poses are either held at the metric trajectory (exact: a render, or
 cameras without a shared trigger, each at its own capture pose) or, given the trajectory's noise, solved with the
 images, camera 0's metric positions weighted priors (or, where COLMAP cannot align the window to them, the window
-anchored at three points: :func:`_prior_adjuster`): a real trajectory's rotation (GNSS/INS, odometry) is off by
+anchored at two keyframes: :func:`_adjust_with_priors`): a real trajectory's rotation (GNSS/INS, odometry) is off by
 tenths of a degree, pixels at a camera's focal length, which a held window would read as the extrinsics moving.
 
 Convention: poses are the rig's (camera 0's) camera-to-world (4, 4); ``extrinsics`` (C, 4, 4) are ``T_cam0_camk``
@@ -28,6 +28,7 @@ from ocalib.geometry.se3 import innovation
 from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
 from ocalib.rigba.covariance import ExtrinsicUncertainty, Observations, observations_uncertainty
 from ocalib.rigba.features import Features
+from ocalib.rigba.metric_prior import off_origin, translation
 
 LOSS_SCALE_PX = 1.0  # the Cauchy loss's scale: residuals well above a pixel count less and less
 MAX_ERROR_PX = 4.0  # an observation reprojected farther than this after the adjustment is dropped
@@ -246,11 +247,13 @@ def solves_poses(keyframes: list[Keyframe], prior_noise: float | None) -> bool:
 
 def aligns(keyframes: list[Keyframe], noise: float) -> bool:
     """Whether COLMAP's pose-prior adjuster takes the priors of a window that solves its poses: its seeded Sim(3)
-    RANSAC (:func:`_prior_adjuster`'s) aligns camera 0's positions (the keyframes' ``poses[0]``) to the priors
-    within three times ``noise``. It does not where they lie on a line or in a plane, or farther off."""
+    RANSAC (:func:`_adjust_with_priors`'s) aligns camera 0's positions (the keyframes' ``poses[0]``) to the priors
+    within ``ALIGNMENT_SIGMAS`` times ``noise``, both moved off the origin as the adjuster's are. It does not where
+    they lie on a line, or farther off."""
     centres = np.stack([kf.poses[0][:3, 3] for kf in keyframes])
     priors = np.stack([kf.prior[:3, 3] for kf in keyframes])
-    return pycolmap.estimate_sim3d_robust(centres, priors, _alignment(noise)) is not None
+    shift = off_origin(priors)
+    return pycolmap.estimate_sim3d_robust(centres + shift, priors + shift, _alignment(noise)) is not None
 
 
 def _alignment(noise: float) -> pycolmap.RANSACOptions:
@@ -294,7 +297,7 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
     options.ceres.solver_options.num_threads = 1
     options.ceres.solver_options.max_num_iterations = MAX_ITERATIONS
     if shared:
-        _prior_adjuster(rec, config, options, keyframes, prior_noise).solve()
+        _adjust_with_priors(rec, config, options, keyframes, prior_noise)
     else:
         pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
     rig = rec.rig(1)
@@ -309,27 +312,37 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
     return xyz, poses
 
 
-def _prior_adjuster(rec, config, options, keyframes, noise: float):
-    """COLMAP's pose-prior bundle adjuster: camera 0's image of keyframe i (id ``i C + 1``) has the position prior
-    of ``keyframes[i].prior`` of ``noise`` metres per axis. It first aligns the window to the priors by a seeded
-    Sim(3) RANSAC (the window is already in their frame: a small move); where that alignment fails it uses no prior
-    and fixes the gauge at three points instead. It fails where the positions lie on a line or in a plane (COLMAP's
-    Sim(3) estimate rejects them at any threshold: a drive on level ground, the tests' synthetic windows) and where
-    the window lies farther than three sigmas from its priors (at tight priors, a window that drifted); on the
-    rendered hand-held rig the priors are used, as a test checks."""
+def _adjust_with_priors(rec, config, options, keyframes, noise: float) -> None:
+    """Adjust ``rec`` on COLMAP's pose-prior adjuster: camera 0's image of keyframe i (id ``i C + 1``) has the
+    position prior of ``keyframes[i].prior`` of ``noise`` metres per axis. The adjuster first aligns the window to
+    the priors by a seeded Sim(3) RANSAC (the window is already in their frame: a small move), the whole moved off the
+    origin meanwhile (:func:`ocalib.rigba.metric_prior.off_origin`: COLMAP rejects positions in a plane through it,
+    a drive on level ground). Where that alignment fails (:func:`aligns`: positions on a line) it uses no prior and
+    fixes the gauge at two keyframes' poses."""
+    if not aligns(keyframes, noise):
+        pycolmap.create_pose_prior_bundle_adjuster(options, _prior_options(noise), config, [], rec).solve()
+        return
     C = len(rec.cameras)
+    shift = off_origin(np.stack([kf.prior[:3, 3] for kf in keyframes]))
+    rec.transform(translation(shift))
     priors = [
         pycolmap.PosePrior(
             corr_data_id=rec.image(i * C + 1).data_id,
-            position=kf.prior[:3, 3],
+            position=kf.prior[:3, 3] + shift,
             position_covariance=np.eye(3) * noise**2,
             coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
         )
         for i, kf in enumerate(keyframes)
     ]
-    prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
-    prior_options.alignment_ransac = _alignment(noise)
-    return pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec)
+    pycolmap.create_pose_prior_bundle_adjuster(options, _prior_options(noise), config, priors, rec).solve()
+    rec.transform(translation(-shift))
+
+
+def _prior_options(noise: float) -> pycolmap.PosePriorBundleAdjustmentOptions:
+    """The pose-prior adjuster's options for priors of ``noise`` metres: its alignment :func:`_alignment`'s."""
+    options = pycolmap.PosePriorBundleAdjustmentOptions()
+    options.alignment_ransac = _alignment(noise)
+    return options
 
 
 def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared=False) -> pycolmap.Reconstruction:

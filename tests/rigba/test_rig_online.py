@@ -43,12 +43,19 @@ def _rig_pose(i: float) -> np.ndarray:
     return _mounting(np.degrees([0.02 * i, 0.05 * i, 0.01 * i]), [0.1 * i, 0.02 * i, 0.2 * i])
 
 
-def _window(rng, truth, moved=None, at: int = 8, sigma_px: float = 0.3, late: float = 0.0):
-    """12 keyframes of a rig (extrinsics ``truth`` (C, 4, 4)), 150 points in front of each camera at
-    the first, seen only by it, observed with ``sigma_px`` noise; camera 1 at ``moved`` from keyframe ``at`` on,
-    capturing ``late`` keyframes after camera 0 (each keyframe holds both capture poses).
+def _level_turn(i: float) -> np.ndarray:
+    """A rig turning on level ground from the origin (10 m radius, 2.3 deg a keyframe about the vertical y axis):
+    its positions lie in the plane y = 0, through the origin. Camera-to-world (4, 4)."""
+    angle = 0.04 * i
+    return _mounting([0, np.degrees(angle), 0], [10 * np.sin(angle), 0.0, 10 * (1 - np.cos(angle))])
+
+
+def _window(rng, truth, moved=None, at: int = 8, sigma_px: float = 0.3, late: float = 0.0, path=_rig_pose):
+    """12 keyframes of a rig (extrinsics ``truth`` (C, 4, 4)) along ``path`` (keyframe -> pose), 150 points in front
+    of each camera at the first, seen only by it, observed with ``sigma_px`` noise; camera 1 at ``moved`` from
+    keyframe ``at`` on, capturing ``late`` keyframes after camera 0 (each keyframe holds both capture poses).
     -> keyframes, points (their positions off by 5 cm)."""
-    poses = [_rig_pose(i) for i in range(12)]
+    poses = [path(i) for i in range(12)]
     points, keyframes = {}, []
     world = []
     for k in range(len(truth)):
@@ -59,7 +66,7 @@ def _window(rng, truth, moved=None, at: int = 8, sigma_px: float = 0.3, late: fl
         points.update({150 * k + j: X + rng.normal(0, 0.05, 3) for j, X in enumerate(world[k])})
     for i, pose in enumerate(poses):
         features, ids = [], []
-        captured = np.stack([pose, _rig_pose(i + late)] + [pose] * (len(truth) - 2))
+        captured = np.stack([pose, path(i + late)] + [pose] * (len(truth) - 2))
         for k in range(len(truth)):
             mounting = moved if (k == 1 and moved is not None and i >= at) else truth[k]
             T = np.linalg.inv(captured[k] @ mounting)
@@ -230,7 +237,7 @@ def test_a_trajectory_whose_rotation_is_off_is_not_read_as_a_moved_camera_where_
     """The rig's held rotation off by 0.3 deg from keyframe 8 on (1.3 px at this focal length; a real trajectory's
     rotation is off by tenths of a degree): held, the split test reads camera 1 as moved; with the trajectory's noise
     stated the window solves the rig's poses (its positions on a line, which COLMAP's alignment to the priors rejects:
-    the window is anchored at three points instead), and the ratio stays near
+    the window is anchored at two keyframes instead), and the ratio stays near
     chi-square(6) (mean 6), the extrinsic and the rig's turns as from the true trajectory, while a 1 deg turn of the
     camera stays in the thousands."""
     truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
@@ -457,10 +464,34 @@ def test_the_windows_solved_poses_take_the_metric_positions_as_priors(knocked_ri
     np.testing.assert_allclose(E_after[:3, 3], E_before[:3, 3], atol=2e-3)
 
 
+def test_a_window_turning_on_level_ground_takes_its_priors():
+    """Positions in a plane through the origin (a drive on level ground, its trajectory re-referenced to its first
+    frame), which COLMAP's Sim(3) estimate rejects as they are: the window takes them as priors all the same (moved
+    off the origin), its solved positions follow priors moved 0.3 m and its extrinsic stays where it was."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    solved = []
+    for shift in (0.0, 0.3):
+        keyframes, points = _window(np.random.default_rng(0), truth, path=_level_turn)
+        priors = np.stack([kf.prior[:3, 3] for kf in keyframes])
+        assert np.abs(priors[:, 1]).max() < 1e-12 and not priors[0].any()
+        options = pycolmap.RANSACOptions(max_error=0.03, random_seed=0)
+        assert pycolmap.estimate_sim3d_robust(priors, priors, options) is None  # COLMAP alone rejects them
+        for kf in keyframes:
+            kf.prior[:3, 3] += [shift, 0.0, 0.0]
+        extrinsics = truth.copy()
+        result = adjust_window(keyframes, points, extrinsics, np.stack([K, K]), [(128, 416)] * 2, prior_noise=0.01)
+        assert result.priors_used
+        solved.append((np.stack([kf.poses[0, :3, 3] for kf in keyframes]), extrinsics[1]))
+    (before, E_before), (after, E_after) = solved
+    np.testing.assert_allclose(after - before, np.tile([0.3, 0.0, 0.0], (len(before), 1)), atol=2e-3)
+    assert float(rotation_angle_deg(E_after[:3, :3].T @ E_before[:3, :3])) < 0.01
+    np.testing.assert_allclose(E_after[:3, 3], E_before[:3, 3], atol=2e-3)
+
+
 def test_a_window_whose_positions_lie_on_a_line_says_it_did_not_take_its_priors():
-    """COLMAP's alignment to the position priors rejects positions on a line (as in a plane: a drive on level
-    ground), and its adjuster then anchors the window at three points: the window says so, and indeed its solved
-    positions do not follow priors moved 0.3 m, as they do where it takes them (the test above)."""
+    """COLMAP's alignment to the position priors rejects positions on a line, and its adjuster then fixes the gauge
+    at two keyframes instead: the window says so, and indeed its solved positions do not follow priors moved 0.3 m,
+    as they do where it takes them (the tests above)."""
     truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
     solved = []
     for shift in (0.0, 0.3):
