@@ -10,9 +10,11 @@ its 2-D-3-D inliers, composed with the rig's pose) against the window's: with ``
 innovation from ``E_w`` to ``E_k``, ``I_k`` the keyframe's information (:func:`information`), the statistic
 ``d^T (I_k^-1 + P_w)^-1 d`` is chi-square with 6 degrees of freedom on a steady rig, up to an overdispersion (the
 points are estimates, shared by neighbouring keyframes) taken as the median of the recent steady statistics over
-the distribution's median, when above 1. Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
-in a row is a candidate change; the caller confirms it (:meth:`ExtrinsicTrack.accept`: the track restarts from the
-keyframes' mean measurement) or not (:meth:`ExtrinsicTrack.dismiss`).
+the distribution's median, when above 1 (1 before any: the test runs from the camera's first tested keyframe, for a
+knock just after the window determined it). Over the quantile at ``false_alarm`` on ``persistence`` tested keyframes
+in a row is a candidate change; the caller confirms it, at one of its disagreeing keyframes
+(:meth:`ExtrinsicTrack.candidate_from`, then :meth:`ExtrinsicTrack.accept`: the track restarts from the keyframes'
+mean measurement from there) or not (:meth:`ExtrinsicTrack.dismiss`).
 
 :meth:`ExtrinsicTrack.drifted` catches what the keyframes' test misses where the window follows a change within a
 few keyframes (they then agree with it): each window estimate, before it is fused, against the track, ``d^T (P +
@@ -38,7 +40,6 @@ from ocalib.data.distortion import project
 from ocalib.geometry.se3 import cross_matrix, innovation, perturbed
 
 HISTORY = 30  # steady keyframes whose statistics give the overdispersion
-MIN_HISTORY = 10  # steady keyframes needed before the test runs
 UNINFORMED = 1e4  # the variance (rad^2, m^2) given to a direction the data do not inform
 CHI2_MEDIAN = float(chi2_distribution.median(6))
 DRIFT_FALSE_ALARM = 1e-6  # drifted's level; steady rigs stay far below it (docs/results-rig-online.md)
@@ -59,6 +60,7 @@ class ExtrinsicTrack:
     chi2: float = float("nan")
     changes: list[Change] = field(default_factory=list)
     candidate: np.ndarray | None = None
+    disagreed: list = field(default_factory=list)  # the candidate's keyframes: (frame, measurement, window's)
     windows: int = 0  # window estimates fused since the start or the last change
     _information_sum: np.ndarray = field(default_factory=lambda: np.eye(6) / UNINFORMED)
     _history: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
@@ -119,25 +121,26 @@ class ExtrinsicTrack:
             statistic = float(d @ np.linalg.solve(np.linalg.inv(info) + reference[1], d))
         except np.linalg.LinAlgError:
             return None
-        if len(self._history) < MIN_HISTORY:
-            self._history.append(statistic)
-            return None
-        overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0)
+        overdispersion = max(float(np.median(self._history)) / CHI2_MEDIAN, 1.0) if self._history else 1.0
         self.chi2 = statistic / overdispersion
         if self.chi2 <= chi2_distribution.ppf(1 - self.false_alarm, 6):
             self._disagreeing.clear()
             self._history.append(statistic)
             return None
-        self._disagreeing.append((frame, extrinsic))
-        if len(self._disagreeing) < self.persistence:
+        self._disagreeing.append((frame, extrinsic, reference[0]))
+        if len(self._disagreeing) < self.persistence or self.candidate is not None:  # one awaits judgement
             return None
-        step = np.mean([innovation(self.extrinsic, E) for _, E in self._disagreeing], axis=0)
-        self.candidate = perturbed(self.extrinsic, step)
-        return Change(
-            self._disagreeing[0][0],
-            frame,
-            *step_size(self.extrinsic[:3, :3], self.extrinsic[:3, 3], self.candidate[:3, :3], self.candidate[:3, 3]),
-        )
+        self.disagreed = list(self._disagreeing)
+        return self.candidate_from(self._disagreeing[0][0], frame)
+
+    def candidate_from(self, frame: int, detected: int) -> Change:
+        """The candidate change as from its disagreeing keyframe ``frame`` on (noticed at keyframe ``detected``): its
+        extrinsic (``candidate``) the mean measurement of the disagreeing keyframes from there, its size the step to
+        it from the window's extrinsic that keyframe was tested against (before the window could follow)."""
+        before = next(reference for f, _, reference in self.disagreed if f == frame)
+        step = np.mean([innovation(before, E) for f, E, _ in self.disagreed if f >= frame], axis=0)
+        self.candidate = after = perturbed(before, step)
+        return Change(frame, detected, *step_size(before[:3, :3], before[:3, 3], after[:3, :3], after[:3, 3]))
 
     def accept(self, change: Change) -> None:
         """The candidate ``change`` is real: record it and restart the track from its extrinsic, uninformed."""
@@ -151,7 +154,7 @@ class ExtrinsicTrack:
         """Forget the candidate and the disagreeing keyframes or windows: they were wrong, not the window."""
         self._disagreeing.clear()
         self._drifting.clear()
-        self.candidate = None
+        self.candidate, self.disagreed = None, []
 
 
 def information(xy: np.ndarray, xyz: np.ndarray, K: np.ndarray, pose: np.ndarray, extrinsic: np.ndarray) -> np.ndarray:

@@ -17,11 +17,12 @@ camera's extrinsic. The local map (keyframes and points) is :mod:`ocalib.rigba.l
 3. (observe) tests each measurement against the window's estimate for a change (:mod:`ocalib.rigba.change`);
 4. (map, judge) continues the tracks the matches extend and triangulates new points, each camera where the window
    puts it, or where its own resection does while it disagrees with the window; a candidate change
-   (``persistence`` keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN``
+   (``persistence`` tested keyframes in a row disagreeing) is judged by the window once it holds ``CONFIRM_SPAN``
    keyframes from the candidate's frame on (the camera held meanwhile, its new points where its own resections put
-   it), adjusted with a second extrinsic for the camera from the candidate's frame on
-   (:func:`ocalib.rigba.window.split_statistic`): a few resections misled by their points are not a move, nor is
-   a step under ``min_change_deg`` and ``min_change_m``;
+   it), adjusted with a second extrinsic for the camera from each of its disagreeing keyframes on
+   (:func:`ocalib.rigba.window.split_statistic`), the change placed where that is largest (a stray keyframe may
+   precede the move): a few resections misled by their points are not a move, nor is a step under
+   ``min_change_deg`` and ``min_change_m``;
 5. (adjust, judge) every ``adjust_every``-th keyframe, adjusts the points and every extrinsic over the last
    ``window`` keyframes (:mod:`ocalib.rigba.window`) and fuses the window's estimate into each camera's track. A
    camera *waits* (held, its track empty) at the start and after a change, until the window determines it: the
@@ -284,18 +285,25 @@ class OnlineRigEstimator:
         return changes
 
     def _confirmed(self, k: int, change: Change) -> Change | None:
-        """Whether the window confirms camera k's candidate ``change``: the window's split test at the candidate's
-        keyframe over its quantile at ``CONFIRM_FALSE_ALARM``, by a step of at least the least change. Confirmed,
-        the camera restarts (:meth:`CameraState.restart`: from the candidate's rotation, the disagreeing keyframes'
-        mean measurement, with the lever arm it had, its observations from before the change dropped, waiting until
-        the window determines it); dismissed, the track forgets the candidate. -> the change confirmed, or None."""
+        """Whether the window confirms camera k's candidate ``change``: the window's split test at each of its
+        disagreeing keyframes (a stray one may precede the move), the largest over its quantile at
+        ``CONFIRM_FALSE_ALARM`` by a step of at least the least change. Confirmed, the change is placed at that
+        keyframe (:meth:`ExtrinsicTrack.candidate_from`), and the camera restarts (:meth:`CameraState.restart`: from
+        the disagreeing keyframes' mean measurement from there, with the lever arm it had, its observations from
+        before the change dropped, waiting until the window determines it); dismissed, the track forgets the
+        candidate. -> the change confirmed, or None."""
         cam = self.cameras[k]
-        split = self._split(k, change.frame)
+        frames = [f for f, _, _ in cam.track.disagreed] or [change.frame]
+        split, frame = max(
+            ((self._split(k, f), f) for f in frames), key=lambda sf: np.nan_to_num(sf[0].statistic, nan=-np.inf)
+        )
         level = chi2_distribution.ppf(1 - CONFIRM_FALSE_ALARM, 6)
         if not (split.statistic > level and reaches(split.step, cam.track.min_change)):  # NaN: too little
             cam.track.dismiss()
             self.dismissed.append((k, change.detected, split))
             return None
+        if cam.track.disagreed:
+            change = cam.track.candidate_from(frame, change.detected)
         cam.restart(change, self.extrinsics[k], self.map)
         return change
 

@@ -334,6 +334,7 @@ def test_the_change_test_gives_no_alarm_on_a_steady_camera_and_finds_a_step(seed
         change = track.observe(t, extrinsic, information(xy, xyz, K, pose, extrinsic), window)
         if change is not None:
             track.accept(change)
+            window = track.extrinsic, window[1]  # the window restarts from the change's estimate
         changes.append(change)
     assert not any(changes[:150]), "a false alarm"
     found = [c for c in changes if c is not None]
@@ -369,6 +370,25 @@ def test_a_window_that_follows_a_step_is_caught_drifting_from_the_track(seed):
     assert len(found) == 1 and found[0].frame == 100 and found[0].detected == 100 + track.persistence - 1
     assert track.changes == found and abs(found[0].rotation_change_deg - 1.0) < 0.3
     assert np.degrees(np.linalg.norm(innovation(track.extrinsic, after)[:3])) < 0.2
+
+
+def test_the_keyframes_test_runs_from_the_first_keyframe_after_the_window_determines_the_camera():
+    """A camera released just before a knock: the first tested keyframes are tested, with no history of steady
+    statistics yet (a knock 4 keyframes after a release was followed by the window unnoticed while the test waited
+    for 10 steady ones): a keyframe 2 deg off disagrees at once, the next completes the candidate, and keyframes
+    within their noise raise nothing and make the history."""
+    rng = np.random.default_rng(0)
+    mounting, knocked_mounting = _mounting([0, 90, 0], [0.9, 0, 0]), _mounting([0, 92, 0], [0.9, 0, 0])
+    info, window = np.diag([1e6] * 3 + [1e4] * 3), np.diag([1e-6] * 3 + [1e-4] * 3)  # 0.06 deg, 1 cm
+    track = ExtrinsicTrack()
+    track.fuse(mounting, window)
+    reference = mounting, window
+    for frame in range(4):
+        measured = perturbed(mounting, rng.multivariate_normal(np.zeros(6), np.linalg.inv(info) + window))
+        assert track.observe(frame, measured, info, reference) is None and not track.disagrees
+    assert track.observe(4, knocked_mounting, info, reference) is None and track.disagrees
+    change = track.observe(5, knocked_mounting, info, reference)
+    assert change is not None and change.frame == 4 and abs(change.rotation_change_deg - 2.0) < 1e-6
 
 
 @pytest.fixture(scope="module")
@@ -522,6 +542,31 @@ def test_a_candidate_waits_for_four_keyframes_and_its_camera_is_held_meanwhile()
         estimator.map.keyframes.append(Keyframe(16, np.tile(np.eye(4), (2, 1, 1)), [], []))
         assert estimator._judge(16) == []  # judged: the split test did not confirm it
     assert calls == [(1, 10)] and not estimator.candidates and not estimator.cameras[1].suspect
+
+
+def test_a_candidate_is_judged_at_the_disagreeing_keyframe_where_the_camera_moved():
+    """Camera 1 turned by 1 deg from keyframe 8 of the window; its candidate change was raised by two disagreeing
+    keyframes, a stray one at keyframe 3 (a resection misled before the move) and keyframe 8. The window's split
+    test is run at each and the change is placed where it finds the move: at keyframe 8, its size the measurement
+    from there on, the camera's observations from before it dropped."""
+    truth = np.stack([np.eye(4), _mounting([0, 120, 0], [0.12, 0.0, -0.05])])
+    moved = _mounting([0, 121, 0], [0.12, 0.0, -0.05])
+    keyframes, points = _window(np.random.default_rng(0), truth, moved)
+    estimator = OnlineRigEstimator(
+        np.stack([K, K]), [(128, 416)] * 2, truth.copy(), OnlineRigOptions(metric_noise=0.01)
+    )
+    estimator.map.keyframes.extend(keyframes)
+    estimator.map.points.update(points)
+    track = estimator.cameras[1].track
+    track.fuse(truth[1], np.eye(6) * 1e-6)
+    stray = _mounting([0, 120.6, 0], [0.12, 0.0, -0.05])
+    track.disagreed = [(3, stray, truth[1]), (8, moved, truth[1])]
+    change = track.candidate_from(3, 8)
+    assert 0.7 < change.rotation_change_deg < 0.9  # the two measurements' mean
+    confirmed = estimator._confirmed(1, change)
+    assert confirmed is not None and confirmed.frame == 8 and confirmed.detected == 8
+    assert 0.95 < confirmed.rotation_change_deg < 1.05, confirmed
+    assert all((kf.point_ids[1] < 0).all() for kf in estimator.map.keyframes if kf.frame < 8)
 
 
 def test_a_candidate_raised_at_the_streams_end_is_reported_unjudged(knocked_rig):
