@@ -459,6 +459,15 @@ def test_a_trajectory_off_as_a_real_one_is_needs_its_noise_stated(knocked_rig):
     assert errors["held"][1] > 1.0 or len(changes["held"]) > 1, (errors, changes)
 
 
+def _assert_followed_the_priors(unmoved, moved):
+    """The window's solved positions and extrinsic, ``(positions (F, 3), extrinsic (4, 4))``, with its priors as
+    given and moved 0.3 m along x: the positions moved with them, the extrinsic stayed."""
+    (before, E_before), (after, E_after) = unmoved, moved
+    np.testing.assert_allclose(after - before, np.tile([0.3, 0.0, 0.0], (len(before), 1)), atol=2e-3)
+    assert float(rotation_angle_deg(E_after[:3, :3].T @ E_before[:3, :3])) < 0.01
+    np.testing.assert_allclose(E_after[:3, 3], E_before[:3, 3], atol=2e-3)
+
+
 def test_the_windows_solved_poses_take_the_metric_positions_as_priors(knocked_rig):
     """With the trajectory's noise stated, camera 0's metric positions are priors of the poses the window solves
     (COLMAP's pose-prior adjuster): the estimator's window on the rendered rig, given positions 0.3 m off along x,
@@ -478,10 +487,7 @@ def test_the_windows_solved_poses_take_the_metric_positions_as_priors(knocked_ri
                                prior_noise=0.01)  # fmt: skip
         assert result.priors_used
         solved.append((np.stack([kf.poses[0, :3, 3] for kf in keyframes]), extrinsics[1]))
-    (before, E_before), (after, E_after) = solved
-    np.testing.assert_allclose(after - before, np.tile([0.3, 0.0, 0.0], (len(before), 1)), atol=2e-3)
-    assert float(rotation_angle_deg(E_after[:3, :3].T @ E_before[:3, :3])) < 0.01
-    np.testing.assert_allclose(E_after[:3, 3], E_before[:3, 3], atol=2e-3)
+    _assert_followed_the_priors(*solved)
 
 
 def test_a_window_turning_on_level_ground_takes_its_priors():
@@ -502,10 +508,7 @@ def test_a_window_turning_on_level_ground_takes_its_priors():
         result = adjust_window(keyframes, points, extrinsics, np.stack([K, K]), [(128, 416)] * 2, prior_noise=0.01)
         assert result.priors_used
         solved.append((np.stack([kf.poses[0, :3, 3] for kf in keyframes]), extrinsics[1]))
-    (before, E_before), (after, E_after) = solved
-    np.testing.assert_allclose(after - before, np.tile([0.3, 0.0, 0.0], (len(before), 1)), atol=2e-3)
-    assert float(rotation_angle_deg(E_after[:3, :3].T @ E_before[:3, :3])) < 0.01
-    np.testing.assert_allclose(E_after[:3, 3], E_before[:3, 3], atol=2e-3)
+    _assert_followed_the_priors(*solved)
 
 
 def test_a_window_whose_positions_lie_on_a_line_says_it_did_not_take_its_priors():
