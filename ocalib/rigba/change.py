@@ -50,7 +50,7 @@ class ExtrinsicTrack:
     """The fused extrinsic of one camera: ``extrinsic`` (4, 4) and ``covariance`` (6, 6) (None before the first
     window), the last keyframe's normalised change statistic ``chi2``, the ``changes`` accepted, and the extrinsic
     the ``candidate`` change raised last would give (``_disagreeing``: the tested keyframes in a row that disagree
-    with the window, frame and measurement)."""
+    with the window: frame, measurement and the window's extrinsic)."""
 
     false_alarm: float = 1e-8
     persistence: int = 2
