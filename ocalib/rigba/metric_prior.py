@@ -23,6 +23,7 @@ from ocalib.rigba.colmap import camera_to_world, to_rigid
 from ocalib.rigba.workspace import camera_and_frame
 
 MIN_PRIORS = 3  # registered camera-0 frames needed
+ALIGNMENT_SIGMAS = 3.0  # priors are taken where a similarity aligns them within this many sigmas
 MAX_ERROR_PX = 4.0  # an observation reprojected farther than this with the trajectory held is dropped
 MIN_ANGLE_DEG = 1.5  # and a point triangulated over less than this (COLMAP's mapper's default)
 
@@ -42,14 +43,27 @@ def adjust_with_metric_prior(
     if len(images) < MIN_PRIORS:
         return False
     positions = metric[[frame_of[i] for i in images], :3, 3]
-    shift = off_origin(positions)
-    positions = positions + shift
-    prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
-    prior_options.alignment_ransac.max_error = 3 * noise  # metres: a camera-0 position this far off is an outlier
-    prior_options.alignment_ransac.random_seed = 0
     centres = np.stack([rec.images[i].projection_center() for i in images])
-    if pycolmap.estimate_sim3d_robust(centres, positions, prior_options.alignment_ransac) is None:
+    if not aligns(centres, positions, noise):
         return False
+    adjust_with_position_priors(rec, _options(threads), _config(rec), images, positions, noise)
+    return True
+
+
+def adjust_with_position_priors(
+    rec: pycolmap.Reconstruction,
+    options: pycolmap.BundleAdjustmentOptions,
+    config: pycolmap.BundleAdjustmentConfig,
+    images: list[int],
+    positions: np.ndarray,
+    noise: float,
+) -> None:
+    """Adjust ``rec`` in place on COLMAP's pose-prior adjuster, image ``images[i]`` with the position prior
+    ``positions[i]`` ((N, 3) metres, ``noise`` per axis). COLMAP first aligns ``rec`` to them by a seeded Sim(3)
+    RANSAC (:func:`aligns`; where that fails it uses no prior and fixes the gauge at two images); the world is moved
+    off the origin meanwhile (:func:`off_origin`) and back."""
+    shift = off_origin(positions)
+    rec.transform(translation(shift))
     priors = [
         pycolmap.PosePrior(
             corr_data_id=rec.images[i].data_id,
@@ -57,11 +71,27 @@ def adjust_with_metric_prior(
             position_covariance=np.eye(3) * noise**2,
             coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
         )
-        for i, p in zip(images, positions)
+        for i, p in zip(images, positions + shift)
     ]
-    pycolmap.create_pose_prior_bundle_adjuster(_options(threads), prior_options, _config(rec), priors, rec).solve()
+    prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
+    prior_options.alignment_ransac = _alignment(noise)
+    pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, rec).solve()
     rec.transform(translation(-shift))
-    return True
+
+
+def aligns(centres: np.ndarray, positions: np.ndarray, noise: float) -> bool:
+    """Whether COLMAP's pose-prior adjuster takes ``positions`` (N, 3) as priors of the images at ``centres`` (N, 3):
+    its seeded Sim(3) RANSAC aligns them within ``ALIGNMENT_SIGMAS`` times ``noise``, both moved off the origin as
+    :func:`adjust_with_position_priors` moves them. It does not where they lie on a line, or farther off."""
+    shift = off_origin(positions)
+    return pycolmap.estimate_sim3d_robust(centres + shift, positions + shift, _alignment(noise)) is not None
+
+
+def _alignment(noise: float) -> pycolmap.RANSACOptions:
+    """The seeded RANSAC options of the Sim(3) alignment to position priors of ``noise`` metres."""
+    options = pycolmap.PosePriorBundleAdjustmentOptions().alignment_ransac
+    options.max_error, options.random_seed = ALIGNMENT_SIGMAS * noise, 0
+    return options
 
 
 def off_origin(positions: np.ndarray) -> np.ndarray:

@@ -28,13 +28,13 @@ from ocalib.geometry.se3 import innovation
 from ocalib.rigba.colmap import pinhole_params, to_matrix, to_rigid
 from ocalib.rigba.covariance import ExtrinsicUncertainty, Observations, observations_uncertainty
 from ocalib.rigba.features import Features
-from ocalib.rigba.metric_prior import off_origin, translation
+from ocalib.rigba.metric_prior import adjust_with_position_priors
+from ocalib.rigba.metric_prior import aligns as metric_aligns
 
 LOSS_SCALE_PX = 1.0  # the Cauchy loss's scale: residuals well above a pixel count less and less
 MAX_ERROR_PX = 4.0  # an observation reprojected farther than this after the adjustment is dropped
 MIN_SPLIT_OBSERVATIONS = 30  # of a camera before and after a split for :func:`split_statistic`
 SPLIT_TRUNCATION = 13.8  # the chi-square's 1e-3 quantile, 2 dof: a squared error counts up to this many variances
-ALIGNMENT_SIGMAS = 3.0  # a window is aligned to its position priors where this many sigmas hold a similarity
 MAX_ITERATIONS = 10  # Levenberg-Marquardt iterations a window gets (it starts from the last window's solution)
 
 
@@ -246,21 +246,10 @@ def solves_poses(keyframes: list[Keyframe], prior_noise: float | None) -> bool:
 
 
 def aligns(keyframes: list[Keyframe], noise: float) -> bool:
-    """Whether COLMAP's pose-prior adjuster takes the priors of a window that solves its poses: its seeded Sim(3)
-    RANSAC (:func:`_adjust_with_priors`'s) aligns camera 0's positions (the keyframes' ``poses[0]``) to the priors
-    within ``ALIGNMENT_SIGMAS`` times ``noise``, both moved off the origin as the adjuster's are. It does not where
-    they lie on a line, or farther off."""
+    """Whether a window that solves its poses takes camera 0's metric positions (the keyframes' ``prior``) as priors
+    (:func:`ocalib.rigba.metric_prior.aligns`, its positions the keyframes' ``poses[0]``)."""
     centres = np.stack([kf.poses[0][:3, 3] for kf in keyframes])
-    priors = np.stack([kf.prior[:3, 3] for kf in keyframes])
-    shift = off_origin(priors)
-    return pycolmap.estimate_sim3d_robust(centres + shift, priors + shift, _alignment(noise)) is not None
-
-
-def _alignment(noise: float) -> pycolmap.RANSACOptions:
-    """The seeded RANSAC options of the window's Sim(3) alignment to position priors of ``noise`` metres."""
-    options = pycolmap.PosePriorBundleAdjustmentOptions().alignment_ransac
-    options.max_error, options.random_seed = ALIGNMENT_SIGMAS * noise, 0
-    return options
+    return metric_aligns(centres, np.stack([kf.prior[:3, 3] for kf in keyframes]), noise)
 
 
 def shares_pose(kf: Keyframe) -> bool:
@@ -313,36 +302,17 @@ def _solve(keyframes, points, extrinsics, K, sizes, obs, source, held=frozenset(
 
 
 def _adjust_with_priors(rec, config, options, keyframes, noise: float) -> None:
-    """Adjust ``rec`` on COLMAP's pose-prior adjuster: camera 0's image of keyframe i (id ``i C + 1``) has the
-    position prior of ``keyframes[i].prior`` of ``noise`` metres per axis. The adjuster first aligns the window to
-    the priors by a seeded Sim(3) RANSAC (the window is already in their frame: a small move), the whole moved off the
-    origin meanwhile (:func:`ocalib.rigba.metric_prior.off_origin`: COLMAP rejects positions in a plane through it,
-    a drive on level ground). Where that alignment fails (:func:`aligns`: positions on a line) it uses no prior and
-    fixes the gauge at two keyframes' poses."""
+    """Adjust ``rec`` with camera 0's image of keyframe i (id ``i C + 1``) given the position prior of
+    ``keyframes[i].prior``, ``noise`` metres per axis (:func:`ocalib.rigba.metric_prior.adjust_with_position_priors`;
+    the window is already in the priors' frame, so COLMAP's alignment is a small move). Where the window does not
+    take them (:func:`aligns`: positions on a line) it uses no prior and fixes the gauge at two keyframes' poses."""
     if not aligns(keyframes, noise):
-        pycolmap.create_pose_prior_bundle_adjuster(options, _prior_options(noise), config, [], rec).solve()
+        pycolmap.create_pose_prior_bundle_adjuster(options, pycolmap.PosePriorBundleAdjustmentOptions(), config, [],
+                                                   rec).solve()  # fmt: skip
         return
     C = len(rec.cameras)
-    shift = off_origin(np.stack([kf.prior[:3, 3] for kf in keyframes]))
-    rec.transform(translation(shift))
-    priors = [
-        pycolmap.PosePrior(
-            corr_data_id=rec.image(i * C + 1).data_id,
-            position=kf.prior[:3, 3] + shift,
-            position_covariance=np.eye(3) * noise**2,
-            coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
-        )
-        for i, kf in enumerate(keyframes)
-    ]
-    pycolmap.create_pose_prior_bundle_adjuster(options, _prior_options(noise), config, priors, rec).solve()
-    rec.transform(translation(-shift))
-
-
-def _prior_options(noise: float) -> pycolmap.PosePriorBundleAdjustmentOptions:
-    """The pose-prior adjuster's options for priors of ``noise`` metres: its alignment :func:`_alignment`'s."""
-    options = pycolmap.PosePriorBundleAdjustmentOptions()
-    options.alignment_ransac = _alignment(noise)
-    return options
+    images = [i * C + 1 for i in range(len(keyframes))]
+    adjust_with_position_priors(rec, options, config, images, np.stack([kf.prior[:3, 3] for kf in keyframes]), noise)
 
 
 def _reconstruction(keyframes, points, extrinsics, K, sizes, obs, source, shared=False) -> pycolmap.Reconstruction:
