@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ocalib.calib.drivers.change import Change
-from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack
+from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, determines
 
 if TYPE_CHECKING:
     from ocalib.rigba.local_map import LocalMap
@@ -81,6 +81,13 @@ class CameraState:
         """Whether its keyframes disagree with the window, or a candidate change of it awaits judgement: its new
         points are then triangulated where its own resection puts it."""
         return self.track.disagrees or self.candidate is not None
+
+    def determined(self, release: tuple[float, float]) -> bool:
+        """Whether its fused extrinsic is determined: released, or waiting after the drift test restarted it from the
+        window estimate that found the move, whose covariance is under ``release`` (the 1-sigmas, rotation deg and
+        translation m: :func:`~ocalib.rigba.change.determines`)."""
+        covariance = self.track.covariance
+        return not self.waiting or (covariance is not None and determines(covariance, release))
 
     def release(self, frame: int) -> None:
         """The window determines the camera at keyframe ``frame``: the next window moves it; its counts restart."""

@@ -195,6 +195,17 @@ def reaches(d: np.ndarray, least: tuple[float, float]) -> bool:
     return bool(np.degrees(np.linalg.norm(d[:3])) >= least[0] or np.linalg.norm(d[3:]) >= least[1])
 
 
+def determines(covariance: np.ndarray, least: tuple[float, float]) -> bool:
+    """Whether ``covariance`` (6, 6) (rotation rad, translation m; :data:`UNINFORMED` along what the data do not
+    inform) determines an extrinsic: its rotation's 1-sigma under ``least[0]`` deg about every axis, its
+    translation's under ``least[1]`` m along the two best-determined directions (planar motion never pins a car's
+    height). False where a variance is negative (a covariance broken by rounding)."""
+    variance = np.diag(covariance)[:3]
+    rotation = np.degrees(np.sqrt(np.where(variance >= 0, variance, np.nan)))
+    translation = np.linalg.eigvalsh((covariance[3:, 3:] + covariance[3:, 3:].T) / 2)
+    return bool(np.all(rotation <= least[0]) and np.sqrt(max(translation[1], 0.0)) <= least[1])
+
+
 def with_unobservable(covariance: np.ndarray, unobservable: np.ndarray) -> np.ndarray:
     """``covariance`` (6, 6) with :data:`UNINFORMED` variance along the ``unobservable`` (n, 3) unit translation
     directions (where a bundle adjustment's covariance has none)."""

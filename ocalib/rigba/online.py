@@ -73,7 +73,7 @@ from scipy.stats import chi2 as chi2_distribution
 from ocalib.calib.drivers.change import Change
 from ocalib.data.distortion import Distortion
 from ocalib.rigba.camera_state import CameraState
-from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, reaches, with_unobservable
+from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack, determines, reaches, with_unobservable
 from ocalib.rigba.local_map import LocalMap, Measured
 from ocalib.rigba.options import DEFAULT_METRIC_NOISE
 from ocalib.rigba.window import Keyframe, SplitTest, adjust_window, split_statistic
@@ -247,12 +247,13 @@ class OnlineRigEstimator:
         changes = []
         for k, u in enumerate(window.uncertainty, start=1):
             cam = self.cameras[k]
-            if u is not None and cam.waiting and k in window.trials and self._determines(u):
+            covariance = None if u is None else with_unobservable(u.covariance, u.unobservable)
+            if u is not None and cam.waiting and k in window.trials and determines(covariance, self.release_std):
                 self.extrinsics[k], placed = window.trials[k]  # where the window, trying it free, puts it
                 self.map.points.update(placed)
                 cam.release(frame)
             elif u is not None and k not in held:
-                cam.window_covariance = with_unobservable(u.covariance, u.unobservable)
+                cam.window_covariance = covariance
                 drift = cam.track.drifted(frame, self.extrinsics[k], cam.window_covariance)
                 if drift is not None:
                     cam.restart(drift, self.extrinsics[k], self.map)
@@ -260,16 +261,10 @@ class OnlineRigEstimator:
                 cam.track.fuse(self.extrinsics[k], cam.window_covariance)
         return changes
 
-    def _determines(self, u) -> bool:
-        """Whether the window's uncertainty ``u`` (:class:`~ocalib.rigba.covariance.ExtrinsicUncertainty`) of a
-        camera releases it: its rotation's 1-sigma under ``release_rotation_deg`` about every axis, its translation's
-        under ``release_translation_m`` along the two best-determined directions."""
-        rotation = np.degrees(u.rotation_std)
-        translation = np.linalg.eigvalsh(with_unobservable(u.covariance, u.unobservable)[3:, 3:])
-        return bool(
-            np.all(rotation <= self.options.release_rotation_deg)
-            and np.sqrt(max(translation[1], 0.0)) <= self.options.release_translation_m
-        )
+    @property
+    def release_std(self) -> tuple[float, float]:
+        """The 1-sigmas (rotation deg, translation m) under which the window determines a camera (see the module)."""
+        return self.options.release_rotation_deg, self.options.release_translation_m
 
     def _judge(self, frame: int) -> list[tuple[int, Change]]:
         """The candidates judged at keyframe ``frame`` by the window's split test, once ``CONFIRM_SPAN``

@@ -159,19 +159,27 @@ class OnlineRigStage:
         return out
 
     def undetermined(self) -> dict[int, str]:
-        """Camera k >= 1 -> why its final estimate is not to be reported: the window never determined it (it still
-        waits), its rotation's 1-sigma over ``MAX_ROTATION_STD_DEG`` on an axis, or ``UNREGISTERED`` of its
-        keyframes since its release unregistered. Every camera before the first keyframe. (A translation whose
-        1-sigma is over the targets is reported, flagged: ``ocalib.calibnet.run.not_determined``.)"""
+        """Camera k >= 1 -> why its final estimate is not to be reported: the window never determined it, or not
+        since its change (:meth:`~ocalib.rigba.camera_state.CameraState.determined`), its rotation's 1-sigma over
+        ``MAX_ROTATION_STD_DEG`` on an axis, or ``UNREGISTERED`` of its keyframes since its release unregistered.
+        Every camera before the first keyframe. (A translation whose 1-sigma is over the targets is reported, flagged:
+        ``ocalib.calibnet.run.not_determined``.)"""
         C = len(self.sequence.cameras)
         if self.final is None:
             return {k: "the estimator never started" for k in range(1, C)}
         out = {}
         for k in range(1, C):
             rotation = np.degrees(self.final.std[k, :3])
-            tried, registered = self.estimator.cameras[k].tried, self.estimator.cameras[k].registered
-            if self.estimator.cameras[k].waiting or not np.isfinite(rotation).all():
-                out[k] = "the window never determined it (too little motion or too few registered keyframes)"
+            cam = self.estimator.cameras[k]
+            tried, registered = cam.tried, cam.registered
+            if not cam.determined(self.estimator.release_std) or not np.isfinite(rotation).all():
+                changes = cam.track.changes
+                when = (
+                    f"has not determined it since its change at frame {changes[-1].frame}"
+                    if changes
+                    else "never determined it"
+                )
+                out[k] = f"the window {when} (too little motion or too few registered keyframes)"
             elif rotation.max() > MAX_ROTATION_STD_DEG:
                 out[k] = f"its rotation's 1-sigma is {rotation.max():.2f} deg (over {MAX_ROTATION_STD_DEG:g})"
             elif tried - registered >= UNREGISTERED * tried > 0:

@@ -12,6 +12,8 @@ from scipy.spatial.transform import Rotation
 from ocalib.calib.drivers.change import Change
 from ocalib.calib.poses.report import CalibrationRun
 from ocalib.data.synchronise import Pairing
+from ocalib.rigba.camera_state import CameraState
+from ocalib.rigba.change import UNINFORMED, ExtrinsicTrack
 from ocalib.rigba.online import OnlineRigOptions
 from ocalib.rigba.stream import OnlineRigStage, capture_poses
 
@@ -132,10 +134,11 @@ def test_an_estimate_the_window_did_not_determine_is_not_to_be_reported():
     std[3, 1] = np.radians(2.0)
     std[4, 3:5] = 0.5
     std[5, 4] = 0.5
+    cameras = [CameraState(k, ExtrinsicTrack(), waiting=k == 2, tried=10, registered=9) for k in range(6)]
     stream = SimpleNamespace(
         sequence=SimpleNamespace(cameras=[None] * 6),
         final=SimpleNamespace(extrinsics=E, std=std),
-        estimator=SimpleNamespace(cameras=[SimpleNamespace(waiting=k == 2, tried=10, registered=9) for k in range(6)]),
+        estimator=SimpleNamespace(cameras=cameras, release_std=(0.5, 0.1)),
     )
     out = OnlineRigStage.undetermined(stream)
     assert sorted(out) == [2, 3], out
@@ -145,6 +148,34 @@ def test_an_estimate_the_window_did_not_determine_is_not_to_be_reported():
     stream.estimator.cameras[5].registered = 2  # 8 of 10: withheld
     assert sorted(OnlineRigStage.undetermined(stream)) == [2, 3, 5]
     assert "8 of its 10 keyframes since its release did not register" in OnlineRigStage.undetermined(stream)[5]
+
+
+@pytest.mark.parametrize("by_drift", [True, False])
+def test_a_camera_waiting_after_its_change_is_reported_where_its_estimate_is_determined(by_drift):
+    """After a change a camera waits until a window determines it again. Restarted by the drift test, its track holds
+    the window estimate that found the move, with that window's covariance (0.1 deg, 2 cm): reported. Restarted by
+    the split test, its track is uninformed: not reported, the reason naming the change's frame."""
+    window = np.diag([np.radians(0.1)] * 3 + [0.02] * 3) ** 2
+    track = ExtrinsicTrack()
+    track.fuse(np.eye(4), window)
+    track.candidate = np.eye(4)
+    cam = CameraState(1, track, waiting=False)
+    cam.restart(Change(150, 158, 2.0, 0.05), np.eye(4), SimpleNamespace(forget=lambda k, frame: None))
+    if by_drift:  # as OnlineRigEstimator._adjust does after the drift test's restart
+        track.fuse(np.eye(4), window)
+    variance = np.diag(track.covariance)
+    std = np.where(variance < UNINFORMED / 10, np.sqrt(variance), np.inf)
+    stream = SimpleNamespace(
+        sequence=SimpleNamespace(cameras=[None] * 2),
+        final=SimpleNamespace(extrinsics=np.tile(np.eye(4), (2, 1, 1)), std=np.stack([np.zeros(6), std])),
+        estimator=SimpleNamespace(cameras=[CameraState.reference(ExtrinsicTrack()), cam], release_std=(0.5, 0.1)),
+    )
+    out = OnlineRigStage.undetermined(stream)
+    assert cam.waiting
+    if by_drift:
+        assert out == {}
+    else:
+        assert list(out) == [1] and "since its change at frame 150" in out[1]
 
 
 def test_the_trace_and_its_csv_give_each_cameras_phase(tmp_path):
