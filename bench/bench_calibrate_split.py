@@ -101,6 +101,11 @@ def within(e: dict, kind: str) -> bool:
     )
 
 
+def rig_within(doc: dict, kind: str) -> bool:
+    """Whether every camera's reported extrinsic of the run ``doc`` is within ``kind``'s targets."""
+    return all(within(e, kind) for e in doc.get("ground_truth_errors", [{}]))
+
+
 def nees(doc: dict, path: Path) -> list[tuple[float, int]]:
     """Per camera the estimator's final ``(e^T P^-1 e, d)`` against the truth (after any knock): ``e`` its error
     (:func:`ocalib.rigba.change.innovation`), ``P`` its stated covariance restricted to the ``d`` directions it
@@ -140,7 +145,7 @@ def summarise(root: Path, docs: dict[tuple[str, bool], dict]) -> dict:
         kind = "handheld" if preset == "handheld" else "car"
         steady = {n: d for (n, k), d in docs.items() if not k and n.startswith(preset + "-")}
         cameras = [e for d in steady.values() for e in d.get("ground_truth_errors", [])]
-        rig_ok = [all(within(e, kind) for e in d.get("ground_truth_errors", [{}])) for d in steady.values()]
+        rig_ok = [rig_within(d, kind) for d in steady.values()]
         # said: a reported extrinsic the result itself calls not determined (its 1-sigma over the targets)
         said = [any(not_determined(x) is not None for x in d["extrinsics"]) for d in steady.values()]
         right_or_said = [ok or s for ok, s in zip(rig_ok, said)]
@@ -188,6 +193,12 @@ def summarise(root: Path, docs: dict[tuple[str, bool], dict]) -> dict:
                 "detected_within_of_determined": sum(x <= DETECT_WITHIN for x, k in zip(delays, determined) if k),
                 "delay_median": float(np.median(finite)) if finite else None,
                 "delay_p90": float(np.percentile(finite, 90)) if finite else None,
+                # the reported extrinsics at the end within the targets of the new mounting, or said not determined
+                "within_at_end": sum(rig_within(d, kind) for d in knocked.values()),
+                "within_or_said_at_end": sum(
+                    rig_within(d, kind) or any(not_determined(x) is not None for x in d["extrinsics"])
+                    for d in knocked.values()
+                ),
                 "false_alarms_before": sum(
                     c["frame"] < FRAMES // 2 - 4 for d in knocked.values() for c in d.get("changes", [])
                 ),
@@ -249,6 +260,7 @@ def table(summary: dict, mode: str) -> str:
             line += f"  knocks {k['detected_within']}/{k['rigs']} within {DETECT_WITHIN} frames"
             if k["determined_before"] is not None:
                 line += f" ({k['detected_within_of_determined']} of the {k['determined_before']} determined before it)"
+            line += f", {k['within_at_end']} within at the end ({k['within_or_said_at_end']} or said)"
         lines.append(line)
     return "\n".join(lines)
 
