@@ -1,7 +1,8 @@
 """``ocalib calibrate`` as a user runs it, on a fixed test split of rendered rigs never used while developing: the
 share of rigs within the targets at the end, and within them or said to be not determined by the result itself
 (Wilson 95 % intervals), medians and 90th percentiles of the errors, the
-on-line rig estimator's normalised estimation error squared (NEES) against the chi-square band, and knocks found.
+on-line rig estimator's normalised estimation error squared (NEES) against the chi-square band (and its rotation's
+alone, with the rotation errors' mean per axis of camera 0's frame: a bias the rigs share), and knocks found.
 
 Each rig is rendered once under ``--root`` (outside git) and calibrated by ``ocalib calibrate --sequence DIR
 --metric-trajectory CAM0/poses.txt`` (its front end chosen as by default), with ``--no-bundle-adjust`` (mode
@@ -106,10 +107,10 @@ def rig_within(doc: dict, kind: str) -> bool:
     return all(within(e, kind) for e in doc.get("ground_truth_errors", [{}]))
 
 
-def nees(doc: dict, path: Path) -> list[tuple[float, int]]:
-    """Per camera the estimator's final ``(e^T P^-1 e, d)`` against the truth (after any knock): ``e`` its error
-    (:func:`ocalib.rigba.change.innovation`), ``P`` its stated covariance restricted to the ``d`` directions it
-    informs (variance under ``UNINFORMED / 10``); none where the estimator stated none."""
+def estimator_errors(doc: dict, path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per camera the estimator's final error ``e`` (6,) against the truth after any knock
+    (:func:`ocalib.rigba.change.innovation`: rotation rad, translation m, camera 0's axes) and its stated covariance
+    ``P`` (6, 6); none where the estimator stated none."""
     cams = open_sequence(path).cameras
     out = []
     for k, estimate in enumerate(doc.get("rig_estimator", {}).get("extrinsics", []), start=1):
@@ -119,12 +120,38 @@ def nees(doc: dict, path: Path) -> list[tuple[float, int]]:
         truth = np.linalg.inv(cams[0].T_cam0_cam) @ truth
         E = np.eye(4)
         E[:3, :3], E[:3, 3] = estimate["rotation"], estimate["translation"]
-        P = np.array(estimate["covariance"])
+        out.append((innovation(E, truth), np.array(estimate["covariance"])))
+    return out
+
+
+def nees(doc: dict, path: Path) -> list[tuple[float, int]]:
+    """Per camera the estimator's final ``(e^T P^-1 e, d)`` (:func:`estimator_errors`), ``P`` restricted to the ``d``
+    directions it informs (variance under ``UNINFORMED / 10``)."""
+    out = []
+    for e, P in estimator_errors(doc, path):
         lam, V = np.linalg.eigh((P + P.T) / 2)
         keep = lam < UNINFORMED / 10
-        e = V[:, keep].T @ innovation(E, truth)
-        out.append((float(e @ (e / lam[keep])), int(keep.sum())))
+        d = V[:, keep].T @ e
+        out.append((float(d @ (d / lam[keep])), int(keep.sum())))
     return out
+
+
+def rotation_errors(docs: dict[str, dict], root: Path) -> dict:
+    """Over the runs ``docs`` (name -> JSON), the estimator's final rotation errors (deg) about camera 0's axes of the
+    cameras it placed (every rotation 1-sigma under 1 deg): their mean and spread per axis (a bias shared by the
+    rigs shows as a mean beyond its spread over the square root of their number), and the rotation's own NEES per
+    degree of freedom (its 3x3 block of the covariance)."""
+    errors, terms = [], []
+    for name, doc in docs.items():
+        for e, P in estimator_errors(doc, root / name):
+            if np.all(np.sqrt(np.clip(np.diag(P)[:3], 0, None)) < np.radians(1.0)):
+                errors.append(np.degrees(e[:3]))
+                terms.append(float(e[:3] @ np.linalg.solve(P[:3, :3], e[:3])))
+    if not errors:
+        return {}
+    errors = np.array(errors)
+    return {"cameras": len(errors), "mean_deg": errors.mean(0).tolist(), "sd_deg": errors.std(0, ddof=1).tolist()
+            if len(errors) > 1 else None, "nees_per_dof": float(np.sum(terms) / (3 * len(terms)))}  # fmt: skip
 
 
 def wilson(successes: int, n: int) -> tuple[float, float]:
@@ -172,6 +199,7 @@ def summarise(root: Path, docs: dict[tuple[str, bool], dict]) -> dict:
             stats["nees_per_dof"] = total / dof
             stats["nees_band"] = (chi2.ppf(0.025, dof) / dof, chi2.ppf(0.975, dof) / dof)
             stats["nees_cameras"] = len(terms)
+            stats["rotation_errors"] = rotation_errors(steady, root)
         frames = sum(d["settings"]["frames"] for d in steady.values())
         alarms = sum(len(d.get("changes", [])) for d in steady.values())
         stats["false_alarms"], stats["steady_frames"] = alarms, frames
@@ -254,6 +282,8 @@ def table(summary: dict, mode: str) -> str:
                 line += f"  {q['median']:.3g}/{q['p90']:.3g}{unit}"
         if "nees_per_dof" in s:
             line += f"  NEES {s['nees_per_dof']:.2f} [{s['nees_band'][0]:.2f}, {s['nees_band'][1]:.2f}]"
+            if r := s.get("rotation_errors"):
+                line += f" (rotation {r['nees_per_dof']:.2f}; its mean error {np.round(r['mean_deg'], 3)} deg)"
         line += f"  false alarms {s['false_alarms']} in {s['steady_frames']} frames"
         if "knocks" in s:
             k = s["knocks"]
