@@ -150,8 +150,9 @@ def rotation_errors(docs: dict[str, dict], root: Path) -> dict:
     if not errors:
         return {}
     errors = np.array(errors)
-    return {"cameras": len(errors), "mean_deg": errors.mean(0).tolist(), "sd_deg": errors.std(0, ddof=1).tolist()
-            if len(errors) > 1 else None, "nees_per_dof": float(np.sum(terms) / (3 * len(terms)))}  # fmt: skip
+    spread = errors.std(0, ddof=1).tolist() if len(errors) > 1 else None
+    return {"cameras": len(errors), "mean_deg": errors.mean(0).tolist(), "sd_deg": spread,
+            "nees_per_dof": float(np.mean(terms) / 3)}  # fmt: skip
 
 
 def wilson(successes: int, n: int) -> tuple[float, float]:
