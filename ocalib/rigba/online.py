@@ -246,13 +246,15 @@ class OnlineRigEstimator:
         self.windows_without_priors += window.priors_used is False
         changes = []
         for k, u in enumerate(window.uncertainty, start=1):
+            if u is None:
+                continue
             cam = self.cameras[k]
-            covariance = None if u is None else with_unobservable(u.covariance, u.unobservable)
-            if u is not None and cam.waiting and k in window.trials and determines(covariance, self.release_std):
+            covariance = with_unobservable(u.covariance, u.unobservable)
+            if cam.waiting and k in window.trials and determines(covariance, self.release_std):
                 self.extrinsics[k], placed = window.trials[k]  # where the window, trying it free, puts it
                 self.map.points.update(placed)
                 cam.release(frame)
-            elif u is not None and k not in held:
+            elif k not in held:
                 cam.window_covariance = covariance
                 drift = cam.track.drifted(frame, self.extrinsics[k], cam.window_covariance)
                 if drift is not None:
