@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import os
 import signal
 import sys
 import time
@@ -57,6 +58,9 @@ FILE_OUTPUTS = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    # numpy's BLAS threads spin between calls on the cores the stream's own threads need, and the commands' matrices
+    # are small: one thread (where numpy is not imported yet, as in a command's own process; a user's setting stays)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):

@@ -1,10 +1,16 @@
-"""OpenCV monocular VO as a front end: one :class:`~ocalib.frontend.opencv_vo.OpenCVOdometry` per camera.
+"""OpenCV monocular VO as a front end: one :class:`~ocalib.frontend.opencv_vo.OpenCVOdometry` per camera, the
+cameras of a frame stepped on threads of their own (OpenCV's tracking and the window's compiled kernel release the
+GIL, so they share the cores; each camera's odometry is independent, so the motions do not depend on it).
 
 Convention: as :mod:`ocalib.frontend.base`; each camera at its own image size and intrinsics, in units of its own
 (the first moving pair's length).
 """
 
 from __future__ import annotations
+
+import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -55,7 +61,7 @@ class OpenCVFrontEnd(FrontEnd):
 
     def forward(self, images: list[Tensor], rig_rotation: Tensor | None = None) -> Tensor:
         """images: C grey images (H, W) uint8 (or anything :class:`OpenCVOdometry` reads) -> (1, C, 4, 4) float64."""
-        steps = [vo.step(np.asarray(image)) for vo, image in zip(self.odometry, images)]
+        steps = list(_threads().map(_step, self.odometry, images))
         self.lost += [vo.status.reason == "too few tracks" for vo in self.odometry]
         return torch.from_numpy(np.stack(steps))[None]
 
@@ -70,3 +76,13 @@ class OpenCVFrontEnd(FrontEnd):
             if n >= LOST_WARNING * frames
         ]
         return {"lost_frames": lost}, warnings
+
+
+def _step(odometry: OpenCVOdometry, image) -> np.ndarray:
+    return odometry.step(np.asarray(image))
+
+
+@functools.cache
+def _threads() -> ThreadPoolExecutor:
+    """The threads the cameras' odometry steps run on, one a core."""
+    return ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="ocalib-opencv-vo")

@@ -125,6 +125,27 @@ def test_the_front_end_reports_each_cameras_lost_frames(blocked):
     assert said.startswith("blocked: the OpenCV front end lost its tracks on 3 of 12 frames")
 
 
+def test_the_front_end_steps_its_cameras_as_each_camera_alone(blocked):
+    """The front end steps the cameras of a frame on threads: each camera's motions are those of its odometry run
+    alone, frame by frame, to the bit."""
+    K, _, clear, images = blocked
+    grey = [[cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) for image in pair] for pair in zip(clear, images)]
+    front_end = OpenCVFrontEnd(np.stack([K, K]))
+    together = np.concatenate([front_end(pair)[0].numpy()[None] for pair in grey])  # (T, 2, 4, 4)
+    for cam in range(2):
+        alone = OpenCVOdometry(K)
+        np.testing.assert_array_equal(together[:, cam], np.stack([alone.step(pair[cam]) for pair in grey]))
+
+
+def test_a_bad_frame_of_one_camera_is_an_input_error_through_the_front_end():
+    rng = np.random.default_rng(0)
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    front_end = OpenCVFrontEnd(np.stack([K, K]))
+    front_end([rng.integers(0, 255, (48, 64), dtype=np.uint8) for _ in range(2)])
+    with pytest.raises(InputError, match="frame 1: image size"):
+        front_end([rng.integers(0, 255, (48, 64), dtype=np.uint8), rng.integers(0, 255, (40, 64), dtype=np.uint8)])
+
+
 def test_bad_intrinsics_and_options_are_input_errors():
     for K in (np.eye(2), np.zeros((3, 4)), np.diag([0.0, 1.0, 1.0]), np.full((3, 3), np.nan)):
         with pytest.raises(InputError, match="intrinsics K"):
