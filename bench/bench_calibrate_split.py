@@ -140,19 +140,24 @@ def rotation_errors(docs: dict[str, dict], root: Path) -> dict:
     """Over the runs ``docs`` (name -> JSON), the estimator's final rotation errors (deg) about camera 0's axes of the
     cameras it placed (every rotation 1-sigma under 1 deg): their mean and spread per axis (a bias shared by the
     rigs shows as a mean beyond its spread over the square root of their number), and the rotation's own NEES per
-    degree of freedom (its 3x3 block of the covariance)."""
-    errors, terms = [], []
+    degree of freedom (its 3x3 block of the covariance), and the same of the errors less their mean (what the
+    covariance holds of them once the shared bias is taken out)."""
+    errors, covariances = [], []
     for name, doc in docs.items():
         for e, P in estimator_errors(doc, root / name):
             if np.all(np.sqrt(np.clip(np.diag(P)[:3], 0, None)) < np.radians(1.0)):
-                errors.append(np.degrees(e[:3]))
-                terms.append(float(e[:3] @ np.linalg.solve(P[:3, :3], e[:3])))
+                errors.append(e[:3])
+                covariances.append(P[:3, :3])
     if not errors:
         return {}
     errors = np.array(errors)
-    spread = errors.std(0, ddof=1).tolist() if len(errors) > 1 else None
-    return {"cameras": len(errors), "mean_deg": errors.mean(0).tolist(), "sd_deg": spread,
-            "nees_per_dof": float(np.mean(terms) / 3)}  # fmt: skip
+
+    def nees(e: np.ndarray) -> float:
+        return float(np.mean([x @ np.linalg.solve(P, x) for x, P in zip(e, covariances)]) / 3)
+
+    spread = np.degrees(errors.std(0, ddof=1)).tolist() if len(errors) > 1 else None
+    return {"cameras": len(errors), "mean_deg": np.degrees(errors.mean(0)).tolist(), "sd_deg": spread,
+            "nees_per_dof": nees(errors), "nees_per_dof_less_mean": nees(errors - errors.mean(0))}  # fmt: skip
 
 
 def wilson(successes: int, n: int) -> tuple[float, float]:
@@ -284,7 +289,8 @@ def table(summary: dict, mode: str) -> str:
         if "nees_per_dof" in s:
             line += f"  NEES {s['nees_per_dof']:.2f} [{s['nees_band'][0]:.2f}, {s['nees_band'][1]:.2f}]"
             if r := s.get("rotation_errors"):
-                line += f" (rotation {r['nees_per_dof']:.2f}; its mean error {np.round(r['mean_deg'], 3)} deg)"
+                line += (f" (rotation {r['nees_per_dof']:.2f}, {r['nees_per_dof_less_mean']:.2f} less its mean error "
+                         f"{np.round(r['mean_deg'], 3)} deg)")
         line += f"  false alarms {s['false_alarms']} in {s['steady_frames']} frames"
         if "knocks" in s:
             k = s["knocks"]
