@@ -84,5 +84,6 @@ def _step(odometry: OpenCVOdometry, image) -> np.ndarray:
 
 @functools.cache
 def _threads() -> ThreadPoolExecutor:
-    """The threads the cameras' odometry steps run on, one a core."""
-    return ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="ocalib-opencv-vo")
+    """The threads the cameras' odometry steps run on, one a core this process may use."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return ThreadPoolExecutor(max_workers=cores, thread_name_prefix="ocalib-opencv-vo")
