@@ -289,8 +289,10 @@ def table(summary: dict, mode: str) -> str:
         if "nees_per_dof" in s:
             line += f"  NEES {s['nees_per_dof']:.2f} [{s['nees_band'][0]:.2f}, {s['nees_band'][1]:.2f}]"
             if r := s.get("rotation_errors"):
-                line += (f" (rotation {r['nees_per_dof']:.2f}, {r['nees_per_dof_less_mean']:.2f} less its mean error "
-                         f"{np.round(r['mean_deg'], 3)} deg)")
+                line += (
+                    f" (rotation {r['nees_per_dof']:.2f}, {r['nees_per_dof_less_mean']:.2f} less its mean error "
+                    f"{np.round(r['mean_deg'], 3)} deg)"
+                )
         line += f"  false alarms {s['false_alarms']} in {s['steady_frames']} frames"
         if "knocks" in s:
             k = s["knocks"]
