@@ -2,7 +2,8 @@
 cars (``bench_calibrate_split.py`` measures it: about +0.1 deg on every preset once the rig's poses are solved, about
 0.005 with the trajectory held). Three measurements, each isolating one part:
 
-- ``exact``: the estimator (``OnlineRigEstimator``, default options, the trajectory's 5 cm priors) fed exact
+- ``exact``: the estimator (``OnlineRigEstimator``, default options, the trajectory's 5 cm priors, started at the
+  true rotations as every part is: a diagnostic of the component) fed exact
   projections of the render's own surfaces instead of SIFT features: points back-projected from the depth maps,
   observed where the depth map shows them, with Gaussian pixel noise and ideal descriptors. What remains is the
   estimator's process (keyframes, resection, triangulation, the window, its priors); the rotation errors per axis of
