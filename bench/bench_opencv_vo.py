@@ -47,10 +47,12 @@ def sequence(name: str, frames: int, seed: int, height: int, width: int, root: P
     return open_sequence(out)
 
 
-def run_vo(camera) -> tuple[np.ndarray, np.ndarray, float]:
-    """Poses (N, 4, 4), degenerate flags (N,) and frames per second of the VO (images preloaded)."""
-    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in camera.images]
-    vo = OpenCVOdometry(camera.K)
+def run_vo(camera, images: list[np.ndarray] | None = None, **options) -> tuple[np.ndarray, np.ndarray, float]:
+    """Poses (N, 4, 4), degenerate flags (N,) and frames per second of the VO with ``options`` on ``images`` (8-bit
+    grey, preloaded; default: every frame of ``camera``)."""
+    if images is None:
+        images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in camera.images]
+    vo = OpenCVOdometry(camera.K, **options)
     poses, degenerate = [], []
     t0 = time.perf_counter()
     for image in images:

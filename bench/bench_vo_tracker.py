@@ -4,23 +4,22 @@ the median error of its frame-to-frame rotation and translation direction agains
     python bench/bench_vo_tracker.py [--sequences data/eval/front-left-6001 ... data/kitti/dataset/sequences/01]
                                      [--frames 150] [--settings default win_size=15 max_features=400,win_size=15]
 
-Each camera's frames are decoded to 8-bit grey first (the time is the odometry's alone, one thread); the settings run
-one after another on the same frames. Sequences need their true poses (renders; KITTI odometry with its poses file).
-Writes ``bench/results/vo_tracker.json``.
+Each camera's frames are decoded to 8-bit grey first (the time is the odometry's alone, one thread; the run and its
+errors as ``bench_opencv_vo.py`` counts them); the settings run one after another on the same frames. Sequences need
+their true poses (renders; KITTI odometry with its poses file). Writes ``bench/results/vo_tracker.json``.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
+from bench_opencv_vo import run_vo
 from common import shown_path, write_json
 
 from ocalib.data.layout import open_sequence
 from ocalib.eval.pose_metrics import step_errors
-from ocalib.frontend.opencv_vo import OpenCVOdometry
 
 DEFAULT_SEQUENCES = [
     *(f"data/eval/{preset}-{seed}" for preset in ("front-left", "handheld") for seed in (6001, 6002)),
@@ -37,15 +36,12 @@ def parse_setting(text: str) -> dict:
     return {key: int(value) for key, value in (item.split("=") for item in text.split(","))}
 
 
-def run(K: np.ndarray, frames: list[np.ndarray], truth: np.ndarray, setting: dict) -> dict:
-    """One camera's odometry over ``frames`` with the tracker ``setting`` -> ms a step, median errors (deg)."""
-    odometry, poses = OpenCVOdometry(K, **setting), [np.eye(4)]
-    start = time.perf_counter()
-    for frame in frames:
-        poses.append(poses[-1] @ odometry.step(frame))
-    ms = (time.perf_counter() - start) / len(frames) * 1000
-    errors = step_errors(np.stack(poses[1:]), truth)
-    return {"ms_per_step": ms, "rotation_deg": float(np.median(errors["rotation_deg"])),
+def run(camera, frames: list[np.ndarray], setting: dict) -> dict:
+    """One camera's odometry over ``frames`` with the tracker ``setting`` -> ms a step, median errors (deg) of its
+    motions that are not flagged degenerate (as :mod:`bench_opencv_vo` counts them)."""
+    poses, degenerate, fps = run_vo(camera, frames, **setting)
+    errors = step_errors(poses, np.asarray(camera.poses[: len(frames)]), ~degenerate)
+    return {"ms_per_step": 1000 / fps, "rotation_deg": float(np.median(errors["rotation_deg"])),
             "direction_deg": float(np.nanmedian(errors["direction_deg"]))}  # fmt: skip
 
 
@@ -67,7 +63,7 @@ def main() -> None:
             frames = [cam.read_grey(t) for t in range(n)]
             for setting in args.settings:
                 row = {"sequence": shown_path(path), "camera": k, "setting": setting}
-                row |= run(cam.K, frames, np.asarray(cam.poses[:n]), parse_setting(setting))
+                row |= run(cam, frames, parse_setting(setting))
                 rows.append(row)
                 print(f"{Path(path).name} cam{k} {setting:32} {row['ms_per_step']:6.1f} ms  rotation "
                       f"{row['rotation_deg']:.4f} deg  direction {row['direction_deg']:.3f} deg", flush=True)  # fmt: skip
