@@ -152,12 +152,12 @@ def rotation_errors(docs: dict[str, dict], root: Path) -> dict:
         return {}
     errors = np.array(errors)
 
-    def nees(e: np.ndarray) -> float:
+    def per_dof(e: np.ndarray) -> float:  # the NEES of errors e (N, 3) per degree of freedom
         return float(np.mean([x @ np.linalg.solve(P, x) for x, P in zip(e, covariances)]) / 3)
 
     spread = np.degrees(errors.std(0, ddof=1)).tolist() if len(errors) > 1 else None
     return {"cameras": len(errors), "mean_deg": np.degrees(errors.mean(0)).tolist(), "sd_deg": spread,
-            "nees_per_dof": nees(errors), "nees_per_dof_less_mean": nees(errors - errors.mean(0))}  # fmt: skip
+            "nees_per_dof": per_dof(errors), "nees_per_dof_less_mean": per_dof(errors - errors.mean(0))}  # fmt: skip
 
 
 def wilson(successes: int, n: int) -> tuple[float, float]:
